@@ -1,0 +1,29 @@
+//! Errors of the calibration layer. Each variant names the file or quantity it is about.
+
+use std::path::PathBuf;
+
+/// Errors raised by the calibration library.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    /// An image file could not be read or decoded.
+    #[error("image {path}: {reason}")]
+    Image { path: PathBuf, reason: String },
+    /// OpenCV reported an error during `operation`.
+    #[cfg(feature = "opencv")]
+    #[error("OpenCV {operation}: {source}")]
+    OpenCv {
+        operation: &'static str,
+        #[source]
+        source: opencv::Error,
+    },
+    /// A board description that cannot be detected (fewer than 2x2 inner corners).
+    #[error("board with {cols}x{rows} inner corners: at least 2x2 are needed")]
+    BoardTooSmall { cols: u32, rows: u32 },
+    /// A camera model parameter that is not finite or not positive where it must be.
+    #[error("camera model: {parameter} = {value} is not valid ({why})")]
+    InvalidModel {
+        parameter: &'static str,
+        value: f64,
+        why: &'static str,
+    },
+}

@@ -1,0 +1,2 @@
+//! `s3tir-train`: S³-TIR thermal splatting trainer.
+fn main() {}
