@@ -159,7 +159,10 @@ mod tests {
         assert_eq!(guess_role(&[fmt("Y16 "), fmt("GREY")]), Role::Thermal);
         assert_eq!(guess_role(&[fmt("GREY")]), Role::Thermal);
         // PureThermal: Y16 next to its colourised RGB stream.
-        assert_eq!(guess_role(&[fmt("UYVY"), fmt("Y16 "), fmt("RGB3")]), Role::Thermal);
+        assert_eq!(
+            guess_role(&[fmt("UYVY"), fmt("Y16 "), fmt("RGB3")]),
+            Role::Thermal
+        );
         assert_eq!(guess_role(&[fmt("MJPG"), fmt("YUYV")]), Role::Rgb);
         assert_eq!(guess_role(&[fmt("H264")]), Role::Unknown);
         assert_eq!(guess_role(&[]), Role::Unknown);
@@ -169,7 +172,10 @@ mod tests {
     fn fourcc_parses_and_prints_round_trip() {
         assert_eq!(FourCc::parse("Y16 ").unwrap(), FourCc::Y16);
         assert_eq!(FourCc::Y16.to_string(), "Y16 ");
-        assert!(FourCc::parse("Y16").is_err(), "three characters must be rejected");
+        assert!(
+            FourCc::parse("Y16").is_err(),
+            "three characters must be rejected"
+        );
         let json = serde_json::to_string(&FourCc::MJPG).unwrap();
         assert_eq!(json, "\"MJPG\"");
         assert_eq!(serde_json::from_str::<FourCc>(&json).unwrap(), FourCc::MJPG);

@@ -144,8 +144,9 @@ mod tests {
             0x01, 0x00, 0x02, 0x00, 0xff, 0xff, 0xaa, 0xaa, //
             0x34, 0x12, 0x00, 0x80, 0x00, 0x00,
         ];
-        let f = ThermalFrame::from_y16_buffer("test", &buf, 3, 2, 8, ThermalUnits::CentiKelvin, t0())
-            .unwrap();
+        let f =
+            ThermalFrame::from_y16_buffer("test", &buf, 3, 2, 8, ThermalUnits::CentiKelvin, t0())
+                .unwrap();
         assert_eq!(f.pixels, vec![1, 2, 0xffff, 0x1234, 0x8000, 0]);
         assert_eq!(f.time.sequence, 7);
     }
@@ -163,6 +164,9 @@ mod tests {
         )
         .unwrap_err();
         let msg = err.to_string();
-        assert!(msg.contains("/dev/video9") && msg.contains("expected 16"), "got: {msg}");
+        assert!(
+            msg.contains("/dev/video9") && msg.contains("expected 16"),
+            "got: {msg}"
+        );
     }
 }

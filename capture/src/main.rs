@@ -56,7 +56,10 @@ fn list(json: bool) -> Result<()> {
         return Ok(());
     }
     for d in &devices {
-        println!("{}  [{}]  {} ({}, {})", d.path, d.role, d.card, d.driver, d.bus);
+        println!(
+            "{}  [{}]  {} ({}, {})",
+            d.path, d.role, d.card, d.driver, d.bus
+        );
         for f in &d.formats {
             println!("    {}  {}", f.fourcc, f.description);
             for s in &f.sizes {
@@ -70,5 +73,7 @@ fn list(json: bool) -> Result<()> {
 
 #[cfg(not(feature = "v4l"))]
 fn list(_json: bool) -> Result<()> {
-    anyhow::bail!("this s3tir-capture was built without the `v4l` feature: it cannot list V4L2 devices")
+    anyhow::bail!(
+        "this s3tir-capture was built without the `v4l` feature: it cannot list V4L2 devices"
+    )
 }

@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
-use v4l::framesize::FrameSizeEnum;
 use v4l::frameinterval::FrameIntervalEnum;
+use v4l::framesize::FrameSizeEnum;
 use v4l::video::Capture;
 
 use crate::device::{DeviceInfo, FormatInfo, FourCc, FrameSize, guess_role};

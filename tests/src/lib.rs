@@ -9,7 +9,8 @@ use std::path::PathBuf;
 ///
 /// Panics with instructions when it is missing (the test was run with `-p s3tir-tests` only).
 pub fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("cannot locate test executable: {e}"));
+    let exe =
+        std::env::current_exe().unwrap_or_else(|e| panic!("cannot locate test executable: {e}"));
     // target/<profile>/deps/<test-exe> -> target/<profile>/<name>
     let profile_dir = exe
         .parent()

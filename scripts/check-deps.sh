@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Enforces the dependency directions of ARCHITECTURE.md with `cargo tree`:
+# - no crate depends on a crate of a higher layer (capture < calib < firmware-sim, trainer);
+# - slim builds stay slim: capture without OpenCV/Vulkan, calib and trainer without OpenCV
+#   when their default features are off, trainer never pulls OpenCV in.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+fail=0
+
+deps_of() {  # package, extra cargo-tree args...
+  local pkg=$1; shift
+  cargo tree -q -e normal -p "$pkg" --prefix none "$@" | awk '{print $1}' | sort -u
+}
+
+forbid() {  # label, list, forbidden crate names...
+  local label=$1 list=$2; shift 2
+  for bad in "$@"; do
+    if grep -qx "$bad" <<<"$list"; then
+      echo "check-deps: $label depends on $bad (forbidden by ARCHITECTURE.md)"; fail=1
+    fi
+  done
+}
+
+forbid "s3tir-capture" "$(deps_of s3tir-capture)" s3tir-calib s3tir-trainer s3tir-firmware-sim opencv ash
+forbid "s3tir-capture --no-default-features" "$(deps_of s3tir-capture --no-default-features)" v4l
+forbid "s3tir-calib" "$(deps_of s3tir-calib)" s3tir-trainer s3tir-firmware-sim ash
+forbid "s3tir-calib --no-default-features" "$(deps_of s3tir-calib --no-default-features)" opencv
+forbid "s3tir-trainer" "$(deps_of s3tir-trainer)" s3tir-firmware-sim opencv
+forbid "s3tir-trainer --no-default-features" "$(deps_of s3tir-trainer --no-default-features)" ash gpu-allocator opencv
+forbid "s3tir-firmware-sim" "$(deps_of s3tir-firmware-sim)" s3tir-trainer opencv ash
+
+if [ $fail -eq 0 ]; then echo "check-deps: dependency directions and slim builds OK"; fi
+exit $fail

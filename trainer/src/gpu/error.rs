@@ -1,0 +1,67 @@
+//! Errors of the Vulkan backend. Every variant names the device, call, buffer or feature.
+
+use ash::vk;
+
+/// Errors raised by the Vulkan backend.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// The Vulkan loader library could not be loaded.
+    #[error(
+        "no Vulkan loader ({reason}); install a loader and a driver (Debian: libvulkan1 and \
+         mesa-vulkan-drivers, which includes the lavapipe CPU driver)"
+    )]
+    LoaderMissing { reason: String },
+    /// The loader runs but offers no physical device.
+    #[error(
+        "the Vulkan loader found no device; install a driver (Debian: mesa-vulkan-drivers \
+         provides lavapipe) or check VK_ICD_FILENAMES"
+    )]
+    NoDevice,
+    /// A Vulkan call returned an error.
+    #[error("Vulkan {call} failed: {result}")]
+    Vk {
+        call: &'static str,
+        result: vk::Result,
+    },
+    /// The requested device index does not exist.
+    #[error(
+        "device index {index} out of range: {count} Vulkan device(s) (list them with `s3tir-train devices`)"
+    )]
+    DeviceIndexOutOfRange { index: usize, count: usize },
+    /// No device matched the requested name.
+    #[error("no Vulkan device name contains {pattern:?} (list them with `s3tir-train devices`)")]
+    NoDeviceNamed { pattern: String },
+    /// The device lacks something the requested work needs.
+    #[error("Vulkan device {device:?} lacks {feature}")]
+    MissingFeature { device: String, feature: String },
+    /// A device limit is below what the requested work needs.
+    #[error("Vulkan device {device:?}: {limit} is {actual}, {required} needed")]
+    LimitTooSmall {
+        device: String,
+        limit: &'static str,
+        required: u64,
+        actual: u64,
+    },
+    /// gpu-allocator could not provide memory.
+    #[error("GPU memory for {name} ({bytes} bytes): {reason}")]
+    Allocation {
+        name: String,
+        bytes: u64,
+        reason: String,
+    },
+    /// A shader is unknown or its SPIR-V is malformed.
+    #[error("shader {name}: {reason}")]
+    Shader { name: String, reason: String },
+    /// A host read or write does not fit a buffer.
+    #[error("buffer {name}: {requested_bytes} bytes requested, it holds {capacity_bytes}")]
+    BufferRange {
+        name: String,
+        requested_bytes: u64,
+        capacity_bytes: u64,
+    },
+}
+
+/// Maps a `vk::Result` error of `call` into [`GpuError::Vk`].
+pub(crate) fn vk_err(call: &'static str) -> impl Fn(vk::Result) -> GpuError {
+    move |result| GpuError::Vk { call, result }
+}

@@ -1,0 +1,99 @@
+//! The compute kernels of `trainer/shaders/`, compiled to SPIR-V by glslc in build.rs, and the
+//! interface each one has. A test checks that every compiled shader has an entry here and
+//! builds a pipeline from it on a real driver, so a broken shader cannot slip through.
+
+use super::context::{Capabilities, ComputeKernel, GpuContext};
+use super::error::GpuError;
+
+include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
+
+/// The host-side interface of a kernel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KernelSpec {
+    /// File stem in `trainer/shaders/` (`reduce_shared` for `reduce_shared.comp`).
+    pub name: &'static str,
+    /// Storage buffers at bindings 0.. of set 0.
+    pub storage_buffers: u32,
+    /// Size of the push-constant block.
+    pub push_constant_bytes: u32,
+    /// Needs subgroup arithmetic (subgroupAdd …) in compute.
+    pub needs_subgroup_arithmetic: bool,
+    /// Needs `atomicAdd(float)` on storage buffers.
+    pub needs_float_atomic_add: bool,
+}
+
+/// Every kernel's interface.
+pub const KERNELS: &[KernelSpec] = &[
+    KernelSpec {
+        name: "reduce_shared",
+        storage_buffers: 2,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "reduce_subgroup",
+        storage_buffers: 2,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: true,
+        needs_float_atomic_add: false,
+    },
+];
+
+/// The interface of kernel `name`.
+pub fn spec(name: &str) -> Result<&'static KernelSpec, GpuError> {
+    KERNELS
+        .iter()
+        .find(|k| k.name == name)
+        .ok_or_else(|| GpuError::Shader {
+            name: name.to_owned(),
+            reason: "no such kernel in trainer/shaders".to_owned(),
+        })
+}
+
+/// SPIR-V words of kernel `name`.
+pub fn spirv(name: &str) -> Result<Vec<u32>, GpuError> {
+    let bytes = SHADERS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, b)| *b)
+        .ok_or_else(|| GpuError::Shader {
+            name: name.to_owned(),
+            reason: "not compiled into this build".to_owned(),
+        })?;
+    ash::util::read_spv(&mut std::io::Cursor::new(bytes)).map_err(|e| GpuError::Shader {
+        name: name.to_owned(),
+        reason: format!("malformed SPIR-V: {e}"),
+    })
+}
+
+/// Whether a device with `caps` can run kernel `spec`; `Err` names the missing feature.
+pub fn check_supported(
+    spec: &KernelSpec,
+    caps: Capabilities,
+    device: &str,
+) -> Result<(), GpuError> {
+    let missing = |feature: &str| GpuError::MissingFeature {
+        device: device.to_owned(),
+        feature: format!("{feature} (needed by kernel {})", spec.name),
+    };
+    if spec.needs_subgroup_arithmetic && !caps.subgroup_arithmetic {
+        return Err(missing("subgroup arithmetic in compute shaders"));
+    }
+    if spec.needs_float_atomic_add && !caps.float_atomic_add {
+        return Err(missing("shaderBufferFloat32AtomicAdd"));
+    }
+    Ok(())
+}
+
+/// Builds the pipeline of kernel `name` on `ctx`, after checking the device supports it.
+pub fn build(ctx: &GpuContext, name: &str) -> Result<ComputeKernel, GpuError> {
+    let spec = spec(name)?;
+    check_supported(spec, ctx.capabilities(), &ctx.report().name)?;
+    ctx.create_kernel(
+        name,
+        &spirv(name)?,
+        spec.storage_buffers,
+        spec.push_constant_bytes,
+    )
+}

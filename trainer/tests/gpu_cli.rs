@@ -1,0 +1,75 @@
+//! Proves `s3tir-train devices` works as a user runs it: lists lavapipe with the properties the
+//! trainer needs (text and JSON), and exits non-zero with a clear message when the Vulkan
+//! loader finds no driver. Does NOT cover a machine with no loader library at all (the loader
+//! is installed system-wide here; that path is the `LoaderMissing` error of `VulkanInstance`).
+#![cfg(feature = "vulkan")]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::process::Command;
+
+fn train() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_s3tir-train"));
+    cmd.env_remove("RUST_BACKTRACE")
+        .env_remove("RUST_LIB_BACKTRACE");
+    cmd
+}
+
+#[test]
+fn devices_lists_lavapipe_with_limits_subgroups_and_atomics() {
+    let out = train().arg("devices").output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "exit {:?}, stderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for needle in [
+        "llvmpipe",
+        "Vulkan API",
+        "max range 128 MiB",
+        "32 KiB shared memory",
+        "subgroups         size 8",
+        "arithmetic",
+        "buffer add yes",
+    ] {
+        assert!(
+            text.contains(needle),
+            "`devices` output lacks {needle:?}:\n{text}"
+        );
+    }
+}
+
+#[test]
+fn devices_json_is_one_array_with_the_documented_fields() {
+    let out = train().args(["devices", "--json"]).output().unwrap();
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("stdout must be JSON");
+    let lvp = v
+        .as_array()
+        .and_then(|a| {
+            a.iter()
+                .find(|d| d["name"].as_str().is_some_and(|n| n.contains("llvmpipe")))
+        })
+        .unwrap_or_else(|| panic!("no llvmpipe in {v}"));
+    assert_eq!(lvp["max_storage_buffer_range_bytes"], 134_217_728u64);
+    assert_eq!(lvp["float_atomics"]["buffer_f32_add"], true);
+    assert!(lvp["subgroup_size"].as_u64().unwrap() >= 4);
+    assert!(lvp["driver_name"].is_string() && lvp["api_version"].is_string());
+}
+
+#[test]
+fn devices_without_a_driver_fails_with_the_reason() {
+    let out = train()
+        .arg("devices")
+        .env("VK_ICD_FILENAMES", "/nonexistent/s3tir-no-driver.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/s3tir-no-driver.json")
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "must exit non-zero without a driver");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("found no device") && err.contains("mesa-vulkan-drivers"),
+        "stderr: {err}"
+    );
+}
