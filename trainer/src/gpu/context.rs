@@ -559,11 +559,27 @@ impl GpuContext {
     where
         F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
     {
+        self.submit_inner(record, false).map(|_| ())
+    }
+
+    /// Like [`Self::submit`], and times every dispatch with timestamp queries: returns one
+    /// entry per dispatch, in recording order. Empty when the queue has no timestamps.
+    pub fn submit_profiled<F>(&self, record: F) -> Result<Vec<KernelTiming>, GpuError>
+    where
+        F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
+    {
+        self.submit_inner(record, self.caps.compute_timestamps)
+    }
+
+    fn submit_inner<F>(&self, record: F, profile: bool) -> Result<Vec<KernelTiming>, GpuError>
+    where
+        F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
+    {
         let d = &self.device;
         let pool_sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
             .descriptor_count(4096)];
-        // SAFETY (whole block): valid device; the pool and command buffer are released before
+        // SAFETY (whole block): valid device; the pools and command buffer are released before
         // returning, after the fence wait (or on the error paths without a submission).
         unsafe {
             let descriptor_pool = d
@@ -574,6 +590,31 @@ impl GpuContext {
                     None,
                 )
                 .map_err(vk_err("vkCreateDescriptorPool"))?;
+            let query_pool = if profile {
+                match d.create_query_pool(
+                    &vk::QueryPoolCreateInfo::default()
+                        .query_type(vk::QueryType::TIMESTAMP)
+                        .query_count(2 * MAX_TIMED_DISPATCHES),
+                    None,
+                ) {
+                    Ok(q) => Some(q),
+                    Err(result) => {
+                        d.destroy_descriptor_pool(descriptor_pool, None);
+                        return Err(GpuError::Vk {
+                            call: "vkCreateQueryPool",
+                            result,
+                        });
+                    }
+                }
+            } else {
+                None
+            };
+            let release_pools = || {
+                d.destroy_descriptor_pool(descriptor_pool, None);
+                if let Some(q) = query_pool {
+                    d.destroy_query_pool(q, None);
+                }
+            };
             let cmd = match d.allocate_command_buffers(
                 &vk::CommandBufferAllocateInfo::default()
                     .command_pool(self.command_pool)
@@ -582,7 +623,7 @@ impl GpuContext {
             ) {
                 Ok(c) => c[0],
                 Err(result) => {
-                    d.destroy_descriptor_pool(descriptor_pool, None);
+                    release_pools();
                     return Err(GpuError::Vk {
                         call: "vkAllocateCommandBuffers",
                         result,
@@ -596,12 +637,18 @@ impl GpuContext {
                         .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
                 )
                 .map_err(vk_err("vkBeginCommandBuffer"))?;
+                if let Some(q) = query_pool {
+                    d.cmd_reset_query_pool(cmd, q, 0, 2 * MAX_TIMED_DISPATCHES);
+                }
                 let mut recorder = Recorder {
                     ctx: self,
                     cmd,
                     descriptor_pool,
+                    query_pool,
+                    timed: Vec::new(),
                 };
                 record(&mut recorder)?;
+                let timed = std::mem::take(&mut recorder.timed);
                 d.end_command_buffer(cmd)
                     .map_err(vk_err("vkEndCommandBuffer"))?;
                 let fence = d
@@ -621,10 +668,30 @@ impl GpuContext {
                     let _ = d.device_wait_idle();
                 }
                 d.destroy_fence(fence, None);
-                waited
+                waited?;
+                let (Some(q), false) = (query_pool, timed.is_empty()) else {
+                    return Ok(Vec::new());
+                };
+                let mut ticks = vec![0u64; 2 * timed.len()];
+                d.get_query_pool_results(
+                    q,
+                    0,
+                    &mut ticks,
+                    vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                )
+                .map_err(vk_err("vkGetQueryPoolResults"))?;
+                let period_ns = f64::from(self.report.timestamp_period_ns);
+                Ok(timed
+                    .into_iter()
+                    .zip(ticks.chunks_exact(2))
+                    .map(|(kernel, t)| KernelTiming {
+                        kernel,
+                        duration_ns: t[1].saturating_sub(t[0]) as f64 * period_ns,
+                    })
+                    .collect())
             })();
             d.free_command_buffers(self.command_pool, &[cmd]);
-            d.destroy_descriptor_pool(descriptor_pool, None);
+            release_pools();
             result
         }
     }
@@ -643,6 +710,20 @@ pub struct Recorder<'a> {
     ctx: &'a GpuContext,
     cmd: vk::CommandBuffer,
     descriptor_pool: vk::DescriptorPool,
+    /// Timestamp queries when profiling: two per timed dispatch.
+    query_pool: Option<vk::QueryPool>,
+    /// Kernel names of the timed dispatches, in order.
+    timed: Vec<String>,
+}
+
+/// Most dispatches one profiled submission times; later ones run untimed.
+pub const MAX_TIMED_DISPATCHES: u32 = 1024;
+
+/// GPU time of one dispatch, from timestamp queries.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KernelTiming {
+    pub kernel: String,
+    pub duration_ns: f64,
 }
 
 impl std::fmt::Debug for Recorder<'_> {
@@ -739,7 +820,26 @@ impl Recorder<'_> {
                     push_constants,
                 );
             }
+            let query = match self.query_pool {
+                Some(q) if (self.timed.len() as u32) < MAX_TIMED_DISPATCHES => {
+                    let first = 2 * self.timed.len() as u32;
+                    self.timed.push(kernel.name.clone());
+                    Some((q, first))
+                }
+                _ => None,
+            };
+            if let Some((q, first)) = query {
+                d.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::COMPUTE_SHADER, q, first);
+            }
             d.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
+            if let Some((q, first)) = query {
+                d.cmd_write_timestamp(
+                    self.cmd,
+                    vk::PipelineStageFlags::COMPUTE_SHADER,
+                    q,
+                    first + 1,
+                );
+            }
         }
         Ok(())
     }

@@ -6,19 +6,26 @@
 //! - [`shaders`]: every GLSL kernel of `trainer/shaders/`, compiled to SPIR-V by glslc in build.rs,
 //!   with the interface (bindings, push constants, required features) the host uses to run it,
 //! - [`reduce`]: a parallel float sum, in a subgroup-arithmetic and a portable shared-memory
-//!   variant chosen at run time from the device's capabilities.
+//!   variant chosen at run time from the device's capabilities,
+//! - [`scan`], [`sort`]: exclusive prefix sum and stable 64-bit-key radix sort (tile binning and
+//!   depth ordering of the rasteriser),
+//! - [`accumulate`]: float scatter-add with `atomicAdd(float)` or a CAS-loop fallback.
 //!
 //! Devices without a feature get a typed [`GpuError`] naming it, checked when the context opens
 //! or when a kernel that needs it is created, never a driver crash mid-run.
 
+pub mod accumulate;
 pub mod context;
 pub mod devices;
 pub mod error;
 pub mod reduce;
+pub mod scan;
 pub mod shaders;
+pub mod sort;
 
 pub use context::{
-    Capabilities, ComputeKernel, DeviceChoice, GpuBuffer, GpuContext, MemoryLocation,
+    Capabilities, ComputeKernel, ContextOptions, DeviceChoice, GpuBuffer, GpuContext, KernelTiming,
+    MemoryLocation, Recorder,
 };
 pub use devices::{DeviceReport, VulkanInstance};
 pub use error::GpuError;

@@ -38,7 +38,54 @@ pub const KERNELS: &[KernelSpec] = &[
         needs_subgroup_arithmetic: true,
         needs_float_atomic_add: false,
     },
+    KernelSpec {
+        name: "scan_blocks",
+        storage_buffers: 2,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "scan_add",
+        storage_buffers: 2,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "radix_count",
+        storage_buffers: 2,
+        push_constant_bytes: 12,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "radix_scatter",
+        storage_buffers: 5,
+        push_constant_bytes: 12,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "accumulate_atomic",
+        storage_buffers: 3,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: true,
+    },
+    KernelSpec {
+        name: "accumulate_cas",
+        storage_buffers: 3,
+        push_constant_bytes: 4,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
 ];
+
+/// Push constants as the little-endian bytes of consecutive `u32` fields (std430 `uint`s).
+pub fn push_u32s(fields: &[u32]) -> Vec<u8> {
+    fields.iter().flat_map(|f| f.to_le_bytes()).collect()
+}
 
 /// The interface of kernel `name`.
 pub fn spec(name: &str) -> Result<&'static KernelSpec, GpuError> {
