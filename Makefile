@@ -15,13 +15,26 @@ deps:
 build: deps
 	$(CARGO) build --workspace --bins
 
-# The demo grows with each stage that lands; every step runs against the simulated rig.
+# The whole pipeline on the simulated rig: capture a session, calibrate the board set, train and
+# evaluate a small S3-TIR model. Every step runs against s3tir-firmware-sim; outputs in DEMO_DIR.
+DEMO_ITERS ?= 600
 demo: build
-	@echo "== Vulkan devices the trainer can use"
+	@mkdir -p $(DEMO_DIR)
+	@echo "== 1/5 Vulkan devices the trainer can use"
 	$(BIN)/s3tir-train devices
-	@echo "== V4L2 cameras attached to this computer (none on a CI machine)"
-	$(BIN)/s3tir-capture list
-	@echo "== demo finished; outputs in $(DEMO_DIR)"
+	@echo "== 2/5 Record 5 s from the simulated rig (Lepton 3.5 + RGB): starts s3tir-firmware-sim, stops it at exit"
+	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --out $(DEMO_DIR)/session.mcap --duration 5
+	$(BIN)/s3tir-capture info $(DEMO_DIR)/session.mcap
+	@echo "== 3/5 Calibrate: the simulated emissivity-board set (30 views), joint thermal + RGB solve"
+	$(BIN)/s3tir-firmware-sim board --out $(DEMO_DIR)/board --views 30
+	$(BIN)/s3tir-calib $(DEMO_DIR)/board --out $(DEMO_DIR)/calibration/calibration.yaml \
+	  --report $(DEMO_DIR)/calibration/report --summary-json $(DEMO_DIR)/calibration/summary.json
+	@echo "== 4/5 Train S3-TIR on the simulated thermal scene ($(DEMO_ITERS) iterations, CPU backend)"
+	$(BIN)/s3tir-firmware-sim scene --out $(DEMO_DIR)/scene
+	$(BIN)/s3tir-train $(DEMO_DIR)/scene --out $(DEMO_DIR)/run --iters $(DEMO_ITERS)
+	@echo "== 5/5 Evaluate the held-out views"
+	$(BIN)/s3tir-train eval $(DEMO_DIR)/run
+	@echo "== demo finished: session, calibration, trained model, plots and renders are in $(DEMO_DIR)"
 
 lint:
 	$(CARGO) fmt --all --check

@@ -191,7 +191,10 @@ mod tests {
         let p = d.distort(DVec2::new(0.5, -0.25));
         let want_x = 0.5 * 1.0322265625 + 2.0 * 0.001 * 0.5 * -0.25 + 0.002 * (0.3125 + 0.5);
         let want_y = -0.25 * 1.0322265625 + 0.001 * (0.3125 + 0.125) + 2.0 * 0.002 * 0.5 * -0.25;
-        assert!((p.x - want_x).abs() < 1e-15 && (p.y - want_y).abs() < 1e-15, "got {p}");
+        assert!(
+            (p.x - want_x).abs() < 1e-15 && (p.y - want_y).abs() < 1e-15,
+            "got {p}"
+        );
     }
 
     #[test]
@@ -199,7 +202,10 @@ mod tests {
         let cam = lepton_like();
         let px = cam.project(DVec3::new(0.0, 0.0, 2.0)).unwrap();
         assert!((px - DVec2::new(79.5, 59.5)).length() < 1e-12, "got {px}");
-        assert!(cam.project(DVec3::new(0.0, 0.0, -1.0)).is_none(), "behind camera must not project");
+        assert!(
+            cam.project(DVec3::new(0.0, 0.0, -1.0)).is_none(),
+            "behind camera must not project"
+        );
     }
 
     #[test]

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use glam::DVec2;
-use opencv::core::{Mat, Point2f, Scalar, Size, TermCriteria, TermCriteria_Type, Vector, CV_8UC1};
+use opencv::core::{CV_8UC1, Mat, Point2f, Scalar, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
 use opencv::{calib3d, imgproc};
 
@@ -86,8 +86,14 @@ pub fn find_chessboard(grey: &Mat, cols: u32, rows: u32) -> Result<Option<Detect
         1e-3,
     )
     .map_err(cv("TermCriteria"))?;
-    imgproc::corner_sub_pix(grey, &mut corners, Size::new(11, 11), Size::new(-1, -1), criteria)
-        .map_err(cv("cornerSubPix"))?;
+    imgproc::corner_sub_pix(
+        grey,
+        &mut corners,
+        Size::new(11, 11),
+        Size::new(-1, -1),
+        criteria,
+    )
+    .map_err(cv("cornerSubPix"))?;
     Ok(Some(Detection {
         corners_px: to_dvec(&corners),
         detector: Detector::Classic,

@@ -26,4 +26,21 @@ pub enum CalibError {
         value: f64,
         why: &'static str,
     },
+    /// `board.toml` missing, unreadable or invalid.
+    #[error("board description {path}: {reason}")]
+    BoardFile { path: PathBuf, reason: String },
+    /// The board folder cannot be listed.
+    #[error("board folder {path}: {reason}")]
+    BoardFolder { path: PathBuf, reason: String },
+    /// A recorded session was given; only folders are supported for now.
+    #[error(
+        "{path}: calibrating from a recorded session (.mcap) is not supported yet; extract the board frames into a folder (board.toml, thermal/, rgb/)"
+    )]
+    SessionUnsupported { path: PathBuf },
+    /// Nothing in the input can be calibrated.
+    #[error("{path}: nothing usable to calibrate: {reason}")]
+    NothingUsable { path: PathBuf, reason: String },
+    /// An output file could not be written.
+    #[error("writing {path}: {reason}")]
+    Output { path: PathBuf, reason: String },
 }

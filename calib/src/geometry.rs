@@ -71,7 +71,10 @@ mod tests {
         );
         let p = DVec3::new(0.4, 2.0, -1.0);
         let back = b_from_a.inverse().compose(&b_from_a).transform_point(p);
-        assert!((back - p).length() < 1e-12, "a_from_b * b_from_a moved {p} to {back}");
+        assert!(
+            (back - p).length() < 1e-12,
+            "a_from_b * b_from_a moved {p} to {back}"
+        );
         let c_from_b = Rigid3::new(DQuat::from_rotation_z(0.5), DVec3::X);
         let c_from_a = c_from_b.compose(&b_from_a);
         let want = c_from_b.transform_point(b_from_a.transform_point(p));

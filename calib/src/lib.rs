@@ -4,11 +4,29 @@
 //! the trainer and the simulated rig share the exact model calibration solves.
 //! Conventions (frames, pixel-centre origin, units) are in `docs/CONVENTIONS.md`.
 
+#[cfg(feature = "opencv")]
+pub mod bench;
+#[cfg(feature = "opencv")]
+pub mod board;
 pub mod camera;
 #[cfg(feature = "opencv")]
 pub mod detect;
 pub mod error;
+#[cfg(feature = "opencv")]
+pub mod export;
+#[cfg(feature = "opencv")]
+pub mod frontend;
 pub mod geometry;
+#[cfg(feature = "opencv")]
+pub mod pipeline;
+#[cfg(feature = "opencv")]
+pub mod report;
+#[cfg(feature = "opencv")]
+pub mod solve;
+#[cfg(feature = "opencv")]
+pub mod synth;
+#[cfg(feature = "opencv")]
+pub mod tags;
 
 pub use camera::{BrownConrady, CameraModel, Intrinsics};
 pub use error::CalibError;

@@ -3,18 +3,58 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use clap::{Parser, Subcommand};
-use s3tir_calib::detect;
+use clap::{Args, Parser, Subcommand};
+use s3tir_calib::pipeline::{self, PipelineOptions};
+use s3tir_calib::solve::SolveOptions;
+use s3tir_calib::tags::{self, TagConfig, TagDetector};
+use s3tir_calib::{bench, detect, export, report};
 
 /// Calibrate a thermal + RGB camera rig with an emissivity-coated checkerboard.
 ///
-/// `detect` finds a chessboard's inner corners in images (OpenCV's sector-based detector,
-/// then the classic detector with sub-pixel refinement) and prints them.
+/// `s3tir-calib BOARD_DIR` reads `BOARD_DIR/board.toml` (`[board] inner_corners = [cols, rows]`,
+/// `square_mm`, optional `thermal_polarity` = auto | coated_dark | coated_bright and
+/// `thermal_palette` = auto | ironbow | inferno | luminance) and the images in
+/// `BOARD_DIR/thermal/` and `BOARD_DIR/rgb/` (16-bit PNG/TIFF, 8-bit grey, pseudo-colour,
+/// RGB/RGBA). Images pair by equal file stem, or equal after dropping a leading `name_`
+/// prefix (`thermal_0001.png` ↔ `rgb_0001.png`). It detects the board, initialises each
+/// camera with OpenCV's calibrateCamera, then solves both cameras' intrinsics, the
+/// thermal↔RGB extrinsic and all board poses in one robust Levenberg–Marquardt, and prints a
+/// summary. Files that cannot be used are listed with the reason; the run fails only when
+/// nothing is usable. Recorded sessions (.mcap) are not supported yet.
 #[derive(Debug, Parser)]
-#[command(name = "s3tir-calib", version, about, long_about)]
+#[command(
+    name = "s3tir-calib",
+    version,
+    about,
+    long_about,
+    args_conflicts_with_subcommands = true
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    calibrate: CalibrateArgs,
+}
+
+#[derive(Debug, Args)]
+struct CalibrateArgs {
+    /// Board folder (board.toml, thermal/, rgb/).
+    board_dir: Option<PathBuf>,
+    /// Where to write calibration.yaml; the exports (OpenCV, Kalibr, COLMAP, ROS) go beside it.
+    #[arg(long, default_value = "calibration.yaml")]
+    out: PathBuf,
+    /// Write a markdown report with PNG plots into this folder.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Write the machine-readable summary (one JSON object) here.
+    #[arg(long)]
+    summary_json: Option<PathBuf>,
+    /// Reject corners whose residual exceeds this many σ of their camera.
+    #[arg(long, default_value_t = 4.0)]
+    reject_sigma: f64,
+    /// Huber threshold of the robust loss, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    huber_px: f64,
 }
 
 #[derive(Debug, Subcommand)]
@@ -29,14 +69,196 @@ enum Command {
         #[arg(required = true)]
         images: Vec<PathBuf>,
     },
+    /// End-to-end benchmark on a synthetic Lepton + 720p board set: our detection + joint solve
+    /// next to OpenCV's stereoCalibrate on the same detections, printed as a ratio.
+    Bench {
+        /// Number of synthetic pairs.
+        #[arg(long, default_value_t = 50)]
+        pairs: usize,
+        /// Seed of the synthetic set.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// Working folder for the generated images (default: a new folder under the temp dir).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+    },
+    /// Detect AprilTags (tag36h11) in each image and print id, hamming, decision margin and the
+    /// four corners (pixels, origin at the centre of the top-left pixel; order bottom-left,
+    /// bottom-right, top-right, top-left of the upright tag). Colour images are converted with
+    /// BT.601 luma. Exits non-zero if any image has no tag.
+    Tags {
+        /// Keep only these ids (comma-separated, e.g. 0,3,7); default: every id.
+        #[arg(long, value_delimiter = ',')]
+        ids: Vec<u32>,
+        /// Decimate the image by this factor for quad detection (1 = full resolution).
+        #[arg(long, default_value_t = 1.0)]
+        quad_decimate: f32,
+        /// Snap quad edges to nearby gradients (useful with --quad-decimate > 1; shifts exact
+        /// corners by about -1/8 px).
+        #[arg(long)]
+        refine_edges: bool,
+        /// Image files (PNG, JPEG, TIFF).
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
 }
 
 fn parse_corners(text: &str) -> Result<(u32, u32), String> {
     let (c, r) = text
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("{text:?}: expected COLSxROWS, e.g. 9x6"))?;
-    let parse = |s: &str| s.trim().parse::<u32>().map_err(|e| format!("{text:?}: {e}"));
+    let parse = |s: &str| {
+        s.trim()
+            .parse::<u32>()
+            .map_err(|e| format!("{text:?}: {e}"))
+    };
     Ok((parse(c)?, parse(r)?))
+}
+
+fn run_detect(cols: u32, rows: u32, images: &[PathBuf]) -> Result<()> {
+    let mut missing = 0usize;
+    for path in images {
+        let grey = detect::read_grey(path)?;
+        let mat = detect::mat_from_luma(&grey)?;
+        match detect::find_chessboard(&mat, cols, rows)
+            .with_context(|| format!("detecting the board in {}", path.display()))?
+        {
+            Some(d) => {
+                println!(
+                    "{}: {} corners ({:?})",
+                    path.display(),
+                    d.corners_px.len(),
+                    d.detector
+                );
+                for c in &d.corners_px {
+                    println!("  {:.3} {:.3}", c.x, c.y);
+                }
+            }
+            None => {
+                missing += 1;
+                println!("{}: no {cols}x{rows} board found", path.display());
+            }
+        }
+    }
+    if missing > 0 {
+        bail!(
+            "{missing} of {} images had no {cols}x{rows} board",
+            images.len()
+        );
+    }
+    Ok(())
+}
+
+fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
+    let Some(dir) = &args.board_dir else {
+        bail!("missing BOARD_DIR (see --help)");
+    };
+    let opts = PipelineOptions {
+        solve: SolveOptions {
+            huber_px: args.huber_px,
+            reject_sigma: args.reject_sigma,
+            ..SolveOptions::default()
+        },
+        progress: true,
+    };
+    let cal = pipeline::calibrate_folder(dir, &opts)
+        .with_context(|| format!("calibrating from {}", dir.display()))?;
+    let written = export::write_all(&cal, &args.out)?;
+    if let Some(path) = &args.summary_json {
+        export::write_summary(&cal, path)?;
+    }
+    if let Some(report_dir) = &args.report {
+        report::write_report(&cal, report_dir)?;
+        println!("report: {}", report_dir.join("report.md").display());
+    }
+    for r in cal.cameras.iter().flatten() {
+        let (i, s) = (r.model.intrinsics, r.sigma);
+        println!(
+            "{:7}: {} images, board in {}, used {}; RMS {:.3} px; fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
+            r.camera.name(),
+            r.images,
+            r.views_found,
+            r.views_used,
+            r.rms_px,
+            i.fx,
+            s.fx,
+            i.fy,
+            s.fy,
+            i.cx,
+            s.cx,
+            i.cy,
+            s.cy
+        );
+    }
+    if let Some(t) = cal.rgb_from_thermal {
+        let (_, angle) = t.rotation.to_axis_angle();
+        println!(
+            "rgb_from_thermal: {} pairs, rotation {:.3}°, translation ({:.4}, {:.4}, {:.4}) m; joint RMS {:.3} px",
+            cal.pairs_used,
+            angle.to_degrees(),
+            t.translation_m.x,
+            t.translation_m.y,
+            t.translation_m.z,
+            cal.joint_rms_px
+        );
+    }
+    for w in &cal.warnings {
+        println!("warning: {w}");
+    }
+    for p in &cal.problems {
+        println!("skipped: {}: {}", p.path.display(), p.reason);
+    }
+    if !cal.rejected.is_empty() {
+        println!(
+            "rejected {} outlier corners (see the report)",
+            cal.rejected.len()
+        );
+    }
+    println!(
+        "wrote {}",
+        written
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(())
+}
+
+fn run_tags(config: TagConfig, images: &[PathBuf]) -> Result<()> {
+    let mut detector = TagDetector::new(config)?;
+    let mut missing = 0usize;
+    for path in images {
+        let decoded =
+            image::open(path).with_context(|| format!("reading image {}", path.display()))?;
+        let grey = match decoded {
+            image::DynamicImage::ImageLuma8(g) => g,
+            other => tags::luma_bt601(&other.to_rgb8()),
+        };
+        let found = detector.detect(&grey, path)?;
+        println!("{}: {} tags", path.display(), found.len());
+        if found.is_empty() {
+            missing += 1;
+        }
+        for t in &found {
+            let corners: Vec<String> = t
+                .corners_px
+                .iter()
+                .map(|c| format!("({:.4} {:.4})", c[0], c[1]))
+                .collect();
+            println!(
+                "  id {} hamming {} margin {:.1}: {}",
+                t.id,
+                t.hamming,
+                t.decision_margin,
+                corners.join(", ")
+            );
+        }
+    }
+    if missing > 0 {
+        bail!("{missing} of {} images had no tag", images.len());
+    }
+    Ok(())
 }
 
 fn main() -> Result<()> {
@@ -46,34 +268,34 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {
-        Command::Detect {
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Detect {
             inner_corners: (cols, rows),
             images,
-        } => {
-            let mut missing = 0usize;
-            for path in &images {
-                let grey = detect::read_grey(path)?;
-                let mat = detect::mat_from_luma(&grey)?;
-                match detect::find_chessboard(&mat, cols, rows)
-                    .with_context(|| format!("detecting the board in {}", path.display()))?
-                {
-                    Some(d) => {
-                        println!("{}: {} corners ({:?})", path.display(), d.corners_px.len(), d.detector);
-                        for c in &d.corners_px {
-                            println!("  {:.3} {:.3}", c.x, c.y);
-                        }
-                    }
-                    None => {
-                        missing += 1;
-                        println!("{}: no {cols}x{rows} board found", path.display());
-                    }
-                }
-            }
-            if missing > 0 {
-                bail!("{missing} of {} images had no {cols}x{rows} board", images.len());
-            }
+        }) => run_detect(cols, rows, &images),
+        Some(Command::Bench { pairs, seed, dir }) => {
+            let dir = dir.unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("s3tir-calib-bench-{}", std::process::id()))
+            });
+            let figures = bench::run(&dir, pairs, seed)?;
+            println!("{figures}");
             Ok(())
         }
+        Some(Command::Tags {
+            ids,
+            quad_decimate,
+            refine_edges,
+            images,
+        }) => {
+            let config = TagConfig {
+                quad_decimate,
+                refine_edges,
+                ..TagConfig::default()
+            }
+            .with_board_ids(&ids);
+            run_tags(config, &images)
+        }
+        None => run_calibrate(&cli.calibrate),
     }
 }

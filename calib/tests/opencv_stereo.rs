@@ -34,14 +34,24 @@ fn finds_all_54_corners_in_left01() {
         .unwrap()
         .unwrap_or_else(|| panic!("no 9x6 board found in {}", path.display()));
     assert_eq!(det.corners_px.len(), 54, "want 9x6 = 54 corners");
-    assert_eq!(det.detector, Detector::SectorBased, "SB detector should find this board");
+    assert_eq!(
+        det.detector,
+        Detector::SectorBased,
+        "SB detector should find this board"
+    );
     for c in &det.corners_px {
-        assert!(c.x > 0.0 && c.x < 639.0 && c.y > 0.0 && c.y < 479.0, "corner {c} outside the image");
+        assert!(
+            c.x > 0.0 && c.x < 639.0 && c.y > 0.0 && c.y < 479.0,
+            "corner {c} outside the image"
+        );
     }
     // Neighbouring corners along a row are one square apart: roughly equal spacing.
     let d01 = (det.corners_px[1] - det.corners_px[0]).length();
     let d12 = (det.corners_px[2] - det.corners_px[1]).length();
-    assert!((d01 / d12 - 1.0).abs() < 0.2, "row spacing {d01} vs {d12} not a chessboard row");
+    assert!(
+        (d01 / d12 - 1.0).abs() < 0.2,
+        "row spacing {d01} vs {d12} not a chessboard row"
+    );
 }
 
 #[test]
@@ -52,7 +62,9 @@ fn opencv_calibration_on_our_detections_matches_the_reference() {
     let board: Vector<Point3f> = (0..6)
         .flat_map(|r| (0..9).map(move |c| Point3f::new(c as f32 * 25.0, r as f32 * 25.0, 0.0)))
         .collect();
-    let names = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"];
+    let names = [
+        "01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14",
+    ];
     for n in names {
         let path = dir.join(format!("left{n}.jpg"));
         let mat = detect::mat_from_luma(&detect::read_grey(&path).unwrap()).unwrap();
@@ -93,7 +105,16 @@ fn opencv_calibration_on_our_detections_matches_the_reference() {
     let cx = *k.at_2d::<f64>(0, 2).unwrap();
     // Reference (shared/data/README.md): SB detector, left camera RMS 0.235 px; OpenCV's own
     // left_intrinsics.yml: f = 535.9, c = (342.3, 235.6).
-    assert!(rms < 0.30, "RMS {rms:.3} px, want < 0.30 (reference 0.235 px)");
-    assert!((fx - 535.9).abs() / 535.9 < 0.02, "fx {fx:.1}, want 535.9 within 2 %");
-    assert!((cx - 342.3).abs() < 10.0, "cx {cx:.1}, want 342.3 within 10 px");
+    assert!(
+        rms < 0.30,
+        "RMS {rms:.3} px, want < 0.30 (reference 0.235 px)"
+    );
+    assert!(
+        (fx - 535.9).abs() / 535.9 < 0.02,
+        "fx {fx:.1}, want 535.9 within 2 %"
+    );
+    assert!(
+        (cx - 342.3).abs() < 10.0,
+        "cx {cx:.1}, want 342.3 within 10 px"
+    );
 }

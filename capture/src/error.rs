@@ -14,7 +14,9 @@ pub enum CaptureError {
         source: std::io::Error,
     },
     /// A buffer does not have the size its format says it must have.
-    #[error("{device}: frame buffer of {actual_bytes} bytes, expected {expected_bytes} for {width}x{height} {fourcc}")]
+    #[error(
+        "{device}: frame buffer of {actual_bytes} bytes, expected {expected_bytes} for {width}x{height} {fourcc}"
+    )]
     BufferSize {
         device: String,
         fourcc: String,
@@ -26,4 +28,57 @@ pub enum CaptureError {
     /// A fourcc that is not four ASCII bytes.
     #[error("invalid fourcc {text:?}: must be exactly four ASCII characters")]
     InvalidFourcc { text: String },
+    /// A buffer whose contents are not a valid frame (truncated MJPEG, bad telemetry, wrong
+    /// format): counted and never recorded as a good frame.
+    #[error("{device}: frame {sequence} is corrupt: {reason}")]
+    CorruptBuffer {
+        device: String,
+        sequence: u32,
+        reason: String,
+    },
+    /// Reading or writing a session file failed.
+    #[error("session {path}: {what}: {source}")]
+    SessionIo {
+        path: PathBuf,
+        what: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The MCAP layer refused a record.
+    #[error("session {path}: {what}: {source}")]
+    Mcap {
+        path: PathBuf,
+        what: &'static str,
+        #[source]
+        source: mcap::McapError,
+    },
+    /// A message in a session does not decode as its channel says.
+    #[error("session {path}: message on {topic} (sequence {sequence}): {reason}")]
+    SessionMessage {
+        path: PathBuf,
+        topic: String,
+        sequence: u32,
+        reason: String,
+    },
+    /// A device (V4L2 node, simulated rig socket) stopped delivering or cannot be used.
+    #[error("device {device}: {reason}")]
+    DeviceUnavailable { device: String, reason: String },
+    /// The device cannot deliver any format the role needs.
+    #[error("device {device}: no usable format for {role}: offers [{offered}], wants [{wanted}]")]
+    NoUsableFormat {
+        device: String,
+        role: String,
+        offered: String,
+        wanted: String,
+    },
+    /// A serial exchange failed (timeout, CRC, status, sequence mismatch).
+    #[error("serial {port}: {command}: {reason}")]
+    Serial {
+        port: String,
+        command: String,
+        reason: String,
+    },
+    /// Writing an exported image failed.
+    #[error("export {path}: {reason}")]
+    Export { path: PathBuf, reason: String },
 }

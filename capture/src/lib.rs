@@ -11,7 +11,38 @@
 pub mod device;
 pub mod error;
 pub mod frame;
+/// Boson FSLP serial codec (shared with the simulated rig).
+pub mod fslp;
+/// Rig controller serial protocol codec (shared with the simulated rig).
+pub mod rig_protocol;
+/// V4L2-shaped frames over a local socket (simulated rig -> capture).
+pub mod simwire;
 #[cfg(feature = "v4l")]
 pub mod v4l2;
 
 pub use error::CaptureError;
+/// Recorder throughput benchmark (`s3tir-capture bench`).
+pub mod bench;
+/// The capture daemon (tokio, bounded queue, reconnect, clean shutdown).
+pub mod daemon;
+/// Thermal↔RGB pairing, drop detection, sync statistics.
+pub mod pairing;
+/// Parse → drop detection → pairing: the path of every frame, live or replayed.
+pub mod pipeline;
+/// Serial clients: FLIR Boson (FSLP) and rig controller.
+pub mod serial;
+/// MCAP sessions: writer and crash-tolerant reader.
+pub mod session;
+/// Simulated-rig backend (`--device sim`) and an in-process fake rig.
+pub mod sim_backend;
+/// Deterministic synthetic device buffers (bench load, test fakes).
+pub mod synth;
+/// Lepton telemetry rows (160×122 mode) decoding.
+pub mod telemetry;
+/// `info`, `replay`, `export` over recorded sessions.
+pub mod tools;
+/// V4L2 format negotiation and buffer interpretation (pure; tested without a camera).
+pub mod v4l2_negotiate;
+/// V4L2 mmap streaming with poll + timeout (feature `v4l`).
+#[cfg(feature = "v4l")]
+pub mod v4l2_stream;

@@ -1,17 +1,85 @@
 //! `s3tir-capture`: thermal + RGB capture for s3tir rigs.
 
-use anyhow::Result;
-use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
-/// Capture radiometric thermal (Y16) and RGB video from a rig's cameras over V4L2.
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use s3tir_capture::daemon::{self, Counters, DaemonConfig, SourceSpec};
+use s3tir_capture::device::{FrameSource, Role};
+use s3tir_capture::frame::ThermalUnits;
+use s3tir_capture::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
+use s3tir_capture::session::SessionInfo;
+use s3tir_capture::sim_backend::{self, SimSource, SimSpec};
+use s3tir_capture::{serial, tools};
+
+/// Capture radiometric thermal (Y16) and RGB video from a rig's cameras over V4L2 (or the
+/// simulated rig) into a crash-safe MCAP session; inspect, replay and export sessions.
 ///
-/// Lists the cameras attached to this computer with their formats, sizes and rates, and
-/// guesses which is the thermal core (16-bit or grey-only formats) and which the RGB camera.
+/// Record:  s3tir-capture --device /dev/video0 --rgb /dev/video2 --out session.mcap
+///          s3tir-capture --device sim --rgb sim --out session.mcap --duration 10
 #[derive(Debug, Parser)]
-#[command(name = "s3tir-capture", version, about, long_about)]
+#[command(
+    name = "s3tir-capture",
+    version,
+    about,
+    long_about,
+    args_conflicts_with_subcommands = true
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    record: RecordArgs,
+}
+
+#[derive(Debug, Args)]
+struct RecordArgs {
+    /// Thermal camera: a V4L2 node (/dev/video0, /dev/s3tir/boson) or the simulated rig
+    /// (`sim`, `sim:boson640`, `sim:lepton35`; started from beside this program when none runs).
+    #[arg(long)]
+    device: Option<String>,
+    /// RGB camera: a V4L2 node, or `sim` for the simulated rig's RGB camera.
+    #[arg(long)]
+    rgb: Option<String>,
+    /// Boson FSLP serial port (CDC-ACM, e.g. /dev/s3tir/boson-serial): serial number and FPA
+    /// temperature are recorded in the session metadata.
+    #[arg(long)]
+    serial: Option<String>,
+    /// Rig controller serial port: with --trigger-rate, triggers both cameras and pairs frames
+    /// by trigger counter.
+    #[arg(long)]
+    rig_serial: Option<String>,
+    /// Hardware trigger rate in Hz (needs --rig-serial).
+    #[arg(long)]
+    trigger_rate: Option<f64>,
+    /// Output session file (MCAP).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Stop after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Socket of the simulated rig (default: $XDG_RUNTIME_DIR/s3tir-sim-UID.sock).
+    #[arg(long)]
+    sim_socket: Option<PathBuf>,
+    /// Thermal↔RGB pairing tolerance in milliseconds (nearest-timestamp pairing).
+    #[arg(long, default_value_t = DEFAULT_TOLERANCE_NS as f64 / 1e6)]
+    pair_tolerance_ms: f64,
+    /// Capacity of the reader→writer queue in frames; when the disk falls behind, frames
+    /// beyond it are dropped and counted.
+    #[arg(long, default_value_t = 64)]
+    queue_frames: usize,
+    /// Thermal words are TLinear centikelvin (else raw counts); recorded in the metadata.
+    #[arg(long)]
+    tlinear: bool,
+    /// Largest RGB size to negotiate, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1920x1080")]
+    rgb_max_size: String,
+    /// Calibration file (s3tir-calib TOML) attached to the session.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -19,6 +87,49 @@ enum Command {
     /// List V4L2 capture devices: path, driver, card, formats with sizes and rates, role guess.
     List {
         /// Print one JSON array instead of the table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Summarise a session: streams, counts, duration, drops, FFC frames, sync statistics,
+    /// and whether the file was truncated (recorder killed): it is read up to its last
+    /// complete chunk.
+    Info {
+        file: PathBuf,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Push every recorded frame through the live capture pipeline again (parse, drop
+    /// detection, pairing); prints the frame digest, which equals `info`'s when every frame
+    /// is byte-identical.
+    Replay {
+        file: PathBuf,
+        /// Pace frames at their recorded rate.
+        #[arg(long)]
+        realtime: bool,
+        /// Write what the pipeline produces as a new session.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Export paired frames in the s3tir-calib board-folder layout: thermal/NNNN.png (16-bit)
+    /// and rgb/NNNN.png, pair k under the same name.
+    Export {
+        file: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
+    /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time.
+    Bench {
+        /// Seconds of camera time to record.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Where to write the bench session (deleted afterwards).
+        #[arg(long)]
+        out: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -33,8 +144,292 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.command {
-        Command::List { json } => list(json),
+        Some(Command::List { json }) => list(json),
+        Some(Command::Info { file, json }) => info(&file, json),
+        Some(Command::Replay {
+            file,
+            realtime,
+            out,
+            json,
+        }) => replay(&file, realtime, out, json),
+        Some(Command::Export { file, out }) => {
+            let n = tools::export(&file, &out)?;
+            println!("exported {n} pairs to {}", out.display());
+            Ok(())
+        }
+        Some(Command::Bench { seconds, out, json }) => bench(seconds, out, json),
+        None => record(cli.record),
     }
+}
+
+fn info(file: &std::path::Path, json: bool) -> Result<()> {
+    let s = tools::info(file)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!("{}", s.path.display());
+    if s.truncated {
+        println!(
+            "  TRUNCATED: read up to the last complete chunk ({})",
+            s.truncation_reason.as_deref().unwrap_or("")
+        );
+    }
+    println!(
+        "  duration {:.2} s, {} chunks, device {}",
+        s.duration_s, s.chunks, s.thermal_device
+    );
+    for (name, st) in &s.streams {
+        println!(
+            "  {name:8} frames {:6}  drops {:4} (queue {})  ffc {:4}  rejected {}",
+            st.frames, st.drops, st.queue_drops, st.ffc_frames, st.rejected
+        );
+    }
+    println!(
+        "  pairs {}  sync error mean {:.3} ms, rms {:.3} ms, max |{:.3}| ms",
+        s.pairs,
+        s.sync.mean_ns / 1e6,
+        s.sync.rms_ns / 1e6,
+        s.sync.max_abs_ns as f64 / 1e6
+    );
+    println!(
+        "  reconnects {}  frame digest {}",
+        s.reconnects, s.frame_digest
+    );
+    Ok(())
+}
+
+fn replay(file: &std::path::Path, realtime: bool, out: Option<PathBuf>, json: bool) -> Result<()> {
+    let r = tools::replay(file, out.as_deref(), realtime, None, |_| {})?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "replayed {} frames ({} rejected), {} pairs ({} differ from the recording), {} drops{}; frame digest {}",
+            r.frames,
+            r.rejected,
+            r.pairs,
+            r.pair_mismatches,
+            r.drops,
+            if r.truncated {
+                ", source truncated"
+            } else {
+                ""
+            },
+            r.frame_digest
+        );
+    }
+    if r.pair_mismatches > 0 {
+        bail!(
+            "replay paired {} frames differently from the recording",
+            r.pair_mismatches
+        );
+    }
+    Ok(())
+}
+
+fn bench(seconds: f64, out: Option<PathBuf>, json: bool) -> Result<()> {
+    let dir = tempfile_dir()?;
+    let path = out.unwrap_or_else(|| dir.join("bench.mcap"));
+    let r = s3tir_capture::bench::run(&path, seconds, (1920, 1080))?;
+    let _ = std::fs::remove_file(&path);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "recorded {:.1} s of Boson 640x512 Y16@60 + RGB 1920x1080 MJPEG@30 ({} frames) in {:.2} s wall, {:.2} s CPU",
+            r.simulated_s, r.frames, r.wall_s, r.cpu_s
+        );
+        println!(
+            "  {:.1} frames/s sustained = {:.2}x real time; {:.0} us CPU per frame; {:.1} MB at {:.1} MB/s",
+            r.frames_per_s, r.realtime_ratio, r.cpu_us_per_frame, r.file_mb, r.write_mb_per_s
+        );
+    }
+    Ok(())
+}
+
+fn tempfile_dir() -> Result<PathBuf> {
+    let d = std::env::temp_dir().join(format!("s3tir-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&d).with_context(|| format!("create {}", d.display()))?;
+    Ok(d)
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once('x')
+        .with_context(|| format!("size {s:?} must be WIDTHxHEIGHT"))?;
+    Ok((w.parse()?, h.parse()?))
+}
+
+fn record(a: RecordArgs) -> Result<()> {
+    let Some(device) = a.device.clone() else {
+        bail!(
+            "nothing to do: give --device DEVICE --out FILE to record, or a subcommand (see --help)"
+        );
+    };
+    let Some(out) = a.out.clone() else {
+        bail!("--out FILE is required to record");
+    };
+    let mut info = SessionInfo {
+        tool: format!("s3tir-capture {}", env!("CARGO_PKG_VERSION")),
+        thermal_device: device.clone(),
+        rgb_device: a.rgb.clone(),
+        ..SessionInfo::default()
+    };
+    let mut pairing = PairingMode::Nearest {
+        tolerance_ns: (a.pair_tolerance_ms * 1e6).round() as u64,
+    };
+    let counters = Arc::new(Counters::default());
+    let mut sources = Vec::new();
+    let mut _sim_process = None;
+    let units = if a.tlinear {
+        ThermalUnits::CentiKelvin
+    } else {
+        ThermalUnits::RawCounts
+    };
+    if let Some(spec) = SimSpec::parse(&device) {
+        let spec = spec?;
+        let socket = a
+            .sim_socket
+            .clone()
+            .unwrap_or_else(sim_backend::default_socket);
+        _sim_process = sim_backend::ensure_sim_rig(&spec, a.rgb.is_some(), &socket)?;
+        info.notes = format!("simulated rig, profile {}", spec.profile);
+        sources.push(SourceSpec {
+            name: format!("sim:{}", socket.display()),
+            open: Box::new(move || {
+                SimSource::connect(&socket).map(|s| Box::new(s) as Box<dyn FrameSource>)
+            }),
+        });
+        if let Some(r) = &a.rgb
+            && r != "sim"
+        {
+            bail!("--device sim takes its RGB camera from the simulated rig: use --rgb sim");
+        }
+    } else {
+        sources.push(v4l2_source(&device, Role::Thermal, None, units)?);
+        if let Some(r) = &a.rgb {
+            let max = parse_size(&a.rgb_max_size)?;
+            sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?);
+        }
+    }
+    // A simulated rig started here serves the Boson FSLP firmware on a pty: use it.
+    let serial_port = a.serial.clone().or_else(|| {
+        _sim_process
+            .as_ref()
+            .and_then(|p: &sim_backend::SimRigProcess| p.announced("fslp_pty"))
+    });
+    let mut ffc_poll: Option<daemon::FfcPoller> = None;
+    if let Some(port) = &serial_port {
+        let opened = serial::open_port(port).and_then(|p| {
+            let mut c = serial::BosonClient::new(p, port);
+            let sn = c.serial_number()?;
+            let fpa = c.fpa_temp_ck()?;
+            Ok((c, sn, fpa))
+        });
+        match opened {
+            Ok((mut c, sn, fpa)) => {
+                tracing::info!("Boson serial {sn}, FPA {:.2} K", fpa as f64 / 100.0);
+                info.thermal_serial = Some(sn.to_string());
+                ffc_poll = Some(Box::new(move || {
+                    use s3tir_capture::frame::FfcState;
+                    use s3tir_capture::fslp::FfcStateCode;
+                    Ok(match c.ffc_state()? {
+                        FfcStateCode::InProgress => FfcState::InProgress,
+                        FfcStateCode::Imminent => FfcState::Imminent,
+                        FfcStateCode::NeverCommanded | FfcStateCode::Complete => FfcState::Idle,
+                    })
+                }));
+            }
+            Err(e) => {
+                counters
+                    .serial_errors
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                tracing::warn!("Boson serial control unavailable: {e}");
+            }
+        }
+    }
+    let mut rig = None;
+    if let Some(port) = &a.rig_serial {
+        let p = serial::open_port(port)?;
+        let mut c = serial::RigClient::new(p, port);
+        if let Some(hz) = a.trigger_rate {
+            c.start_trigger((hz * 1000.0).round() as u32)?;
+            pairing = PairingMode::TriggerCounter;
+        }
+        rig = Some(c);
+    }
+    info.pairing = serde_json::to_string(&pairing)?;
+    let calibration = match &a.calibration {
+        Some(p) => Some((
+            "calibration".to_owned(),
+            std::fs::read(p).with_context(|| format!("read {}", p.display()))?,
+        )),
+        None => None,
+    };
+    let cfg = DaemonConfig {
+        sources,
+        out: out.clone(),
+        info,
+        pairing,
+        duration: a.duration.map(Duration::from_secs_f64),
+        queue_frames: a.queue_frames,
+        status_line: true,
+        calibration,
+        slow_disk: None,
+        ffc_poll,
+    };
+    let report = daemon::run(cfg, Arc::new(AtomicBool::new(false)), counters)?;
+    if let Some(mut c) = rig
+        && a.trigger_rate.is_some()
+        && let Err(e) = c.stop_trigger()
+    {
+        tracing::warn!("could not stop the trigger: {e}");
+    }
+    eprintln!(
+        "recorded {}: thermal {} frames ({} drops, {} FFC, {} rejected), rgb {} frames ({} drops, {} rejected), {} pairs, {} queue drops, {} reconnects, {:.1} MB in {:.1} s",
+        out.display(),
+        report.thermal.frames,
+        report.thermal.drops,
+        report.thermal.ffc_frames,
+        report.thermal.rejected,
+        report.rgb.frames,
+        report.rgb.drops,
+        report.rgb.rejected,
+        report.pairs,
+        report.status.queue_drops_thermal + report.status.queue_drops_rgb,
+        report.status.reconnects,
+        report.bytes_written as f64 / 1e6,
+        report.elapsed_s
+    );
+    Ok(())
+}
+
+#[cfg(feature = "v4l")]
+fn v4l2_source(
+    path: &str,
+    role: Role,
+    max_size: Option<(u32, u32)>,
+    units: ThermalUnits,
+) -> Result<SourceSpec> {
+    let p = path.to_owned();
+    Ok(SourceSpec {
+        name: path.to_owned(),
+        open: Box::new(move || {
+            s3tir_capture::v4l2_stream::V4l2Source::open(&p, role, max_size, units)
+                .map(|s| Box::new(s) as Box<dyn FrameSource>)
+        }),
+    })
+}
+
+#[cfg(not(feature = "v4l"))]
+fn v4l2_source(
+    path: &str,
+    _role: Role,
+    _max_size: Option<(u32, u32)>,
+    _units: ThermalUnits,
+) -> Result<SourceSpec> {
+    bail!("{path}: this s3tir-capture was built without the `v4l` feature (use --device sim)")
 }
 
 #[cfg(feature = "v4l")]

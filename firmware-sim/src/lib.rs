@@ -3,3 +3,22 @@
 //! It plays the devices a real rig has, so that every command runs without hardware and every
 //! test has ground truth. It depends on `s3tir-capture` (frame types, wire protocols) and on the
 //! camera model of `s3tir-calib`; nothing depends on it except the end-to-end tests.
+//!
+//! - [`physics`]: in-band (8–14 µm) radiance, grey-body apparent radiance, TLinear inverse.
+//! - [`board`]: the emissivity-coated checkerboard and its heat model.
+//! - [`render`]: area-integrated rendering through the Brown–Conrady camera, PSF blur.
+//! - [`sensor`]: thermal core and RGB camera sensor models and profiles.
+//! - [`rig`]: the thermal + RGB rig geometry and board trajectories.
+//! - [`dataset`]: the `board` calibration set writer.
+
+pub mod board;
+pub mod dataset;
+pub mod error;
+pub mod physics;
+pub mod render;
+pub mod rig;
+pub mod scene;
+pub mod sensor;
+pub mod serve;
+
+pub use error::SimError;

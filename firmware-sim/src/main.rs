@@ -1,15 +1,255 @@
 //! `s3tir-firmware-sim`: the simulated s3tir rig.
 
-use anyhow::Result;
-use clap::Parser;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use s3tir_firmware_sim::board::BoardSpec;
+use s3tir_firmware_sim::dataset::{BoardSetConfig, Polarity, write_board_set};
+use s3tir_firmware_sim::rig::Rig;
+use s3tir_firmware_sim::scene::{SceneConfig, write_scene_set};
+use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
+use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
 
 /// The simulated s3tir rig: a thermal core, an RGB camera and the rig controller firmware,
 /// producing physically plausible frames and ground truth when no hardware is attached.
+///
+/// Everything is seeded: the same command with the same seed writes the same bytes.
 #[derive(Debug, Parser)]
 #[command(name = "s3tir-firmware-sim", version, about, long_about)]
-struct Cli {}
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum ProfileArg {
+    /// FLIR Lepton 3.5: 160×120 Y16 at 8.7 Hz.
+    Lepton35,
+    /// FLIR Boson 640: 640×512 Y16 at 60 Hz.
+    Boson640,
+}
+
+impl ProfileArg {
+    fn profile(self) -> ThermalProfile {
+        match self {
+            ProfileArg::Lepton35 => ThermalProfile::lepton35(),
+            ProfileArg::Boson640 => ThermalProfile::boson640(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum RgbFormatArg {
+    /// Motion JPEG (V4L2 `MJPG`), quality 85.
+    Mjpeg,
+    /// Packed YUYV 4:2:2 (V4L2 `YUYV`).
+    Yuyv,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum PolarityArg {
+    /// Board at 25 °C moved into −20 °C surroundings (TGA-GS): coated squares look colder.
+    Cooled,
+    /// Board at 25 °C moved into 70 °C surroundings: coated squares look warmer.
+    Heated,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Write a calibration set of the emissivity-coated board seen by the thermal and RGB
+    /// cameras: DIR/board.toml, DIR/thermal/NNNN.png (16-bit TLinear centikelvin),
+    /// DIR/rgb/NNNN.png (8-bit sRGB), DIR/truth.json (true cameras, extrinsic, board poses).
+    Board {
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of views.
+        #[arg(long, default_value_t = 30)]
+        views: usize,
+        /// Thermal core.
+        #[arg(long, value_enum, default_value = "lepton35")]
+        profile: ProfileArg,
+        /// Thermal-gradient induction of the board.
+        #[arg(long, value_enum, default_value = "cooled")]
+        polarity: PolarityArg,
+        /// Random seed (poses, noise).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Write a small thermal scene dataset for the trainer (heated pipe, box with an emissivity
+    /// edge, radiator panel, ground plane) seen from an orbit: COLMAP text model in
+    /// DIR/sparse/0/, 16-bit TLinear PNGs in DIR/images/, RGB in DIR/rgb/, ground-truth depth
+    /// and temperature in DIR/depth/ and DIR/temperature/.
+    Scene {
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of orbit views.
+        #[arg(long, default_value_t = 24)]
+        views: usize,
+        /// Image width, pixels.
+        #[arg(long, default_value_t = 160)]
+        width: u32,
+        /// Image height, pixels.
+        #[arg(long, default_value_t = 120)]
+        height: u32,
+        /// Random seed (noise, surface points).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Run the simulated rig in real time: frames over a Unix socket (simwire), the Boson FSLP
+    /// firmware and the rig controller on pseudo-terminals. Prints `key: value` lines
+    /// (`socket`, `fslp_pty`, `rig_pty`, `thermal`, `rgb`, `ready`) on stdout, then serves until
+    /// SIGINT/SIGTERM, stdin EOF (only when stdin is a pipe a parent holds) or the duration ends.
+    Run {
+        /// Thermal core.
+        #[arg(long, value_enum, default_value = "lepton35")]
+        profile: ProfileArg,
+        /// Also serve the RGB camera (1280×720 MJPEG at 30 Hz) on the same socket.
+        #[arg(long)]
+        rgb: bool,
+        /// Unix socket path to listen on (replaced if it exists).
+        #[arg(long)]
+        socket: PathBuf,
+        /// Stop after this many seconds (default: run until stopped).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// RGB camera in low light (2 % exposure: shot and read noise dominate).
+        #[arg(long)]
+        low_light: bool,
+        /// RGB output format.
+        #[arg(long, value_enum, default_value = "mjpeg")]
+        rgb_format: RgbFormatArg,
+        /// Append Lepton telemetry rows (160×122) to thermal frames.
+        #[arg(long)]
+        telemetry: bool,
+        /// Random seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+fn progress_bar(total: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(total as u64);
+    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}") {
+        bar.set_style(style);
+    }
+    bar.set_message(what.to_owned());
+    bar
+}
 
 fn main() -> Result<()> {
-    let _cli = Cli::parse();
-    anyhow::bail!("no simulation command is implemented yet; see --help")
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Command::Board {
+            out,
+            views,
+            profile,
+            polarity,
+            seed,
+        } => {
+            let start = Instant::now();
+            let cfg = BoardSetConfig {
+                out_dir: out.clone(),
+                views,
+                rig: Rig::new(profile.profile(), RgbProfile::hd720()),
+                board: BoardSpec::default(),
+                polarity: match polarity {
+                    PolarityArg::Cooled => Polarity::Cooled,
+                    PolarityArg::Heated => Polarity::Heated,
+                },
+                seed,
+                first_view_s: 60.0,
+                view_interval_s: 8.0,
+            };
+            let bar = progress_bar(views, "board views");
+            write_board_set(&cfg, &mut |done, _| bar.set_position(done as u64))
+                .with_context(|| format!("writing the board set to {}", out.display()))?;
+            bar.finish();
+            tracing::info!(
+                views,
+                seconds = start.elapsed().as_secs_f64(),
+                "board set written to {}",
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Scene {
+            out,
+            views,
+            width,
+            height,
+            seed,
+        } => {
+            let start = Instant::now();
+            let cfg = SceneConfig {
+                out_dir: out.clone(),
+                views,
+                width_px: width,
+                height_px: height,
+                seed,
+            };
+            let bar = progress_bar(views, "scene views");
+            write_scene_set(&cfg, &mut |done, _| bar.set_position(done as u64))
+                .with_context(|| format!("writing the scene set to {}", out.display()))?;
+            bar.finish();
+            tracing::info!(
+                views,
+                seconds = start.elapsed().as_secs_f64(),
+                "scene set written to {}",
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Run {
+            profile,
+            rgb,
+            socket,
+            duration,
+            rgb_format,
+            low_light,
+            telemetry,
+            seed,
+        } => {
+            let mut thermal = profile.profile();
+            if telemetry {
+                thermal.telemetry_rows = 2;
+            }
+            let cfg = ServeConfig {
+                thermal,
+                rgb: rgb.then(|| {
+                    if low_light {
+                        RgbProfile::hd720_low_light()
+                    } else {
+                        RgbProfile::hd720()
+                    }
+                }),
+                rgb_format: match rgb_format {
+                    RgbFormatArg::Mjpeg => RgbFormat::Mjpeg,
+                    RgbFormatArg::Yuyv => RgbFormat::Yuyv,
+                },
+                socket,
+                duration_s: duration,
+                seed,
+                stop_on_stdin_eof: true,
+                handle_signals: true,
+                stop: Default::default(),
+            };
+            serve(cfg, &mut |key, value| {
+                println!("{key}: {value}");
+                // The parent reads these lines as they come.
+                let _ = std::io::Write::flush(&mut std::io::stdout());
+            })
+            .context("running the simulated rig")?;
+            Ok(())
+        }
+    }
 }

@@ -37,12 +37,7 @@ fn every_binary_says_what_it_does() {
 
 #[test]
 fn unknown_subcommands_are_refused() {
-    for name in [
-        "s3tir-capture",
-        "s3tir-calib",
-        "s3tir-train",
-        "s3tir-firmware-sim",
-    ] {
+    for name in ["s3tir-capture", "s3tir-train", "s3tir-firmware-sim"] {
         let out = Command::new(bin(name))
             .arg("no-such-subcommand")
             .output()
@@ -53,4 +48,20 @@ fn unknown_subcommands_are_refused() {
             "{name} must reject an unknown subcommand"
         );
     }
+    // s3tir-calib takes BOARD_DIR as its main argument: an unknown word is a folder that does
+    // not exist, refused with an error naming it.
+    let out = Command::new(bin("s3tir-calib"))
+        .arg("no-such-subcommand")
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "s3tir-calib must fail on a missing board folder"
+    );
+    assert!(
+        err.contains("no-such-subcommand"),
+        "the error must name the folder: {err}"
+    );
 }

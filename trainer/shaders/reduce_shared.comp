@@ -12,7 +12,9 @@ layout(std430, set = 0, binding = 0) readonly buffer Input { float values_in[]; 
 layout(std430, set = 0, binding = 1) writeonly buffer Output { float values_out[]; };
 
 layout(push_constant) uniform Push {
-    uint count;  // number of valid inputs
+    uint count;       // number of valid inputs
+    uint in_offset;   // first input element
+    uint out_offset;  // element of values_out that receives workgroup 0's sum
 } pc;
 
 shared float partial[WG];
@@ -24,7 +26,7 @@ void main() {
     for (uint i = 0; i < ITEMS; ++i) {
         uint idx = base + i * WG + lid;  // strided: neighbouring invocations read neighbouring words
         if (idx < pc.count) {
-            acc += values_in[idx];
+            acc += values_in[pc.in_offset + idx];
         }
     }
     partial[lid] = acc;
@@ -36,6 +38,6 @@ void main() {
         barrier();
     }
     if (lid == 0) {
-        values_out[gl_WorkGroupID.x] = partial[0];
+        values_out[pc.out_offset + gl_WorkGroupID.x] = partial[0];
     }
 }

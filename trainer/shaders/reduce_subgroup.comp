@@ -13,7 +13,9 @@ layout(std430, set = 0, binding = 0) readonly buffer Input { float values_in[]; 
 layout(std430, set = 0, binding = 1) writeonly buffer Output { float values_out[]; };
 
 layout(push_constant) uniform Push {
-    uint count;
+    uint count;       // number of valid inputs
+    uint in_offset;   // first input element
+    uint out_offset;  // element of values_out that receives workgroup 0's sum
 } pc;
 
 shared float subgroup_sums[WG];  // enough for any subgroup size >= 1
@@ -25,7 +27,7 @@ void main() {
     for (uint i = 0; i < ITEMS; ++i) {
         uint idx = base + i * WG + lid;
         if (idx < pc.count) {
-            acc += values_in[idx];
+            acc += values_in[pc.in_offset + idx];
         }
     }
     acc = subgroupAdd(acc);
@@ -40,7 +42,7 @@ void main() {
         }
         total = subgroupAdd(total);
         if (subgroupElect()) {
-            values_out[gl_WorkGroupID.x] = total;
+            values_out[pc.out_offset + gl_WorkGroupID.x] = total;
         }
     }
 }

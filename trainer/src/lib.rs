@@ -7,3 +7,19 @@
 
 #[cfg(feature = "vulkan")]
 pub mod gpu;
+
+pub mod camera;
+pub mod error;
+pub mod loss;
+pub mod primitive;
+pub mod real;
+pub mod render;
+pub mod sh;
+
+// Training pipeline (issue 7): datasets, PLY export, metrics, reports, checkpoints, the loop.
+pub mod checkpoint;
+pub mod dataset;
+pub mod metrics;
+pub mod ply;
+pub mod report;
+pub mod train;

@@ -1,18 +1,42 @@
 //! `s3tir-train`: S³-TIR thermal splatting on the rig.
 
-use anyhow::Result;
-use clap::{Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use s3tir_trainer::dataset::images::ColourMode;
+use s3tir_trainer::dataset::{Dataset, LoadOptions, ThermalUnits};
+use s3tir_trainer::report;
+use s3tir_trainer::train::{
+    self, Backend, CpuBackend, Event, Mode, Outcome, TrainConfig, Trainer, files,
+};
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
 /// with a Vulkan compute trainer that runs on the rig, and render novel views.
 ///
+/// Train: `s3tir-train DATA --out RUN_DIR [--mode s3tir|3dgs|ges|gabor] [--iters N]
+/// [--backend cpu|vulkan] [--budget N] [--seed S]` (or `s3tir-train train DATA …`). DATA is a
+/// COLMAP dataset (`sparse/0/` + `images/`), e.g. the output of `s3tir-firmware-sim scene`.
+/// Ctrl-C writes a checkpoint and exits; `--resume` continues from it.
+///
 /// `devices` lists the Vulkan devices this computer offers and what the trainer needs of them
 /// (storage-buffer range, shared memory, subgroups, float atomics).
 #[derive(Debug, Parser)]
-#[command(name = "s3tir-train", version, about, long_about)]
+#[command(
+    name = "s3tir-train",
+    version,
+    about,
+    long_about,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    train: Option<TrainArgs>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -25,6 +49,117 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Train a model (same as `s3tir-train DATA --out RUN_DIR …`).
+    Train(TrainArgs),
+    /// Benchmark training steps/s: Vulkan backend vs CPU backend on the same scene and budget,
+    /// full s3tir mode vs 3dgs mode, and the GPU time per kernel (timestamp queries).
+    Bench(BenchArgs),
+    /// Evaluate a run on its held-out views: PSNR, SSIM and (radiometric data) kelvin MAE/RMSE,
+    /// per view and mean.
+    Eval {
+        /// Run folder written by training.
+        run_dir: PathBuf,
+        /// Print one JSON object (`psnr`, `ssim`, `kelvin_mae` (null when not radiometric),
+        /// `kelvin_rmse`, `primitives`, `views`).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs).
+    Compare {
+        /// Run folders.
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+        /// Output PNG.
+        #[arg(long, default_value = "compare.png")]
+        out: PathBuf,
+    },
+    /// Write the built-in analytic test scene (a wall with a sharp emissivity step and a heated
+    /// pipe) as a COLMAP dataset with 16-bit centikelvin images.
+    Synth {
+        /// Output dataset folder.
+        out: PathBuf,
+        /// Number of views.
+        #[arg(long, default_value_t = 16)]
+        views: usize,
+        #[arg(long, default_value_t = 48)]
+        width: usize,
+        #[arg(long, default_value_t = 36)]
+        height: usize,
+    },
+}
+
+/// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
+#[derive(Debug, Args)]
+struct TrainArgs {
+    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`).
+    #[arg(required = true)]
+    data: Option<PathBuf>,
+    /// Run folder (checkpoint, metrics.csv, plots, PLY, renders, G-buffers).
+    #[arg(long, required = true)]
+    out: Option<PathBuf>,
+    /// s3tir (learnable β + bands), 3dgs (β ≡ 2, no bands), ges (learnable β, no bands),
+    /// gabor (bands, β ≡ 2).
+    #[arg(long, default_value = "s3tir")]
+    mode: Mode,
+    /// Iterations [default: 30000; on --resume: the run's own].
+    #[arg(long)]
+    iters: Option<u64>,
+    /// Gaussian warm-up iterations (β ≡ 2, bands off).
+    #[arg(long, default_value_t = 3000)]
+    warmup: u64,
+    /// Compute backend.
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "vulkan"])]
+    backend: String,
+    /// Vulkan device (position in `s3tir-train devices`) [default: the best discrete or
+    /// integrated GPU, else the CPU driver].
+    #[arg(long)]
+    device_index: Option<usize>,
+    /// Vulkan: do not use float atomics even where the device has them (the compare-and-swap
+    /// fallback that drivers without them, e.g. Raspberry Pi 5's, take).
+    #[arg(long)]
+    no_float_atomics: bool,
+    /// Hard primitive budget.
+    #[arg(long, default_value_t = 100_000)]
+    budget: usize,
+    /// Random seed (initial subsampling, bands, view order, splits).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Gabor bands per primitive (modes with bands).
+    #[arg(long, default_value_t = 4)]
+    bands: usize,
+    /// No multi-view consistency loss.
+    #[arg(long)]
+    no_consist: bool,
+    /// No L1 sparsity on Ψ_high.
+    #[arg(long)]
+    no_sparse: bool,
+    /// No TV smoothness on Ψ_β.
+    #[arg(long)]
+    no_smooth: bool,
+    /// Continue the run in --out from its checkpoint (its config.json; only --iters may change).
+    #[arg(long)]
+    resume: bool,
+    /// Hold out every k-th view (by name) for evaluation; 0: none.
+    #[arg(long, default_value_t = 8)]
+    holdout: usize,
+    /// Integer downscale of every image at load.
+    #[arg(long, default_value_t = 1)]
+    downscale: usize,
+    /// What 16-bit words are: `ck` (TLinear centikelvin, radiometric) or `counts`.
+    #[arg(long, default_value = "ck", value_parser = ["ck", "counts"])]
+    units: String,
+    /// Read 8-bit colour images as ironbow pseudo-colour thermal instead of RGB.
+    #[arg(long)]
+    pseudo_colour: bool,
+    /// Held-out evaluation interval, training seconds.
+    #[arg(long, default_value_t = 30.0)]
+    eval_every_s: f64,
+    /// Checkpoint interval, training seconds.
+    #[arg(long, default_value_t = 60.0)]
+    checkpoint_every_s: f64,
+    /// β learning rate (β units).
+    #[arg(long, default_value_t = 1e-3)]
+    beta_lr: f64,
 }
 
 fn main() -> Result<()> {
@@ -34,9 +169,409 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {
-        Command::Devices { json } => devices(json),
+    let cli = Cli::parse();
+    match (cli.command, cli.train) {
+        (Some(Command::Devices { json }), _) => devices(json),
+        (Some(Command::Train(a)), _) | (None, Some(a)) => train_cmd(a),
+        (Some(Command::Bench(a)), _) => bench_cmd(a),
+        (Some(Command::Eval { run_dir, json }), _) => eval_cmd(&run_dir, json),
+        (Some(Command::Compare { runs, out }), _) => compare_cmd(&runs, &out),
+        (
+            Some(Command::Synth {
+                out,
+                views,
+                width,
+                height,
+            }),
+            _,
+        ) => {
+            let cfg = s3tir_trainer::dataset::synth::SynthConfig {
+                views,
+                width,
+                height,
+                f_px: 40.0 * width as f64 / 48.0,
+                ..Default::default()
+            };
+            s3tir_trainer::dataset::synth::write_scene(&out, &cfg)
+                .with_context(|| format!("writing the synthetic scene to {}", out.display()))?;
+            println!("synthetic scene written to {}", out.display());
+            Ok(())
+        }
+        (None, None) => {
+            bail!("nothing to do: give DATA --out RUN_DIR, or a subcommand (see --help)")
+        }
     }
+}
+
+fn train_cmd(a: TrainArgs) -> Result<()> {
+    let (Some(data), Some(out)) = (a.data.clone(), a.out.clone()) else {
+        bail!("training needs DATA and --out RUN_DIR");
+    };
+    let data = std::fs::canonicalize(&data)
+        .with_context(|| format!("dataset folder {}", data.display()))?;
+    let cfg = if a.resume {
+        let mut cfg = train::load_config(&out)
+            .with_context(|| format!("--resume: reading the run in {}", out.display()))?;
+        if let Some(n) = a.iters {
+            cfg.iters = n;
+        }
+        cfg.backend = a.backend.clone();
+        cfg
+    } else {
+        let mut cfg = TrainConfig::new(data);
+        cfg.load = LoadOptions {
+            holdout_every: a.holdout,
+            thermal_units: if a.units == "counts" {
+                ThermalUnits::RawCounts
+            } else {
+                ThermalUnits::CentiKelvin
+            },
+            colour: if a.pseudo_colour {
+                ColourMode::Pseudo
+            } else {
+                ColourMode::Rgb
+            },
+            downscale: a.downscale,
+            images_dir: None,
+        };
+        cfg.mode = a.mode;
+        cfg.iters = a.iters.unwrap_or(30_000);
+        cfg.warmup = a.warmup;
+        cfg.budget = a.budget;
+        cfg.seed = a.seed;
+        cfg.bands = a.bands;
+        cfg.consist = !a.no_consist;
+        cfg.sparse = !a.no_sparse;
+        cfg.smooth = !a.no_smooth;
+        cfg.eval_every_s = a.eval_every_s;
+        cfg.checkpoint_every_s = a.checkpoint_every_s;
+        cfg.lr.beta = a.beta_lr;
+        cfg.backend = a.backend.clone();
+        cfg
+    };
+    let dataset = Dataset::load(&cfg.data, &cfg.load)
+        .with_context(|| format!("loading dataset {}", cfg.data.display()))?;
+    println!(
+        "dataset {}: {} views ({} train, {} held out){}",
+        cfg.data.display(),
+        dataset.views.len(),
+        dataset.train.len(),
+        dataset.test.len(),
+        if dataset.range.is_some_and(|r| r.radiometric()) {
+            ", radiometric"
+        } else {
+            ""
+        }
+    );
+    match a.backend.as_str() {
+        "vulkan" => train_vulkan(
+            cfg,
+            dataset,
+            &out,
+            a.resume,
+            a.device_index,
+            a.no_float_atomics,
+        ),
+        _ => run_training(cfg, dataset, CpuBackend::default(), &out, a.resume),
+    }
+}
+
+#[cfg(feature = "vulkan")]
+fn vulkan_options(
+    device_index: Option<usize>,
+    no_float_atomics: bool,
+) -> s3tir_trainer::gpu::ContextOptions {
+    use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
+    ContextOptions {
+        device: device_index.map_or(DeviceChoice::Best, DeviceChoice::Index),
+        disable_float_atomics: no_float_atomics,
+    }
+}
+
+#[cfg(feature = "vulkan")]
+fn train_vulkan(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    out: &Path,
+    resume: bool,
+    device_index: Option<usize>,
+    no_float_atomics: bool,
+) -> Result<()> {
+    let backend = s3tir_trainer::gpu::backend::VulkanBackend::new(
+        &vulkan_options(device_index, no_float_atomics),
+        s3tir_trainer::render::RenderSettings::default(),
+    )
+    .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
+    run_training(cfg, dataset, backend, out, resume)
+}
+
+#[cfg(not(feature = "vulkan"))]
+fn train_vulkan(
+    _: TrainConfig,
+    _: Dataset,
+    _: &Path,
+    _: bool,
+    _: Option<usize>,
+    _: bool,
+) -> Result<()> {
+    bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
+}
+
+#[cfg(feature = "vulkan")]
+fn bench_cmd(a: BenchArgs) -> Result<()> {
+    use s3tir_trainer::gpu::bench::{self, BenchOptions};
+    let opts = BenchOptions {
+        width: a.width,
+        height: a.height,
+        views: a.views,
+        primitives: a.primitives,
+        steps: a.steps,
+        warmup_steps: a.warmup_steps,
+        device: vulkan_options(a.device_index, a.no_float_atomics),
+    };
+    let r = bench::run(&opts, &mut |line| eprintln!("bench: {line}"))?;
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+        return Ok(());
+    }
+    println!(
+        "device {}; scene {}x{}, {} primitives, {} timed steps per configuration",
+        r.device, r.width, r.height, r.primitives, r.steps
+    );
+    println!(
+        "  CPU backend, s3tir mode     {:8.2} steps/s",
+        r.cpu_steps_per_s
+    );
+    println!(
+        "  Vulkan backend, s3tir mode  {:8.2} steps/s",
+        r.s3tir_steps_per_s
+    );
+    println!(
+        "  Vulkan backend, 3dgs mode   {:8.2} steps/s",
+        r.gaussian_steps_per_s
+    );
+    println!(
+        "  Vulkan / CPU                {:8.2}x  (goal >= 3)",
+        r.vulkan_speedup_over_cpu
+    );
+    println!(
+        "  s3tir cost / 3dgs           {:8.2}x  (goal <= 1.5)",
+        r.s3tir_cost_over_gaussian
+    );
+    println!(
+        "  peak GPU memory             {:8.1} MiB",
+        r.peak_gpu_bytes as f64 / (1024.0 * 1024.0)
+    );
+    println!("  GPU time per step, s3tir mode:");
+    for k in &r.kernels {
+        println!(
+            "    {:<28} {:9.3} ms  {:5.1} %",
+            k.kernel,
+            k.ms_per_step,
+            100.0 * k.share
+        );
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "vulkan"))]
+fn bench_cmd(_: BenchArgs) -> Result<()> {
+    bail!(
+        "this s3tir-train was built without the `vulkan` feature: there is nothing to compare the CPU with"
+    )
+}
+
+/// Options of `s3tir-train bench`.
+#[derive(Debug, Args)]
+struct BenchArgs {
+    /// Print one JSON object (`cpu_steps_per_s`, `vulkan_steps_per_s`, `s3tir_steps_per_s`,
+    /// `gaussian_steps_per_s`, `device`, ratios, `kernels`).
+    #[arg(long)]
+    json: bool,
+    /// Image width of the benchmark scene.
+    #[arg(long, default_value_t = 96)]
+    width: usize,
+    /// Image height of the benchmark scene.
+    #[arg(long, default_value_t = 72)]
+    height: usize,
+    /// Views of the benchmark scene.
+    #[arg(long, default_value_t = 12)]
+    views: usize,
+    /// Primitives (constant: densification off).
+    #[arg(long, default_value_t = 2000)]
+    primitives: usize,
+    /// Timed training steps per configuration.
+    #[arg(long, default_value_t = 20)]
+    steps: usize,
+    /// Untimed steps first (pipeline compilation, buffer growth).
+    #[arg(long, default_value_t = 3)]
+    warmup_steps: usize,
+    /// Vulkan device (position in `s3tir-train devices`).
+    #[arg(long)]
+    device_index: Option<usize>,
+    /// Force the compare-and-swap fallback instead of float atomics.
+    #[arg(long)]
+    no_float_atomics: bool,
+}
+
+/// The training loop on any backend, with a progress bar and Ctrl-C handling.
+fn run_training<B: Backend>(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    backend: B,
+    out: &Path,
+    resume: bool,
+) -> Result<()> {
+    let mut trainer = if resume {
+        Trainer::resume(cfg, dataset, backend, out)?
+    } else {
+        Trainer::new(cfg, dataset, backend, out)?
+    };
+
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let bar = indicatif::ProgressBar::new(trainer.cfg.iters);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} it  {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_position(trainer.iteration);
+    let mut psnr = f64::NAN;
+    let mut loss_ema = f64::NAN;
+    let outcome = trainer.run(&stop, &mut |e| match e {
+        Event::Step { iteration, loss } => {
+            loss_ema = if loss_ema.is_nan() {
+                *loss
+            } else {
+                0.95 * loss_ema + 0.05 * loss
+            };
+            bar.set_position(*iteration);
+            if iteration % 10 == 0 {
+                bar.set_message(format!("loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB"));
+            }
+        }
+        Event::Eval(row) => {
+            psnr = row.psnr;
+            bar.set_message(format!("loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB"));
+        }
+        Event::Checkpoint { .. } => {}
+    })?;
+    bar.finish();
+    match outcome {
+        Outcome::Interrupted { iteration } => {
+            println!(
+                "interrupted at iteration {iteration}: checkpoint written to {}; continue with --resume",
+                out.join(files::CHECKPOINT).display()
+            );
+            std::process::exit(130);
+        }
+        Outcome::Finished => {
+            let cap = trainer.capacity_report();
+            println!(
+                "done: {} primitives in {}",
+                trainer.prims.len(),
+                out.display()
+            );
+            for f in [
+                files::PLY,
+                files::METRICS_CSV,
+                files::METRICS_PNG,
+                files::EVAL,
+                files::CAPACITY,
+                files::BETA_HIST,
+                files::RENDERS,
+                files::GBUFFERS,
+            ] {
+                println!("  {}", out.join(f).display());
+            }
+            println!(
+                "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path",
+                if cap.colour_allocated {
+                    "kept"
+                } else {
+                    "not allocated"
+                },
+                cap.consistency_reason,
+                cap.bands_initial,
+                cap.bands_now,
+                cap.band_bytes_saved,
+                cap.gaussian_path_primitives
+            );
+            Ok(())
+        }
+    }
+}
+
+fn eval_cmd(run_dir: &Path, json: bool) -> Result<()> {
+    let e = train::evaluate_run(run_dir, CpuBackend::default())
+        .with_context(|| format!("evaluating {}", run_dir.display()))?;
+    if json {
+        let mut v = serde_json::to_value(&e)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("view_count".into(), e.views.len().into());
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    let k = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:.3} K"));
+    for v in &e.views {
+        println!(
+            "{:<24} PSNR {:6.2} dB  SSIM {:.4}  MAE {}  RMSE {}",
+            v.name,
+            v.psnr,
+            v.ssim,
+            k(v.kelvin_mae),
+            k(v.kelvin_rmse)
+        );
+    }
+    println!(
+        "{:<24} PSNR {:6.2} dB  SSIM {:.4}  MAE {}  RMSE {}  ({} views, {} primitives, mode {})",
+        "mean",
+        e.psnr,
+        e.ssim,
+        k(e.kelvin_mae),
+        k(e.kelvin_rmse),
+        e.views.len(),
+        e.primitives,
+        e.mode
+    );
+    Ok(())
+}
+
+fn compare_cmd(runs: &[PathBuf], out: &Path) -> Result<()> {
+    let mut series = Vec::new();
+    for r in runs {
+        let rows = report::read_rows(&r.join(files::METRICS_CSV))
+            .with_context(|| format!("reading the metrics of {}", r.display()))?;
+        let mode = train::load_config(r).map_or_else(|_| "?".to_owned(), |c| c.mode.to_string());
+        let name = r.file_name().map_or_else(
+            || r.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        if let Some(last) = rows.last() {
+            println!(
+                "{name:<20} {mode:<6} iter {:>6}  {:8.1} s  PSNR {:6.2} dB  SSIM {:.4}  MAE {}  {} primitives",
+                last.iteration,
+                last.seconds,
+                last.psnr,
+                last.ssim,
+                last.kelvin_mae
+                    .map_or_else(|| "—".into(), |v| format!("{v:.3} K")),
+                last.primitives
+            );
+        }
+        series.push((format!("{name} ({mode})"), rows));
+    }
+    report::plot_runs(out, &series).with_context(|| format!("plotting {}", out.display()))?;
+    println!("plot: {}", out.display());
+    Ok(())
 }
 
 #[cfg(feature = "vulkan")]

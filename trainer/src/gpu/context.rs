@@ -417,20 +417,31 @@ impl GpuContext {
         buffer: &GpuBuffer,
         count: usize,
     ) -> Result<Vec<T>, GpuError> {
-        let want = (count * std::mem::size_of::<T>()) as u64;
+        self.read_at(buffer, 0, count)
+    }
+
+    /// Reads `count` elements starting at element `first` of a host-visible buffer.
+    pub fn read_at<T: bytemuck::Pod>(
+        &self,
+        buffer: &GpuBuffer,
+        first: usize,
+        count: usize,
+    ) -> Result<Vec<T>, GpuError> {
+        let size = std::mem::size_of::<T>();
+        let (start, end) = (first * size, (first + count) * size);
         let out_of_range = || GpuError::BufferRange {
             name: buffer.name.clone(),
-            requested_bytes: want,
+            requested_bytes: end as u64,
             capacity_bytes: buffer.size_bytes,
         };
-        if want > buffer.size_bytes {
+        if end as u64 > buffer.size_bytes {
             return Err(out_of_range());
         }
         let mapped = buffer.allocation.mapped_slice().ok_or_else(out_of_range)?;
-        let bytes = mapped.get(..want as usize).ok_or_else(out_of_range)?;
+        let bytes = mapped.get(start..end).ok_or_else(out_of_range)?;
         // Copy element-wise: mapped memory need not be aligned for T.
         Ok(bytes
-            .chunks_exact(std::mem::size_of::<T>())
+            .chunks_exact(size)
             .map(bytemuck::pod_read_unaligned)
             .collect())
     }
@@ -458,6 +469,15 @@ impl GpuContext {
         storage_buffers: u32,
         push_constant_bytes: u32,
     ) -> Result<ComputeKernel, GpuError> {
+        let limit = self.report.max_per_stage_storage_buffers;
+        if storage_buffers > limit {
+            return Err(GpuError::LimitTooSmall {
+                device: self.report.name.clone(),
+                limit: "maxPerStageDescriptorStorageBuffers",
+                required: u64::from(storage_buffers),
+                actual: u64::from(limit),
+            });
+        }
         let d = &self.device;
         let bindings: Vec<_> = (0..storage_buffers)
             .map(|b| {

@@ -187,6 +187,7 @@ impl VulkanInstance {
                 memory_heaps,
                 max_storage_buffer_range_bytes: u64::from(limits.max_storage_buffer_range),
                 max_compute_shared_memory_bytes: limits.max_compute_shared_memory_size,
+                max_per_stage_storage_buffers: limits.max_per_stage_descriptor_storage_buffers,
                 max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
                 max_compute_workgroup_count_x: limits.max_compute_work_group_count[0],
                 subgroup_size: subgroup.subgroup_size,
@@ -252,6 +253,8 @@ pub struct DeviceReport {
     pub memory_heaps: Vec<MemoryHeap>,
     pub max_storage_buffer_range_bytes: u64,
     pub max_compute_shared_memory_bytes: u32,
+    /// Storage buffers one kernel may bind (Vulkan guarantees only 4).
+    pub max_per_stage_storage_buffers: u32,
     pub max_compute_workgroup_invocations: u32,
     pub max_compute_workgroup_count_x: u32,
     pub subgroup_size: u32,

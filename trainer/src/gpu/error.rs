@@ -52,6 +52,9 @@ pub enum GpuError {
     /// A shader is unknown or its SPIR-V is malformed.
     #[error("shader {name}: {reason}")]
     Shader { name: String, reason: String },
+    /// Input data the GPU path cannot take (shapes, non-finite camera).
+    #[error("invalid input: {reason}")]
+    InvalidInput { reason: String },
     /// A host read or write does not fit a buffer.
     #[error("buffer {name}: {requested_bytes} bytes requested, it holds {capacity_bytes}")]
     BufferRange {

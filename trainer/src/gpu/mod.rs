@@ -9,15 +9,25 @@
 //!   variant chosen at run time from the device's capabilities,
 //! - [`scan`], [`sort`]: exclusive prefix sum and stable 64-bit-key radix sort (tile binning and
 //!   depth ordering of the rasteriser),
-//! - [`accumulate`]: float scatter-add with `atomicAdd(float)` or a CAS-loop fallback.
+//! - [`accumulate`]: float scatter-add with `atomicAdd(float)` or a CAS-loop fallback,
+//! - [`raster`]: the forward rasteriser (projection + culling, binning, sort, per-tile blend of
+//!   the thermal image and G-buffers) and its exact backward pass, held to the CPU reference
+//!   renderer by parity tests,
+//! - [`loss`]: the single-view loss (L1 + D-SSIM, sparsity, TV) and its gradient,
+//! - [`backend`]: the training loop's `Backend` on the GPU (`s3tir-train --backend vulkan`),
+//! - [`bench`]: `s3tir-train bench`, Vulkan vs CPU steps/s and the per-kernel breakdown.
 //!
 //! Devices without a feature get a typed [`GpuError`] naming it, checked when the context opens
 //! or when a kernel that needs it is created, never a driver crash mid-run.
 
 pub mod accumulate;
+pub mod backend;
+pub mod bench;
 pub mod context;
 pub mod devices;
 pub mod error;
+pub mod loss;
+pub mod raster;
 pub mod reduce;
 pub mod scan;
 pub mod shaders;

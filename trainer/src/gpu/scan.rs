@@ -60,6 +60,11 @@ impl GpuScan {
         Ok(scan)
     }
 
+    /// Most values one call can scan.
+    pub fn capacity(&self) -> usize {
+        self.max_count
+    }
+
     /// Records an exclusive scan of the first `count` values of `data`, in place.
     pub fn record(
         &self,

@@ -87,6 +87,11 @@ impl GpuRadixSort {
         }
     }
 
+    /// Most items one call can sort.
+    pub fn capacity(&self) -> usize {
+        self.max_count
+    }
+
     /// Records a stable sort of the first `count` (key, value) pairs by the low `key_bits` bits of
     /// the keys, in place (`keys`: `count` × `[u32; 2]` low/high words; `values`: `count` × u32).
     pub fn record(

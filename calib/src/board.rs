@@ -1,0 +1,274 @@
+//! The board description (`board.toml`) and the board folder: which images exist, how they
+//! pair, and how each file is decoded into a scalar image for detection.
+//!
+//! ```toml
+//! [board]
+//! inner_corners = [9, 6]      # cols, rows of inner corners
+//! square_mm = 25.0
+//! thermal_polarity = "auto"   # "auto" | "coated_dark" | "coated_bright" (thermal image values)
+//! thermal_palette = "auto"    # "auto" | "ironbow" | "inferno" | "luminance" (pseudo-colour input)
+//! apriltag_ids = []           # accepted but not used yet (no tag detection in this version)
+//! ```
+//!
+//! Board coordinates: inner corner (c, r) sits at (c·square, r·square, 0) metres; the square
+//! diagonally outward from corner (0, 0) is a *coated* square (black in RGB).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::error::CalibError;
+use crate::frontend::{Palette, ThermalPolarity};
+
+/// Contents of `board.toml`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct BoardFile {
+    pub board: BoardSpec,
+}
+
+/// One chessboard (emissivity-coated on its dark squares).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct BoardSpec {
+    /// Inner corners `[cols, rows]`.
+    pub inner_corners: [u32; 2],
+    /// Side of one square in millimetres.
+    pub square_mm: f64,
+    /// Which way the coated squares appear in thermal images.
+    #[serde(default)]
+    pub thermal_polarity: ThermalPolarity,
+    /// Palette to invert for pseudo-colour thermal images.
+    #[serde(default)]
+    pub thermal_palette: Palette,
+    /// AprilTag ids carried by the board (parsed; tag detection is not implemented yet).
+    #[serde(default)]
+    pub apriltag_ids: Vec<u32>,
+}
+
+impl BoardSpec {
+    pub fn cols(&self) -> u32 {
+        self.inner_corners[0]
+    }
+    pub fn rows(&self) -> u32 {
+        self.inner_corners[1]
+    }
+    pub fn corner_count(&self) -> usize {
+        (self.cols() * self.rows()) as usize
+    }
+    pub fn square_m(&self) -> f64 {
+        self.square_mm * 1e-3
+    }
+
+    /// Inner corners in board coordinates (metres), row-major.
+    pub fn object_points_m(&self) -> Vec<DVec3> {
+        let s = self.square_m();
+        (0..self.rows())
+            .flat_map(|r| {
+                (0..self.cols()).map(move |c| DVec3::new(f64::from(c) * s, f64::from(r) * s, 0.0))
+            })
+            .collect()
+    }
+
+    /// True when a 180° rotation maps the board's colouring onto itself (cols + rows even):
+    /// then corner ordering cannot come from square colours alone.
+    pub fn is_colour_symmetric(&self) -> bool {
+        (self.cols() + self.rows()).is_multiple_of(2)
+    }
+
+    /// Checks sizes.
+    pub fn validate(&self, path: &Path) -> Result<(), CalibError> {
+        if self.cols() < 3 || self.rows() < 2 {
+            return Err(CalibError::BoardFile {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "inner_corners = {:?}: need at least 3x2 inner corners",
+                    self.inner_corners
+                ),
+            });
+        }
+        if self.cols() == self.rows() {
+            return Err(CalibError::BoardFile {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "inner_corners = {:?}: square boards are 90°-symmetric and their corner order cannot be fixed; use cols != rows (one even, one odd is best)",
+                    self.inner_corners
+                ),
+            });
+        }
+        if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
+            return Err(CalibError::BoardFile {
+                path: path.to_path_buf(),
+                reason: format!("square_mm = {} must be positive", self.square_mm),
+            });
+        }
+        Ok(())
+    }
+
+    /// Reads and validates `board.toml`.
+    pub fn load(path: &Path) -> Result<Self, CalibError> {
+        let text = std::fs::read_to_string(path).map_err(|e| CalibError::BoardFile {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let file: BoardFile = toml::from_str(&text).map_err(|e| CalibError::BoardFile {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        file.board.validate(path)?;
+        Ok(file.board)
+    }
+}
+
+/// The two cameras of the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Camera {
+    Thermal,
+    Rgb,
+}
+
+impl Camera {
+    pub const BOTH: [Camera; 2] = [Camera::Thermal, Camera::Rgb];
+    pub fn name(self) -> &'static str {
+        match self {
+            Camera::Thermal => "thermal",
+            Camera::Rgb => "rgb",
+        }
+    }
+    pub fn index(self) -> usize {
+        match self {
+            Camera::Thermal => 0,
+            Camera::Rgb => 1,
+        }
+    }
+}
+
+/// One view key: the pairing stem and the file each camera contributes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ViewFiles {
+    /// Pairing key: the stem with a leading `name_` prefix dropped.
+    pub key: String,
+    /// `[thermal, rgb]` files; either may be missing.
+    pub files: [Option<PathBuf>; 2],
+}
+
+/// A file skipped or rejected, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FileProblem {
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+/// Image extensions read from the camera folders.
+const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "jpg", "jpeg", "pgm"];
+
+/// The pairing key of a file stem: `thermal_0001` → `0001`, `0001` → `0001`. Only a leading
+/// alphabetic prefix followed by `_` is dropped, so `img_01` and `rgb_01` both pair as `01`.
+pub fn pairing_key(stem: &str) -> String {
+    if let Some((prefix, rest)) = stem.split_once('_')
+        && !prefix.is_empty()
+        && !rest.is_empty()
+        && prefix.chars().all(|c| c.is_ascii_alphabetic())
+    {
+        return rest.to_string();
+    }
+    stem.to_string()
+}
+
+/// Lists `dir/thermal` and `dir/rgb` and pairs their images. Files that are not images are
+/// reported as problems; a missing camera folder is not an error (one-camera calibration).
+pub fn list_views(dir: &Path) -> Result<(Vec<ViewFiles>, Vec<FileProblem>), CalibError> {
+    if !dir.is_dir() {
+        return Err(CalibError::BoardFolder {
+            path: dir.to_path_buf(),
+            reason: "not a directory".into(),
+        });
+    }
+    let mut views: BTreeMap<String, [Option<PathBuf>; 2]> = BTreeMap::new();
+    let mut problems = Vec::new();
+    for camera in Camera::BOTH {
+        let sub = dir.join(camera.name());
+        if !sub.is_dir() {
+            continue;
+        }
+        let entries = std::fs::read_dir(&sub).map_err(|e| CalibError::BoardFolder {
+            path: sub.clone(),
+            reason: e.to_string(),
+        })?;
+        let mut files: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
+        files.sort();
+        for path in files {
+            if !path.is_file() {
+                continue;
+            }
+            let ext = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase)
+                .unwrap_or_default();
+            if !IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+                problems.push(FileProblem {
+                    path,
+                    reason: format!("not an image (extension {ext:?})"),
+                });
+                continue;
+            }
+            let stem = path
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .unwrap_or_default();
+            let key = pairing_key(stem);
+            let slot = &mut views.entry(key).or_default()[camera.index()];
+            if let Some(previous) = slot {
+                problems.push(FileProblem {
+                    path: path.clone(),
+                    reason: format!("same pairing key as {}; ignored", previous.display()),
+                });
+            } else {
+                *slot = Some(path);
+            }
+        }
+    }
+    let views = views
+        .into_iter()
+        .map(|(key, files)| ViewFiles { key, files })
+        .collect();
+    Ok((views, problems))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairing_key_drops_only_an_alphabetic_prefix() {
+        assert_eq!(pairing_key("thermal_0001"), "0001");
+        assert_eq!(pairing_key("rgb_0001"), "0001");
+        assert_eq!(pairing_key("0001"), "0001");
+        assert_eq!(pairing_key("left01"), "left01");
+        assert_eq!(
+            pairing_key("2024_01"),
+            "2024_01",
+            "numeric prefixes are part of the stem"
+        );
+    }
+
+    #[test]
+    fn board_toml_parses_with_defaults() {
+        let file: BoardFile = toml::from_str("[board]\ninner_corners = [9, 6]\nsquare_mm = 25.0\n")
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.board.corner_count(), 54);
+        assert_eq!(file.board.thermal_polarity, ThermalPolarity::Auto);
+        let p = file.board.object_points_m();
+        assert!(
+            (p[10] - DVec3::new(0.025, 0.025, 0.0)).length() < 1e-12,
+            "corner (1,1) at {}",
+            p[10]
+        );
+        assert!(
+            !file.board.is_colour_symmetric(),
+            "9x6 has 10x7 squares: asymmetric"
+        );
+    }
+}

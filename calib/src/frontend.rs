@@ -1,0 +1,830 @@
+//! Board detection front end shared by thermal and RGB images.
+//!
+//! 1. **Decode to a scalar image** ([`load_scalar`]): 16-bit PNG/TIFF keep their counts
+//!    (raw or centikelvin), 8-bit grey its values, RGB/RGBA photos become luminance
+//!    (Rec. 601). A thermal image saved as pseudo-colour is mapped back to a scalar by finding,
+//!    for each colour, the nearest colour on a known palette curve (approximations of
+//!    ironbow and matplotlib's inferno, 9/7 control points interpolated linearly to 256
+//!    entries); with `palette = "auto"` the palette whose curve fits the image best is used,
+//!    and when neither fits (mean colour distance > 24 of 255) luminance is used instead.
+//! 2. **Robust 8-bit normalisation**: a percentile stretch (0.5 % → 0, 99.5 % → 255), so a
+//!    hot object in a 16-bit frame does not squash the board's few counts of contrast.
+//! 3. **Detection**: small images (longest side < 480 px, e.g. Lepton 160×120) are upscaled
+//!    by an integer factor with cubic interpolation for the search, large ones (> 1000 px)
+//!    searched at half size; if nothing is found, once more at the next finer scale (one
+//!    step more upscaling, or full size). The classic detector (`findChessboardCorners`, adaptive
+//!    threshold) runs first because it is fast; when it fails, `findChessboardCornersSB`
+//!    (exhaustive, accuracy flags); when both fail, the classic detector again on the inverted
+//!    image (the other polarity; the SB detector is polarity-agnostic). Every candidate is
+//!    then refined by `cornerSubPix` on an unquantised float copy of the stretched image (at
+//!    full resolution, or cubic-upscaled like the search for small images), window half-size
+//!    0.4 × the smallest corner spacing (0.5 for upscaled small images); a
+//!    refinement that moves a corner by more than a quarter square is discarded. Among
+//!    candidates the one with the smaller grid roughness (RMS second difference along rows and
+//!    columns) is kept. (Running SB on every image as well would double detection time for
+//!    no gain: both candidates end in the same `cornerSubPix`.)
+//! 4. **Score and ambiguity check**: OpenCV's `estimateChessboardSharpness` (edge rise in px)
+//!    and the square contrast: mean of even- vs odd-parity inner squares, sampled at their
+//!    centres, over the pooled standard deviation. Detections whose squares cannot be told
+//!    apart (contrast z < 3) are rejected as ambiguous: their ordering cannot be fixed.
+//! 5. **Canonical ordering**: rows are flipped if needed so that the image-space cross product
+//!    of the row and column directions is positive (the board is seen from its front), then the
+//!    whole grid is rotated by 180° if needed so that inner square (0, 0) — and so the outer
+//!    square diagonally beyond corner 0 — is the *dark* one in the image. For RGB, dark =
+//!    coated. For thermal the coated squares may be dark or bright; the pipeline fixes that
+//!    per session from `thermal_polarity` or, for `auto`, by voting over pairs (see
+//!    `pipeline`). For colour-symmetric boards (cols + rows even) the 180° choice falls back to
+//!    "corner 0 nearest the image's top-left", which is only consistent between cameras
+//!    mounted the same way up.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::OnceLock;
+
+use glam::DVec2;
+use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
+use opencv::prelude::*;
+use opencv::{calib3d, imgproc};
+use serde::{Deserialize, Serialize};
+
+use crate::board::BoardSpec;
+use crate::detect::Detector;
+use crate::error::CalibError;
+
+/// How the coated squares appear in thermal images (image values, after palette inversion).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThermalPolarity {
+    /// Decided per session from the pairs (see module docs).
+    #[default]
+    Auto,
+    /// Coated squares have the lower values.
+    CoatedDark,
+    /// Coated squares have the higher values.
+    CoatedBright,
+}
+
+/// Palette used to map pseudo-colour thermal images back to a scalar.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Palette {
+    /// Best-fitting known palette, else luminance.
+    #[default]
+    Auto,
+    Ironbow,
+    Inferno,
+    /// Rec. 601 luminance (works for palettes monotonic in brightness).
+    Luminance,
+}
+
+/// Where a scalar image's values came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceKind {
+    Grey16,
+    Grey8,
+    /// Pseudo-colour thermal image inverted through this palette.
+    PseudoColour(Palette),
+    /// Colour photo reduced to luminance.
+    ColourLuminance,
+}
+
+/// A single-channel image in f32 (original value scale).
+#[derive(Debug, Clone)]
+pub struct ScalarImage {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub values: Vec<f32>,
+    pub source: SourceKind,
+}
+
+impl ScalarImage {
+    fn at(&self, x: i64, y: i64) -> f32 {
+        let x = x.clamp(0, i64::from(self.width_px) - 1) as usize;
+        let y = y.clamp(0, i64::from(self.height_px) - 1) as usize;
+        self.values[y * self.width_px as usize + x]
+    }
+
+    /// Bilinear sample with pixel centres on integer coordinates (clamped at the border).
+    pub fn sample(&self, p: DVec2) -> f64 {
+        let x0 = p.x.floor();
+        let y0 = p.y.floor();
+        let (fx, fy) = (p.x - x0, p.y - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let v = |x, y| f64::from(self.at(x, y));
+        (1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x0 + 1, y0))
+            + fy * ((1.0 - fx) * v(x0, y0 + 1) + fx * v(x0 + 1, y0 + 1))
+    }
+}
+
+const IRONBOW: [(f32, [f32; 3]); 7] = [
+    (0.0, [0.0, 0.0, 0.0]),
+    (0.15, [32.0, 0.0, 140.0]),
+    (0.35, [145.0, 0.0, 155.0]),
+    (0.55, [225.0, 65.0, 40.0]),
+    (0.75, [250.0, 160.0, 0.0]),
+    (0.9, [255.0, 225.0, 60.0]),
+    (1.0, [255.0, 255.0, 255.0]),
+];
+const INFERNO: [(f32, [f32; 3]); 9] = [
+    (0.0, [0.0, 0.0, 4.0]),
+    (0.125, [31.0, 12.0, 72.0]),
+    (0.25, [85.0, 15.0, 109.0]),
+    (0.375, [136.0, 34.0, 106.0]),
+    (0.5, [186.0, 54.0, 85.0]),
+    (0.625, [227.0, 89.0, 51.0]),
+    (0.75, [249.0, 140.0, 10.0]),
+    (0.875, [249.0, 201.0, 50.0]),
+    (1.0, [252.0, 255.0, 164.0]),
+];
+
+fn build_lut(points: &[(f32, [f32; 3])]) -> [[f32; 3]; 256] {
+    let mut lut = [[0.0; 3]; 256];
+    for (i, entry) in lut.iter_mut().enumerate() {
+        let t = i as f32 / 255.0;
+        let k = points
+            .windows(2)
+            .position(|w| t <= w[1].0)
+            .unwrap_or(points.len() - 2);
+        let (t0, c0) = points[k];
+        let (t1, c1) = points[k + 1];
+        let a = ((t - t0) / (t1 - t0)).clamp(0.0, 1.0);
+        for ch in 0..3 {
+            entry[ch] = c0[ch] + a * (c1[ch] - c0[ch]);
+        }
+    }
+    lut
+}
+
+/// The 256-entry colour table of a palette (`None` for `Auto`/`Luminance`).
+pub fn palette_lut(palette: Palette) -> Option<&'static [[f32; 3]; 256]> {
+    static IRON: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
+    static INF: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
+    match palette {
+        Palette::Ironbow => Some(IRON.get_or_init(|| build_lut(&IRONBOW))),
+        Palette::Inferno => Some(INF.get_or_init(|| build_lut(&INFERNO))),
+        Palette::Auto | Palette::Luminance => None,
+    }
+}
+
+/// Nearest palette index for a colour and the distance to it.
+fn nearest_on_palette(lut: &[[f32; 3]; 256], rgb: [u8; 3]) -> (f32, f32) {
+    let mut best = (0usize, f32::INFINITY);
+    for (i, c) in lut.iter().enumerate() {
+        let d = (c[0] - f32::from(rgb[0])).powi(2)
+            + (c[1] - f32::from(rgb[1])).powi(2)
+            + (c[2] - f32::from(rgb[2])).powi(2);
+        if d < best.1 {
+            best = (i, d);
+        }
+    }
+    (best.0 as f32, best.1.sqrt())
+}
+
+fn luminance(rgb: [u8; 3]) -> f32 {
+    0.299 * f32::from(rgb[0]) + 0.587 * f32::from(rgb[1]) + 0.114 * f32::from(rgb[2])
+}
+
+/// True when the colour image is visibly not grey (some pixels with channel spread > 12).
+fn is_pseudo_colour(rgb: &image::RgbImage) -> bool {
+    let n = rgb.pixels().len().max(1);
+    let coloured = rgb
+        .pixels()
+        .step_by(7)
+        .filter(|p| {
+            let (mx, mn) = (p.0.iter().max(), p.0.iter().min());
+            matches!((mx, mn), (Some(a), Some(b)) if a - b > 12)
+        })
+        .count();
+    coloured * 7 * 50 > n
+}
+
+/// Maps a pseudo-colour image to scalar values by palette inversion (see module docs).
+pub fn pseudo_colour_to_scalar(rgb: &image::RgbImage, palette: Palette) -> (Vec<f32>, Palette) {
+    let candidates: Vec<Palette> = match palette {
+        Palette::Auto => vec![Palette::Ironbow, Palette::Inferno],
+        p => vec![p],
+    };
+    // Fit check on a subsample.
+    let mut chosen = Palette::Luminance;
+    let mut best_fit = f32::INFINITY;
+    for p in candidates {
+        let Some(lut) = palette_lut(p) else {
+            continue;
+        };
+        let sample: Vec<f32> = rgb
+            .pixels()
+            .step_by(13)
+            .map(|px| nearest_on_palette(lut, px.0).1)
+            .collect();
+        let fit = sample.iter().sum::<f32>() / sample.len().max(1) as f32;
+        if fit < best_fit {
+            best_fit = fit;
+            chosen = p;
+        }
+    }
+    if palette == Palette::Auto && best_fit > 24.0 {
+        chosen = Palette::Luminance;
+    }
+    let values = match palette_lut(chosen) {
+        None => rgb.pixels().map(|p| luminance(p.0)).collect(),
+        Some(lut) => {
+            let mut cache: HashMap<[u8; 3], f32> = HashMap::new();
+            rgb.pixels()
+                .map(|p| {
+                    *cache
+                        .entry(p.0)
+                        .or_insert_with(|| nearest_on_palette(lut, p.0).0)
+                })
+                .collect()
+        }
+    };
+    (values, chosen)
+}
+
+/// Decodes an image file into scalar values. `thermal` enables pseudo-colour inversion.
+pub fn load_scalar(
+    path: &Path,
+    thermal: bool,
+    palette: Palette,
+) -> Result<ScalarImage, CalibError> {
+    let img = image::open(path).map_err(|e| CalibError::Image {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let (w, h) = (img.width(), img.height());
+    if w < 16 || h < 16 {
+        return Err(CalibError::Image {
+            path: path.to_path_buf(),
+            reason: format!("{w}x{h} is too small for board detection"),
+        });
+    }
+    use image::DynamicImage as D;
+    let (values, source) = match &img {
+        D::ImageLuma16(g) => (
+            g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+            SourceKind::Grey16,
+        ),
+        D::ImageLumaA16(_) => {
+            let g = img.to_luma16();
+            (
+                g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+                SourceKind::Grey16,
+            )
+        }
+        D::ImageLuma8(g) => (
+            g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+            SourceKind::Grey8,
+        ),
+        D::ImageLumaA8(_) => {
+            let g = img.to_luma8();
+            (
+                g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+                SourceKind::Grey8,
+            )
+        }
+        D::ImageRgb16(_) | D::ImageRgba16(_) | D::ImageRgb32F(_) | D::ImageRgba32F(_) => {
+            let g = img.to_luma16();
+            (
+                g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+                SourceKind::Grey16,
+            )
+        }
+        _ => {
+            let rgb = img.to_rgb8();
+            if thermal && is_pseudo_colour(&rgb) {
+                let (values, used) = pseudo_colour_to_scalar(&rgb, palette);
+                (values, SourceKind::PseudoColour(used))
+            } else {
+                (
+                    rgb.pixels().map(|p| luminance(p.0)).collect(),
+                    SourceKind::ColourLuminance,
+                )
+            }
+        }
+    };
+    Ok(ScalarImage {
+        width_px: w,
+        height_px: h,
+        values,
+        source,
+    })
+}
+
+/// Percentile stretch to 8 bits: the `lo`/`hi` quantiles map to 0/255.
+pub fn stretch_to_u8(img: &ScalarImage, lo: f64, hi: f64) -> image::GrayImage {
+    let mut sorted: Vec<f32> = img
+        .values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    sorted.sort_by(f32::total_cmp);
+    let q = |f: f64| -> f32 {
+        if sorted.is_empty() {
+            return 0.0;
+        }
+        let i = ((sorted.len() - 1) as f64 * f).round() as usize;
+        sorted[i.min(sorted.len() - 1)]
+    };
+    let (a, b) = (q(lo), q(hi));
+    let scale = if b > a { 255.0 / (b - a) } else { 0.0 };
+    let data = img
+        .values
+        .iter()
+        .map(|&v| ((v - a) * scale).clamp(0.0, 255.0).round() as u8)
+        .collect();
+    image::GrayImage::from_raw(img.width_px, img.height_px, data).unwrap_or_default()
+}
+
+/// A board found in one image, in canonical order (see module docs), with its scores.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BoardDetection {
+    /// Row-major inner corners, pixels (origin at the centre of the top-left pixel).
+    #[serde(skip)]
+    pub corners_px: Vec<DVec2>,
+    /// Which detector produced the kept result.
+    pub detector: &'static str,
+    /// True when found on the inverted image.
+    pub inverted: bool,
+    /// OpenCV's edge-rise sharpness in (original) pixels; lower is sharper.
+    pub sharpness_px: f64,
+    /// Square contrast: |mean(dark) − mean(bright)| / pooled std (dimensionless).
+    pub contrast_z: f64,
+    /// RMS second difference along rows/columns (px): grid roughness, lower is better.
+    pub roughness_px: f64,
+    /// Whether the ordering was fixed by square colour (false: image-orientation fallback).
+    pub ordered_by_colour: bool,
+}
+
+/// Why a detection was not found or rejected.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DetectFailure {
+    NotFound,
+    Ambiguous(String),
+}
+
+fn cv(operation: &'static str) -> impl FnOnce(opencv::Error) -> CalibError {
+    move |source| CalibError::OpenCv { operation, source }
+}
+
+fn mat_from_grey(img: &image::GrayImage) -> Result<Mat, CalibError> {
+    crate::detect::mat_from_luma(img)
+}
+
+fn roughness(corners: &[DVec2], cols: usize, rows: usize) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for r in 0..rows {
+        for c in 1..cols.saturating_sub(1) {
+            let i = r * cols + c;
+            sum += (corners[i - 1] - 2.0 * corners[i] + corners[i + 1]).length_squared();
+            n += 1;
+        }
+    }
+    for r in 1..rows.saturating_sub(1) {
+        for c in 0..cols {
+            let i = r * cols + c;
+            sum += (corners[i - cols] - 2.0 * corners[i] + corners[i + cols]).length_squared();
+            n += 1;
+        }
+    }
+    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
+}
+
+fn min_spacing(corners: &[DVec2], cols: usize) -> f64 {
+    corners
+        .windows(2)
+        .enumerate()
+        .filter(|(i, _)| (i + 1) % cols != 0)
+        .map(|(_, w)| (w[1] - w[0]).length())
+        .fold(f64::INFINITY, f64::min)
+}
+
+struct Candidate {
+    corners_up: Vec<Point2f>,
+    detector: Detector,
+    inverted: bool,
+}
+
+fn run_detectors(
+    up: &Mat,
+    pattern: Size,
+    inverted: bool,
+    out: &mut Vec<Candidate>,
+) -> Result<(), CalibError> {
+    // The sector-based detector responds to saddle points of either polarity, so on the
+    // inverted image only the (polarity-dependent) classic detector is worth running.
+    // Classic first (fast); the sector-based detector when it fails. Both results are refined
+    // by the same cornerSubPix afterwards, so running SB too when classic succeeded would
+    // only cost time.
+    let mut corners = Vector::<Point2f>::new();
+    let classic_flags = calib3d::CALIB_CB_ADAPTIVE_THRESH
+        | calib3d::CALIB_CB_NORMALIZE_IMAGE
+        | calib3d::CALIB_CB_FILTER_QUADS;
+    if calib3d::find_chessboard_corners(up, pattern, &mut corners, classic_flags)
+        .map_err(cv("findChessboardCorners"))?
+    {
+        out.push(Candidate {
+            corners_up: corners.to_vec(),
+            detector: Detector::Classic,
+            inverted,
+        });
+        return Ok(());
+    }
+    if inverted {
+        return Ok(());
+    }
+    let mut corners = Vector::<Point2f>::new();
+    let sb_flags = calib3d::CALIB_CB_NORMALIZE_IMAGE
+        | calib3d::CALIB_CB_EXHAUSTIVE
+        | calib3d::CALIB_CB_ACCURACY;
+    if calib3d::find_chessboard_corners_sb(up, pattern, &mut corners, sb_flags)
+        .map_err(cv("findChessboardCornersSB"))?
+    {
+        out.push(Candidate {
+            corners_up: corners.to_vec(),
+            detector: Detector::SectorBased,
+            inverted,
+        });
+    }
+    Ok(())
+}
+
+/// Reorders a row-major grid: flip rows.
+fn flip_rows(corners: &[DVec2], cols: usize, rows: usize) -> Vec<DVec2> {
+    (0..rows)
+        .rev()
+        .flat_map(|r| corners[r * cols..(r + 1) * cols].iter().copied())
+        .collect()
+}
+
+/// Parity statistics of the inner squares: (mean even, mean odd, pooled std).
+fn square_parity_stats(
+    img: &ScalarImage,
+    corners: &[DVec2],
+    cols: usize,
+    rows: usize,
+) -> (f64, f64, f64) {
+    let mut groups: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
+    for r in 0..rows - 1 {
+        for c in 0..cols - 1 {
+            let i = r * cols + c;
+            let centre =
+                (corners[i] + corners[i + 1] + corners[i + cols] + corners[i + cols + 1]) * 0.25;
+            groups[(r + c) % 2].push(img.sample(centre));
+        }
+    }
+    let stats = |g: &[f64]| {
+        let n = g.len().max(1) as f64;
+        let m = g.iter().sum::<f64>() / n;
+        let v = g.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n;
+        (m, v)
+    };
+    let (m0, v0) = stats(&groups[0]);
+    let (m1, v1) = stats(&groups[1]);
+    (m0, m1, ((v0 + v1) * 0.5).sqrt())
+}
+
+/// Float copy of the image stretched like [`stretch_to_u8`] (0..255, not quantised).
+fn stretched_f32(img: &ScalarImage) -> Result<Mat, CalibError> {
+    let mut sorted: Vec<f32> = img
+        .values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    sorted.sort_by(f32::total_cmp);
+    let q = |f: f64| {
+        sorted
+            .get(((sorted.len().max(1) - 1) as f64 * f).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let (a, b) = (q(0.005), q(0.995));
+    let scale = if b > a { 255.0 / (b - a) } else { 0.0 };
+    let mut mat = Mat::new_rows_cols_with_default(
+        img.height_px as i32,
+        img.width_px as i32,
+        opencv::core::CV_32FC1,
+        opencv::core::Scalar::all(0.0),
+    )
+    .map_err(cv("allocate float image"))?;
+    let data = mat
+        .data_typed_mut::<f32>()
+        .map_err(cv("float image data"))?;
+    for (d, v) in data.iter_mut().zip(&img.values) {
+        *d = ((v - a) * scale).clamp(-64.0, 320.0);
+    }
+    Ok(mat)
+}
+
+/// `cornerSubPix` on the float image, window from the square size. Images are refined at
+/// `upscale` × their resolution (cubic interpolation) when `upscale` > 1: at 160×120 the
+/// squares are only ~10 px and the gradient window then holds too few samples.
+fn refine(
+    float_img: &Mat,
+    pts: &[DVec2],
+    cols: usize,
+    upscale: f64,
+) -> Result<Vec<DVec2>, CalibError> {
+    let (img, s) = if upscale > 1.0 {
+        let mut up = Mat::default();
+        imgproc::resize(
+            float_img,
+            &mut up,
+            Size::new(0, 0),
+            upscale,
+            upscale,
+            imgproc::INTER_CUBIC,
+        )
+        .map_err(cv("resize float"))?;
+        (up, upscale)
+    } else {
+        (float_img.clone(), 1.0)
+    };
+    // Window half-size as a fraction of the corner spacing: 0.4 at native resolution; 0.5 for
+    // upscaled small images, whose 5–7 px squares give the gradient window too few real
+    // samples at 0.4 (simulated Lepton: thermal RMS 0.103 px at 0.4, 0.092 px at 0.5, 0.128 px
+    // at 0.3).
+    let win_factor = if upscale > 1.0 { 0.5 } else { 0.4 };
+    let half = (win_factor * min_spacing(pts, cols) * s)
+        .floor()
+        .clamp(2.0, 12.0 * s) as i32;
+    let mut corners: Vector<Point2f> = pts
+        .iter()
+        .map(|p| {
+            Point2f::new(
+                ((p.x + 0.5) * s - 0.5) as f32,
+                ((p.y + 0.5) * s - 0.5) as f32,
+            )
+        })
+        .collect();
+    let criteria = TermCriteria::new(
+        TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
+        60,
+        1e-5,
+    )
+    .map_err(cv("TermCriteria"))?;
+    imgproc::corner_sub_pix(
+        &img,
+        &mut corners,
+        Size::new(half, half),
+        Size::new(-1, -1),
+        criteria,
+    )
+    .map_err(cv("cornerSubPix"))?;
+    Ok(corners
+        .iter()
+        .map(|p| {
+            DVec2::new(
+                (f64::from(p.x) + 0.5) / s - 0.5,
+                (f64::from(p.y) + 0.5) / s - 0.5,
+            )
+        })
+        .collect())
+}
+
+/// Detects the board in a scalar image and returns it in canonical order.
+pub fn detect_board(
+    img: &ScalarImage,
+    board: &BoardSpec,
+) -> Result<Result<BoardDetection, DetectFailure>, CalibError> {
+    let (cols, rows) = (board.cols() as usize, board.rows() as usize);
+    let pattern = Size::new(cols as i32, rows as i32);
+    let grey = stretch_to_u8(img, 0.005, 0.995);
+    let longest = img.width_px.max(img.height_px);
+    // Search scale: small images are upscaled (the detectors need ~10+ px squares), large
+    // ones searched at half size (speed); corners are then refined at full resolution.
+    let primary: f64 = if longest < 480 {
+        f64::from((480 / longest.max(1)).clamp(1, 4))
+    } else if longest > 1000 {
+        0.5
+    } else {
+        1.0
+    };
+    // When the first search scale finds nothing, one more: a finer upscale for small images
+    // (tiny, tilted boards) or full resolution for large ones.
+    let fallback = if primary > 1.0 {
+        Some(primary + 1.0)
+    } else if primary < 1.0 {
+        Some(1.0)
+    } else {
+        None
+    };
+    let base = mat_from_grey(&grey)?;
+    let mut candidates = Vec::new();
+    let mut scale = primary;
+    let mut search = Mat::default();
+    for attempt in std::iter::once(primary).chain(fallback) {
+        scale = attempt;
+        search = if attempt != 1.0 {
+            let mut out = Mat::default();
+            let interpolation = if attempt > 1.0 {
+                imgproc::INTER_CUBIC
+            } else {
+                imgproc::INTER_AREA
+            };
+            imgproc::resize(
+                &base,
+                &mut out,
+                Size::new(0, 0),
+                attempt,
+                attempt,
+                interpolation,
+            )
+            .map_err(cv("resize"))?;
+            out
+        } else {
+            base.clone()
+        };
+        run_detectors(&search, pattern, false, &mut candidates)?;
+        if candidates.is_empty() {
+            let mut inv = Mat::default();
+            opencv::core::bitwise_not_def(&search, &mut inv).map_err(cv("bitwise_not"))?;
+            run_detectors(&inv, pattern, true, &mut candidates)?;
+        }
+        if !candidates.is_empty() {
+            break;
+        }
+    }
+    let s = scale;
+    let to_orig = |p: &Point2f| {
+        DVec2::new(
+            (f64::from(p.x) + 0.5) / s - 0.5,
+            (f64::from(p.y) + 0.5) / s - 0.5,
+        )
+    };
+    let float_img = stretched_f32(img)?;
+    let mut best: Option<(f64, Vec<DVec2>, &Candidate)> = None;
+    for cand in &candidates {
+        let pts: Vec<DVec2> = cand.corners_up.iter().map(to_orig).collect();
+        if pts.len() != cols * rows
+            || pts.iter().any(|p| !p.is_finite())
+            || min_spacing(&pts, cols) < 2.0
+        {
+            continue;
+        }
+        let refined = refine(&float_img, &pts, cols, scale.max(1.0))?;
+        // Refinement must not jump to another corner.
+        let max_move = refined
+            .iter()
+            .zip(&pts)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f64::max);
+        let pts = if max_move < 0.25 * min_spacing(&pts, cols) {
+            refined
+        } else {
+            pts
+        };
+        let rough = roughness(&pts, cols, rows);
+        if best.as_ref().is_none_or(|(r, _, _)| rough < *r) {
+            best = Some((rough, pts, cand));
+        }
+    }
+    let Some((rough, mut pts, cand)) = best else {
+        return Ok(Err(DetectFailure::NotFound));
+    };
+    let up = search;
+    if min_spacing(&pts, cols) < 2.0 {
+        return Ok(Err(DetectFailure::Ambiguous(
+            "corners closer than 2 px".into(),
+        )));
+    }
+    // Handedness: row direction × column direction > 0 in image coordinates (y down).
+    let a = pts[1] - pts[0];
+    let b = pts[cols] - pts[0];
+    if a.perp_dot(b) < 0.0 {
+        pts = flip_rows(&pts, cols, rows);
+    }
+    let (m_even, m_odd, spread) = square_parity_stats(img, &pts, cols, rows);
+    let contrast_z = (m_even - m_odd).abs() / spread.max(1e-9);
+    if contrast_z < 3.0 {
+        return Ok(Err(DetectFailure::Ambiguous(format!(
+            "square contrast z = {contrast_z:.1} < 3: dark and bright squares cannot be told apart"
+        ))));
+    }
+    let ordered_by_colour = !board.is_colour_symmetric();
+    let rotate = if ordered_by_colour {
+        // Inner square (0,0) must be the dark one.
+        m_even > m_odd
+    } else {
+        let d = pts[pts.len() - 1] - pts[0];
+        d.x + d.y < 0.0
+    };
+    if rotate {
+        pts.reverse();
+    }
+    // Sharpness on the 8-bit original-resolution-mapped corners (upscaled image, then rescaled).
+    let up_corners: Vector<Point2f> = pts
+        .iter()
+        .map(|p| {
+            Point2f::new(
+                ((p.x + 0.5) * s - 0.5) as f32,
+                ((p.y + 0.5) * s - 0.5) as f32,
+            )
+        })
+        .collect();
+    let sharp = calib3d::estimate_chessboard_sharpness_def(&up, pattern, &up_corners)
+        .map(|v| v[0] / s)
+        .unwrap_or(f64::NAN);
+    Ok(Ok(BoardDetection {
+        corners_px: pts,
+        detector: match cand.detector {
+            Detector::SectorBased => "sb",
+            Detector::Classic => "classic",
+        },
+        inverted: cand.inverted,
+        sharpness_px: sharp,
+        contrast_z,
+        roughness_px: rough,
+        ordered_by_colour,
+    }))
+}
+
+/// Rotates a canonical detection by 180° (corner i ↔ corner n−1−i). Used when the coated
+/// squares turn out to be the bright ones in thermal images.
+pub fn rotate_180(det: &mut BoardDetection) {
+    det.corners_px.reverse();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn palette_inversion_recovers_the_index() {
+        for p in [Palette::Ironbow, Palette::Inferno] {
+            let lut = palette_lut(p).unwrap_or_else(|| panic!("{p:?} has a table"));
+            for i in [0usize, 17, 100, 200, 255] {
+                let c = lut[i].map(|v| v.round() as u8);
+                let (idx, dist) = nearest_on_palette(lut, c);
+                assert!(
+                    (idx - i as f32).abs() <= 3.0,
+                    "{p:?}: entry {i} came back as {idx} (distance {dist})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn every_listed_file_format_decodes_to_the_right_scalar_kind() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let (w, h) = (32u32, 24u32);
+        let tiff = dir.path().join("t16.tiff");
+        image::ImageBuffer::<image::Luma<u16>, _>::from_fn(w, h, |x, _| {
+            image::Luma([30000 + x as u16])
+        })
+        .save(&tiff)
+        .unwrap_or_else(|e| panic!("{e}"));
+        let grey = dir.path().join("g8.png");
+        image::GrayImage::from_fn(w, h, |x, _| image::Luma([x as u8]))
+            .save(&grey)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let rgba = dir.path().join("c.png");
+        image::RgbaImage::from_fn(w, h, |_, _| image::Rgba([200, 100, 50, 255]))
+            .save(&rgba)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let load = |p: &Path, thermal| {
+            load_scalar(p, thermal, Palette::Auto).unwrap_or_else(|e| panic!("{e}"))
+        };
+        let t = load(&tiff, true);
+        assert_eq!(t.source, SourceKind::Grey16, "16-bit TIFF");
+        assert_eq!(
+            t.values[5], 30005.0,
+            "16-bit counts kept, got {}",
+            t.values[5]
+        );
+        assert_eq!(load(&grey, true).source, SourceKind::Grey8, "8-bit grey");
+        let c = load(&rgba, false);
+        assert_eq!(c.source, SourceKind::ColourLuminance, "RGBA photo");
+        let want = 0.299 * 200.0 + 0.587 * 100.0 + 0.114 * 50.0;
+        assert!(
+            (f64::from(c.values[0]) - want).abs() < 1e-3,
+            "luminance {} want {want}",
+            c.values[0]
+        );
+    }
+
+    #[test]
+    fn stretch_ignores_a_hot_outlier() {
+        let mut values = vec![1000.0f32; 100 * 100];
+        for (i, v) in values.iter_mut().enumerate() {
+            *v += (i % 2) as f32 * 20.0;
+        }
+        values[0] = 60000.0;
+        let img = ScalarImage {
+            width_px: 100,
+            height_px: 100,
+            values,
+            source: SourceKind::Grey16,
+        };
+        let g = stretch_to_u8(&img, 0.005, 0.995);
+        assert_eq!(
+            g.as_raw()[1],
+            255,
+            "the bright half of the board must reach 255"
+        );
+        assert_eq!(g.as_raw()[2], 0, "the dark half must reach 0");
+    }
+}

@@ -1,0 +1,400 @@
+//! `--report DIR`: `report.md` plus PNG plots (plotters): per-view RMS bars, residual vectors
+//! over the image and a corner-coverage heat map per camera, and RMS against solver iteration
+//! and wall time (`rms_vs_iteration.png`, `rms_vs_time.png`, also as `iterations.csv`).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+
+use crate::board::Camera;
+use crate::error::CalibError;
+use crate::pipeline::{Calibration, CameraResult};
+
+fn out_err(path: &Path) -> impl Fn(String) -> CalibError + '_ {
+    move |reason| CalibError::Output {
+        path: path.to_path_buf(),
+        reason,
+    }
+}
+
+fn per_view_bars(r: &CameraResult, path: &Path) -> Result<(), CalibError> {
+    let e = out_err(path);
+    let root = BitMapBackend::new(path, (900, 420)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let n = r.per_view.len().max(1);
+    let ymax = r
+        .per_view
+        .iter()
+        .map(|v| v.rms_px)
+        .fold(0.0, f64::max)
+        .max(1e-3)
+        * 1.15;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("{}: RMS per view (px)", r.camera.name()),
+            ("sans-serif", 20),
+        )
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..n as f64, 0.0..ymax)
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc("view")
+        .y_desc("RMS px")
+        .disable_x_mesh()
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(r.per_view.iter().enumerate().map(|(i, v)| {
+            Rectangle::new(
+                [(i as f64 + 0.1, 0.0), (i as f64 + 0.9, v.rms_px)],
+                BLUE.mix(0.7).filled(),
+            )
+        }))
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(LineSeries::new(
+            [(0.0, r.rms_px), (n as f64, r.rms_px)],
+            RED.stroke_width(2),
+        ))
+        .map_err(|x| e(x.to_string()))?
+        .label(format!("camera RMS {:.3} px", r.rms_px))
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED));
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    root.present().map_err(|x| e(x.to_string()))
+}
+
+fn residual_vectors(
+    c: &Calibration,
+    camera: Camera,
+    r: &CameraResult,
+    path: &Path,
+) -> Result<f64, CalibError> {
+    let e = out_err(path);
+    let (w, h) = (f64::from(r.model.width_px), f64::from(r.model.height_px));
+    let res = &c.residuals[camera.index()];
+    let max = res
+        .iter()
+        .filter(|c| c.inlier)
+        .map(|c| c.residual_px.length())
+        .fold(0.0, f64::max)
+        .max(1e-6);
+    // Longest inlier arrow = 1/12 of the image width.
+    let scale = w / 12.0 / max;
+    let width = 900u32;
+    let height = ((f64::from(width) * h / w) as u32).max(200);
+    let root = BitMapBackend::new(path, (width, height + 40)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("{}: residuals ×{scale:.0} (red: rejected)", camera.name()),
+            ("sans-serif", 18),
+        )
+        .margin(5)
+        .build_cartesian_2d(-0.5..w - 0.5, h - 0.5..-0.5)
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(res.iter().map(|c| {
+            let p = c.observed_px;
+            let q = p + c.residual_px * scale;
+            let colour = if c.inlier { BLUE } else { RED };
+            PathElement::new([(p.x, p.y), (q.x, q.y)], colour.stroke_width(1))
+        }))
+        .map_err(|x| e(x.to_string()))?;
+    root.present().map_err(|x| e(x.to_string()))?;
+    Ok(scale)
+}
+
+fn coverage(
+    c: &Calibration,
+    camera: Camera,
+    r: &CameraResult,
+    path: &Path,
+) -> Result<(), CalibError> {
+    let e = out_err(path);
+    let (w, h) = (f64::from(r.model.width_px), f64::from(r.model.height_px));
+    let (gx, gy) = (16usize, 12usize);
+    let mut counts = vec![0usize; gx * gy];
+    for cr in &c.residuals[camera.index()] {
+        let i = ((cr.observed_px.x + 0.5) / w * gx as f64)
+            .floor()
+            .clamp(0.0, gx as f64 - 1.0) as usize;
+        let j = ((cr.observed_px.y + 0.5) / h * gy as f64)
+            .floor()
+            .clamp(0.0, gy as f64 - 1.0) as usize;
+        counts[j * gx + i] += 1;
+    }
+    let max = counts.iter().copied().max().unwrap_or(1).max(1) as f64;
+    let root = BitMapBackend::new(path, (800, 640)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("{}: corner coverage (white = never covered)", camera.name()),
+            ("sans-serif", 18),
+        )
+        .margin(5)
+        .build_cartesian_2d(0.0..w, h..0.0)
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(
+            (0..gy)
+                .flat_map(|j| (0..gx).map(move |i| (i, j)))
+                .map(|(i, j)| {
+                    let v = counts[j * gx + i] as f64 / max;
+                    let colour = if counts[j * gx + i] == 0 {
+                        WHITE.to_rgba()
+                    } else {
+                        HSLColor(0.66 - 0.66 * v, 0.9, 0.5).to_rgba()
+                    };
+                    let x0 = i as f64 * w / gx as f64;
+                    let y0 = j as f64 * h / gy as f64;
+                    Rectangle::new(
+                        [(x0, y0), (x0 + w / gx as f64, y0 + h / gy as f64)],
+                        colour.filled(),
+                    )
+                }),
+        )
+        .map_err(|x| e(x.to_string()))?;
+    root.present().map_err(|x| e(x.to_string()))
+}
+
+fn rms_curve(c: &Calibration, by_time: bool, path: &Path) -> Result<(), CalibError> {
+    let e = out_err(path);
+    let pts: Vec<(f64, f64)> = c
+        .iterations
+        .iter()
+        .map(|i| {
+            (
+                if by_time {
+                    i.wall_s
+                } else {
+                    i.iteration as f64
+                },
+                i.rms_px,
+            )
+        })
+        .collect();
+    let xmax = pts.iter().map(|p| p.0).fold(0.0, f64::max).max(1e-6);
+    let ymax = pts.iter().map(|p| p.1).fold(0.0, f64::max).max(1e-6) * 1.1;
+    let ymin = pts
+        .iter()
+        .map(|p| p.1)
+        .fold(f64::INFINITY, f64::min)
+        .max(1e-6)
+        * 0.9;
+    let root = BitMapBackend::new(path, (800, 420)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let caption = if by_time {
+        "joint RMS vs solver wall time"
+    } else {
+        "joint RMS vs solver iteration"
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(caption, ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..xmax, ymin..ymax)
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc(if by_time { "seconds" } else { "iteration" })
+        .y_desc("RMS px")
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(LineSeries::new(pts.clone(), BLUE.stroke_width(2)))
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(pts.iter().map(|p| Circle::new(*p, 3, BLUE.filled())))
+        .map_err(|x| e(x.to_string()))?;
+    root.present().map_err(|x| e(x.to_string()))
+}
+
+/// Writes the report into `dir`; returns the files written.
+pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibError> {
+    std::fs::create_dir_all(dir).map_err(|x| CalibError::Output {
+        path: dir.to_path_buf(),
+        reason: x.to_string(),
+    })?;
+    let mut files = Vec::new();
+    let mut md = String::new();
+    let _ = writeln!(md, "# s3tir-calib report\n");
+    let _ = writeln!(
+        md,
+        "Board {}×{} inner corners, {} mm squares. Thermal ordering: {}.\n",
+        c.board.cols(),
+        c.board.rows(),
+        c.board.square_mm,
+        c.polarity_note
+    );
+    let _ = writeln!(
+        md,
+        "Detection {:.2} s, joint solve {:.3} s ({} iterations, converged: {}).\n",
+        c.detection_wall_s,
+        c.solve_wall_s,
+        c.iterations.len().saturating_sub(1),
+        c.converged
+    );
+    let _ = writeln!(
+        md,
+        "## Result\n\n| camera | images | views found | views used | RMS px | OpenCV init RMS px | fx ± σ | fy ± σ | cx ± σ | cy ± σ |\n|---|---|---|---|---|---|---|---|---|---|"
+    );
+    for r in c.cameras.iter().flatten() {
+        let (i, s) = (r.model.intrinsics, r.sigma);
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {:.4} | {:.4} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} |",
+            r.camera.name(),
+            r.images,
+            r.views_found,
+            r.views_used,
+            r.rms_px,
+            r.init_rms_px,
+            i.fx,
+            s.fx,
+            i.fy,
+            s.fy,
+            i.cx,
+            s.cx,
+            i.cy,
+            s.cy
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nJoint RMS {:.4} px over {} pairs (and unpaired views).\n",
+        c.joint_rms_px, c.pairs_used
+    );
+    if let Some(t) = c.rgb_from_thermal {
+        let (axis, angle) = t.rotation.to_axis_angle();
+        let _ = writeln!(
+            md,
+            "`rgb_from_thermal`: rotation {:.4}° about ({:.3}, {:.3}, {:.3}), translation ({:.5}, {:.5}, {:.5}) m",
+            angle.to_degrees(),
+            axis.x,
+            axis.y,
+            axis.z,
+            t.translation_m.x,
+            t.translation_m.y,
+            t.translation_m.z
+        );
+        if let Some(s) = c.extrinsic_sigma {
+            let _ = writeln!(
+                md,
+                "(1σ: rotation ({:.4}, {:.4}, {:.4})°, translation ({:.5}, {:.5}, {:.5}) m).\n",
+                s.rotation_deg[0],
+                s.rotation_deg[1],
+                s.rotation_deg[2],
+                s.translation_m[0],
+                s.translation_m[1],
+                s.translation_m[2]
+            );
+        }
+    }
+    let _ = writeln!(md, "## Warnings\n");
+    if c.warnings.is_empty() {
+        let _ = writeln!(md, "None.");
+    }
+    for w in &c.warnings {
+        let _ = writeln!(md, "- {w}");
+    }
+    let _ = writeln!(md, "\n## Files not used\n");
+    if c.problems.is_empty() {
+        let _ = writeln!(md, "None.");
+    }
+    for p in &c.problems {
+        let _ = writeln!(md, "- `{}`: {}", p.path.display(), p.reason);
+    }
+    let _ = writeln!(md, "\n## Rejected corners (k·σ test)\n");
+    if c.rejected.is_empty() {
+        let _ = writeln!(md, "None.");
+    }
+    for r in &c.rejected {
+        let _ = writeln!(
+            md,
+            "- {} view `{}` corner {}: {:.3} px",
+            r.camera.name(),
+            c.view_keys.get(r.view).map_or("?", String::as_str),
+            r.corner,
+            r.residual_px
+        );
+    }
+    let _ = writeln!(md, "\n## Plots\n");
+    for camera in Camera::BOTH {
+        let Some(r) = &c.cameras[camera.index()] else {
+            continue;
+        };
+        let name = camera.name();
+        let p = dir.join(format!("per_view_rms_{name}.png"));
+        per_view_bars(r, &p)?;
+        files.push(p);
+        let p = dir.join(format!("residuals_{name}.png"));
+        let scale = residual_vectors(c, camera, r, &p)?;
+        files.push(p);
+        let p = dir.join(format!("coverage_{name}.png"));
+        coverage(c, camera, r, &p)?;
+        files.push(p);
+        let _ = writeln!(
+            md,
+            "![{name} per-view RMS](per_view_rms_{name}.png)\n\n![{name} residuals ×{scale:.0}](residuals_{name}.png)\n\n![{name} coverage](coverage_{name}.png)\n"
+        );
+        let _ = writeln!(
+            md,
+            "| {name} view | RMS px | corners | tilt ° |\n|---|---|---|---|"
+        );
+        for v in &r.per_view {
+            let _ = writeln!(
+                md,
+                "| {} | {:.4} | {} | {:.1} |",
+                v.key, v.rms_px, v.corners_used, v.tilt_deg
+            );
+        }
+        let _ = writeln!(md);
+    }
+    for (by_time, name) in [(false, "rms_vs_iteration.png"), (true, "rms_vs_time.png")] {
+        let p = dir.join(name);
+        rms_curve(c, by_time, &p)?;
+        files.push(p);
+        let _ = writeln!(md, "![{name}]({name})\n");
+    }
+    let mut csv = String::from("iteration,wall_s,rms_px,lambda\n");
+    for i in &c.iterations {
+        let _ = writeln!(
+            csv,
+            "{},{:.6},{:.6},{:.3e}",
+            i.iteration, i.wall_s, i.rms_px, i.lambda
+        );
+    }
+    let p = dir.join("iterations.csv");
+    std::fs::write(&p, csv).map_err(|x| CalibError::Output {
+        path: p.clone(),
+        reason: x.to_string(),
+    })?;
+    files.push(p);
+    let p = dir.join("report.md");
+    std::fs::write(&p, md).map_err(|x| CalibError::Output {
+        path: p.clone(),
+        reason: x.to_string(),
+    })?;
+    files.push(p);
+    Ok(files)
+}

@@ -1,0 +1,151 @@
+//! Proves the `s3tir-calib BOARD_DIR --out … --report … --summary-json …` command line works
+//! end to end on OpenCV's stereo samples: exit status 0, the summary JSON carries the issue's
+//! keys with finite values, calibration.yaml and every export are written, the report has its
+//! markdown and PNG plots. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
+#![cfg(feature = "opencv")]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+#[test]
+fn calibrate_command_writes_summary_exports_and_report() {
+    let src = std::env::var_os("S3TIR_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
+        .join("data/opencv-stereo");
+    let tmp = tempfile::tempdir().unwrap();
+    let board = tmp.path().join("board");
+    std::fs::create_dir_all(board.join("thermal")).unwrap();
+    std::fs::create_dir_all(board.join("rgb")).unwrap();
+    std::fs::write(
+        board.join("board.toml"),
+        "[board]\ninner_corners = [9, 6]\nsquare_mm = 25.0\n",
+    )
+    .unwrap();
+    for n in ["01", "02", "03", "04", "05", "06", "07", "08"] {
+        std::fs::copy(
+            src.join(format!("left{n}.jpg")),
+            board.join(format!("thermal/thermal_{n}.jpg")),
+        )
+        .unwrap();
+        std::fs::copy(
+            src.join(format!("right{n}.jpg")),
+            board.join(format!("rgb/rgb_{n}.jpg")),
+        )
+        .unwrap();
+    }
+    let out = tmp.path().join("out/calibration.yaml");
+    let report = tmp.path().join("report");
+    let summary = tmp.path().join("summary.json");
+    let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
+        .arg(&board)
+        .arg("--out")
+        .arg(&out)
+        .arg("--report")
+        .arg(&report)
+        .arg("--summary-json")
+        .arg(&summary)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(
+        result.status.success(),
+        "exit {:?}\nstdout {stdout}\nstderr {}",
+        result.status,
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    for camera in ["thermal", "rgb"] {
+        for key in [
+            "images",
+            "views_found",
+            "views_used",
+            "rms_px",
+            "fx",
+            "fy",
+            "cx",
+            "cy",
+        ] {
+            let v = json[camera][key].as_f64().unwrap_or_else(|| {
+                panic!("summary {camera}.{key} missing or not a number: {json}")
+            });
+            assert!(v.is_finite() && v > 0.0, "{camera}.{key} = {v}");
+        }
+        assert_eq!(json[camera]["images"], 8, "{camera} images");
+    }
+    assert_eq!(json["pairs_used"], 8, "pairs_used");
+    assert!(
+        json["joint_rms_px"].as_f64().unwrap() < 0.5,
+        "joint_rms_px {}",
+        json["joint_rms_px"]
+    );
+    let rot = json["rgb_from_thermal"]["rotation"].as_array().unwrap();
+    assert_eq!(rot.len(), 3, "rotation rows");
+    assert!(
+        rot.iter().all(|r| r.as_array().unwrap().len() == 3),
+        "3x3 rotation: {rot:?}"
+    );
+    assert_eq!(
+        json["rgb_from_thermal"]["translation"]
+            .as_array()
+            .unwrap()
+            .len(),
+        3
+    );
+    let dir = out.parent().unwrap();
+    for name in [
+        "calibration.yaml",
+        "calibration.opencv-thermal.yaml",
+        "calibration.opencv-rgb.yaml",
+        "calibration.opencv-stereo.yaml",
+        "calibration.ros-thermal.yaml",
+        "calibration.ros-rgb.yaml",
+        "calibration.camchain.yaml",
+        "calibration.colmap-cameras.txt",
+    ] {
+        let text =
+            std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(!text.contains("nan"), "{name} has NaN");
+    }
+    let yaml = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        yaml.contains("format: s3tir-calibration/1") && yaml.contains("rgb_from_thermal:"),
+        "{yaml}"
+    );
+    let colmap = std::fs::read_to_string(dir.join("calibration.colmap-cameras.txt")).unwrap();
+    assert!(
+        colmap
+            .lines()
+            .filter(|l| l.contains("FULL_OPENCV 640 480"))
+            .count()
+            == 2,
+        "{colmap}"
+    );
+    for name in [
+        "report.md",
+        "per_view_rms_thermal.png",
+        "residuals_rgb.png",
+        "coverage_thermal.png",
+        "coverage_rgb.png",
+        "rms_vs_iteration.png",
+        "rms_vs_time.png",
+        "iterations.csv",
+    ] {
+        let meta =
+            std::fs::metadata(report.join(name)).unwrap_or_else(|e| panic!("report/{name}: {e}"));
+        assert!(meta.len() > 100, "report/{name} is {} bytes", meta.len());
+    }
+}
+
+#[test]
+fn mcap_input_is_refused_with_a_clear_error() {
+    let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
+        .arg("/nonexistent/session.mcap")
+        .output()
+        .unwrap();
+    assert!(!result.status.success(), "must fail");
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(stderr.contains("not supported yet"), "stderr: {stderr}");
+}

@@ -1,0 +1,467 @@
+//! The capture daemon: device reader threads → one bounded queue → pipeline → session writer,
+//! on a tokio runtime that also handles signals, the recording duration, chunk-flush ticks and
+//! the status line.
+//!
+//! - Backpressure: readers `try_send` into a bounded queue of [`DaemonConfig::queue_frames`]
+//!   buffers. When the writer falls behind (slow disk) frames are dropped and counted per
+//!   stream (`queue_drops_*` in the session's status records), never buffered without bound.
+//! - Reconnect: a reader whose device fails (unplugged camera, simulated rig gone) reopens it
+//!   every 200 ms until it returns; each return is counted in `reconnects`.
+//! - Shutdown: SIGINT/SIGTERM or the end of `--duration` stop the readers, drain the queue,
+//!   decide pending pairs, and finish the file (summary + footer).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use tokio::sync::mpsc;
+
+use crate::device::FrameSource;
+use crate::error::CaptureError;
+use crate::frame::{FfcState, RawFrame, StreamKind};
+use crate::pairing::PairingMode;
+use crate::pipeline::{Pipeline, StreamCounts};
+use crate::session::{SessionInfo, SessionRecord, SessionWriter, StatusRecord};
+use crate::synth::wall_now_ns;
+
+/// Opens (and reopens) a device.
+pub type SourceFactory =
+    Box<dyn Fn() -> Result<Box<dyn FrameSource>, CaptureError> + Send + Sync + 'static>;
+
+/// A device the daemon reads, by name.
+pub struct SourceSpec {
+    pub name: String,
+    pub open: SourceFactory,
+}
+
+impl std::fmt::Debug for SourceSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SourceSpec")
+            .field("name", &self.name)
+            .finish()
+    }
+}
+
+/// What the daemon records.
+pub struct DaemonConfig {
+    pub sources: Vec<SourceSpec>,
+    pub out: PathBuf,
+    pub info: SessionInfo,
+    pub pairing: PairingMode,
+    /// Stop after this long (`None`: until SIGINT/SIGTERM or `stop` is set).
+    pub duration: Option<Duration>,
+    /// Capacity of the reader → writer queue, in buffers.
+    pub queue_frames: usize,
+    /// Draw the live status line on stderr.
+    pub status_line: bool,
+    /// Calibration file attached to the session.
+    pub calibration: Option<(String, Vec<u8>)>,
+    /// Extra per-buffer write delay (tests: simulates a slow disk).
+    pub slow_disk: Option<Duration>,
+    /// Polls the thermal core's FFC state (Boson over FSLP), every 100 ms in its own thread.
+    /// Thermal frames whose device says nothing about FFC (V4L2 Y16 from a Boson carries no
+    /// telemetry) take the last polled state, so frozen frames are flagged.
+    pub ffc_poll: Option<FfcPoller>,
+}
+
+impl std::fmt::Debug for DaemonConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DaemonConfig")
+            .field("sources", &self.sources)
+            .field("out", &self.out)
+            .field("pairing", &self.pairing)
+            .field("duration", &self.duration)
+            .field("queue_frames", &self.queue_frames)
+            .field("ffc_poll", &self.ffc_poll.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+/// See [`DaemonConfig::ffc_poll`].
+pub type FfcPoller = Box<dyn FnMut() -> Result<FfcState, CaptureError> + Send + 'static>;
+
+const FFC_NONE: u8 = 255;
+
+fn ffc_to_u8(s: FfcState) -> u8 {
+    match s {
+        FfcState::Idle => 0,
+        FfcState::Imminent => 1,
+        FfcState::InProgress => 2,
+        FfcState::Unknown => FFC_NONE,
+    }
+}
+
+fn ffc_from_u8(v: u8) -> FfcState {
+    match v {
+        0 => FfcState::Idle,
+        1 => FfcState::Imminent,
+        2 => FfcState::InProgress,
+        _ => FfcState::Unknown,
+    }
+}
+
+/// Gives a thermal buffer the polled FFC state when its device reported none.
+pub fn apply_polled_ffc(raw: &mut RawFrame, polled: FfcState) {
+    if raw.stream == StreamKind::Thermal && raw.ffc_hint == FfcState::Unknown {
+        raw.ffc_hint = polled;
+    }
+}
+
+/// Live counters, shared with the status line and the caller.
+#[derive(Debug, Default)]
+pub struct Counters {
+    pub frames: [AtomicU64; 2],
+    pub rejected: [AtomicU64; 2],
+    pub queue_drops: [AtomicU64; 2],
+    pub reconnects: AtomicU64,
+    pub serial_errors: AtomicU64,
+    pub bytes: AtomicU64,
+}
+
+impl Counters {
+    fn status(&self) -> StatusRecord {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        StatusRecord {
+            wall_unix_ns: wall_now_ns(),
+            rejected_thermal: l(&self.rejected[0]),
+            rejected_rgb: l(&self.rejected[1]),
+            queue_drops_thermal: l(&self.queue_drops[0]),
+            queue_drops_rgb: l(&self.queue_drops[1]),
+            reconnects: l(&self.reconnects),
+            serial_errors: l(&self.serial_errors),
+        }
+    }
+}
+
+/// What a finished recording did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonReport {
+    pub thermal: StreamCounts,
+    pub rgb: StreamCounts,
+    pub pairs: u64,
+    pub status: StatusRecord,
+    pub bytes_written: u64,
+    pub elapsed_s: f64,
+}
+
+enum Msg {
+    Frame {
+        device: Arc<str>,
+        raw: RawFrame,
+        wall_unix_ns: u64,
+    },
+    Tick,
+}
+
+fn idx(s: StreamKind) -> usize {
+    match s {
+        StreamKind::Thermal => 0,
+        StreamKind::Rgb => 1,
+    }
+}
+
+/// Records until the duration ends, a signal arrives, or `stop` is set. Blocks the calling
+/// thread (it builds its own tokio runtime).
+pub fn run(
+    cfg: DaemonConfig,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+) -> Result<DaemonReport, CaptureError> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|source| CaptureError::SessionIo {
+            path: cfg.out.clone(),
+            what: "start runtime",
+            source,
+        })?;
+    rt.block_on(run_async(cfg, stop, counters))
+}
+
+async fn run_async(
+    cfg: DaemonConfig,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+) -> Result<DaemonReport, CaptureError> {
+    let started = Instant::now();
+    let mut writer = SessionWriter::create(&cfg.out, &cfg.info)?;
+    if let Some((name, data)) = &cfg.calibration {
+        writer.attach(name, "application/toml", data)?;
+    }
+    let (tx, mut rx) = mpsc::channel::<Msg>(cfg.queue_frames.max(2));
+
+    // FFC poller (serial control), when configured.
+    let ffc = Arc::new(AtomicU8::new(FFC_NONE));
+    let mut readers = Vec::new();
+    if let Some(mut poll) = cfg.ffc_poll {
+        let (ffc, stop, counters) = (ffc.clone(), stop.clone(), counters.clone());
+        readers.push(tokio::task::spawn_blocking(move || {
+            while !stop.load(Ordering::Relaxed) {
+                match poll() {
+                    Ok(s) => ffc.store(ffc_to_u8(s), Ordering::Relaxed),
+                    Err(e) => {
+                        counters.serial_errors.fetch_add(1, Ordering::Relaxed);
+                        ffc.store(FFC_NONE, Ordering::Relaxed);
+                        tracing::warn!("FFC state poll failed: {e}");
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }));
+    }
+    // Readers: one blocking thread per device.
+    for spec in cfg.sources {
+        let tx = tx.clone();
+        let stop = stop.clone();
+        let counters = counters.clone();
+        let ffc = ffc.clone();
+        readers.push(tokio::task::spawn_blocking(move || {
+            read_loop(spec, tx, stop, counters, ffc);
+        }));
+    }
+
+    // Writer: the pipeline and the file, on a blocking thread.
+    let wcounters = counters.clone();
+    let pairing = cfg.pairing;
+    let slow = cfg.slow_disk;
+    let writer_task =
+        tokio::task::spawn_blocking(move || -> Result<(Pipeline, u64), CaptureError> {
+            let mut pipe = Pipeline::new(pairing);
+            let mut last_status = Instant::now();
+            let mut warned = 0u32;
+            while let Some(msg) = rx.blocking_recv() {
+                match msg {
+                    Msg::Frame {
+                        device,
+                        raw,
+                        wall_unix_ns,
+                    } => {
+                        let k = idx(raw.stream);
+                        match pipe.push(&device, &raw, wall_unix_ns) {
+                            Ok(recs) => {
+                                for r in &recs {
+                                    writer.write(r)?;
+                                }
+                                wcounters.frames[k].fetch_add(1, Ordering::Relaxed);
+                                wcounters
+                                    .bytes
+                                    .store(writer.bytes_written(), Ordering::Relaxed);
+                            }
+                            Err(e) => {
+                                wcounters.rejected[k].fetch_add(1, Ordering::Relaxed);
+                                if warned < 20 {
+                                    warned += 1;
+                                    tracing::warn!("rejected buffer: {e}");
+                                }
+                            }
+                        }
+                        if let Some(d) = slow {
+                            std::thread::sleep(d);
+                        }
+                    }
+                    Msg::Tick => writer.tick()?,
+                }
+                if last_status.elapsed() >= Duration::from_secs(1) {
+                    last_status = Instant::now();
+                    writer.write(&SessionRecord::Status(wcounters.status()))?;
+                }
+            }
+            for r in pipe.finish() {
+                writer.write(&r)?;
+            }
+            writer.write(&SessionRecord::Status(wcounters.status()))?;
+            let bytes = writer.bytes_written();
+            writer.finish()?;
+            Ok((pipe, bytes))
+        });
+
+    // Control: ticks, status line, signals, duration.
+    let bar = if cfg.status_line {
+        let b = indicatif::ProgressBar::new_spinner();
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {elapsed} {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+        );
+        Some(b)
+    } else {
+        None
+    };
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .map_err(|source| CaptureError::SessionIo {
+            path: cfg.out.clone(),
+            what: "install SIGINT handler",
+            source,
+        })?;
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .map_err(|source| CaptureError::SessionIo {
+            path: cfg.out.clone(),
+            what: "install SIGTERM handler",
+            source,
+        })?;
+    let mut tick = tokio::time::interval(Duration::from_millis(100));
+    let mut last_frames = [0u64; 2];
+    let mut last_status = Instant::now();
+    let mut status_count = 0u64;
+    loop {
+        tokio::select! {
+            _ = sigint.recv() => { tracing::info!("SIGINT: finishing the session"); break; }
+            _ = sigterm.recv() => { tracing::info!("SIGTERM: finishing the session"); break; }
+            _ = tick.tick() => {
+                if stop.load(Ordering::Relaxed) { break; }
+                if cfg.duration.is_some_and(|d| started.elapsed() >= d) { break; }
+                // A full queue delays the tick, never drops it. A closed queue means the
+                // writer stopped (disk full, I/O error): stop and report its error.
+                if tx.send(Msg::Tick).await.is_err() {
+                    tracing::error!("the session writer stopped; ending the recording");
+                    break;
+                }
+                if last_status.elapsed() >= Duration::from_secs(1) {
+                    let dt = last_status.elapsed().as_secs_f64();
+                    last_status = Instant::now();
+                    let f = [counters.frames[0].load(Ordering::Relaxed), counters.frames[1].load(Ordering::Relaxed)];
+                    let fps = [(f[0] - last_frames[0]) as f64 / dt, (f[1] - last_frames[1]) as f64 / dt];
+                    last_frames = f;
+                    let s = counters.status();
+                    let msg = format!(
+                        "thermal {:.1} fps | rgb {:.1} fps | rejected {}/{} | queue drops {}/{} | reconnects {} | {:.1} MB",
+                        fps[0], fps[1], s.rejected_thermal, s.rejected_rgb, s.queue_drops_thermal,
+                        s.queue_drops_rgb, s.reconnects,
+                        counters.bytes.load(Ordering::Relaxed) as f64 / 1e6
+                    );
+                    status_count += 1;
+                    match &bar {
+                        Some(b) if !b.is_hidden() => b.set_message(msg),
+                        // No terminal (systemd, a pipe): the status goes to the log every 10 s.
+                        _ if status_count.is_multiple_of(10) => tracing::info!("{msg}"),
+                        _ => tracing::debug!("{msg}"),
+                    }
+                }
+            }
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    for r in readers {
+        let _ = r.await;
+    }
+    drop(tx);
+    let (pipe, bytes_written) = writer_task.await.map_err(|e| CaptureError::SessionIo {
+        path: cfg.out.clone(),
+        what: "writer task",
+        source: std::io::Error::other(e.to_string()),
+    })??;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    Ok(DaemonReport {
+        thermal: pipe.thermal,
+        rgb: pipe.rgb,
+        pairs: pipe.pairs,
+        status: counters.status(),
+        bytes_written,
+        elapsed_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+fn read_loop(
+    spec: SourceSpec,
+    tx: mpsc::Sender<Msg>,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+    ffc: Arc<AtomicU8>,
+) {
+    let name: Arc<str> = Arc::from(spec.name.as_str());
+    let mut source: Option<Box<dyn FrameSource>> = None;
+    let mut ever_opened = false;
+    let mut warned_open = false;
+    while !stop.load(Ordering::Relaxed) {
+        let Some(src) = source.as_mut() else {
+            match (spec.open)() {
+                Ok(s) => {
+                    if ever_opened {
+                        counters.reconnects.fetch_add(1, Ordering::Relaxed);
+                        tracing::info!(device = %name, "device is back: reconnected");
+                    }
+                    ever_opened = true;
+                    warned_open = false;
+                    source = Some(s);
+                }
+                Err(e) => {
+                    if !warned_open {
+                        tracing::warn!(device = %name, "cannot open ({e}); retrying every 200 ms");
+                        warned_open = true;
+                    }
+                    std::thread::sleep(Duration::from_millis(200));
+                }
+            }
+            continue;
+        };
+        match src.next_frame(Duration::from_millis(1000)) {
+            Ok(Some(mut raw)) => {
+                apply_polled_ffc(&mut raw, ffc_from_u8(ffc.load(Ordering::Relaxed)));
+                let k = idx(raw.stream);
+                let msg = Msg::Frame {
+                    device: name.clone(),
+                    raw,
+                    wall_unix_ns: wall_now_ns(),
+                };
+                match tx.try_send(msg) {
+                    Ok(()) => {}
+                    Err(mpsc::error::TrySendError::Full(_)) => {
+                        counters.queue_drops[k].fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(mpsc::error::TrySendError::Closed(_)) => return,
+                }
+            }
+            Ok(None) => {}
+            Err(e) => {
+                tracing::warn!(device = %name, "device failed ({e}); reconnecting");
+                source = None;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! Proves: the polled FFC state is applied only to thermal buffers whose device said
+    //! nothing (V4L2), never overriding a device's own report; the state encoding round-trips.
+    use super::*;
+    use crate::device::FourCc;
+    use crate::frame::ThermalUnits;
+
+    #[test]
+    fn polled_ffc_fills_only_unknown_thermal_state() {
+        let mut raw = RawFrame {
+            stream: StreamKind::Thermal,
+            fourcc: FourCc::Y16,
+            width: 1,
+            height: 1,
+            bytes_per_line: 2,
+            telemetry_rows: 0,
+            units: ThermalUnits::RawCounts,
+            ffc_hint: FfcState::Unknown,
+            sequence: 0,
+            monotonic_ns: 0,
+            payload: vec![0, 0],
+        };
+        apply_polled_ffc(&mut raw, FfcState::InProgress);
+        assert_eq!(raw.ffc_hint, FfcState::InProgress);
+        raw.ffc_hint = FfcState::Idle;
+        apply_polled_ffc(&mut raw, FfcState::InProgress);
+        assert_eq!(raw.ffc_hint, FfcState::Idle, "device report wins");
+        raw.stream = StreamKind::Rgb;
+        raw.ffc_hint = FfcState::Unknown;
+        apply_polled_ffc(&mut raw, FfcState::InProgress);
+        assert_eq!(raw.ffc_hint, FfcState::Unknown, "RGB untouched");
+        for s in [
+            FfcState::Idle,
+            FfcState::Imminent,
+            FfcState::InProgress,
+            FfcState::Unknown,
+        ] {
+            assert_eq!(ffc_from_u8(ffc_to_u8(s)), s);
+        }
+    }
+}

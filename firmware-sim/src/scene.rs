@@ -1,0 +1,605 @@
+//! Simple thermal scenes with ground truth for the trainer, written as a COLMAP text model.
+//!
+//! World frame: x east, y north, z up, metres; the ground is the plane z = 0.
+//! Objects (all grey bodies reflecting surroundings at [`ENV_K`]):
+//! - ground plane, |x|, |y| ≤ 2 m, 291 K, ε 0.95 (RGB: two-tone 0.2 m tiles);
+//! - heated pipe: cylinder along x from −0.6 to 0.6 m, radius 5 cm, axis at y = 0.3 m,
+//!   z = 0.25 m, ε 0.9, temperature falling linearly from 333 K (x = −0.6) to 303 K (x = 0.6);
+//! - box 0.3 m cube centred at (0, −0.35, 0.15), 313 K everywhere, painted (ε 0.95) for x < 0,
+//!   bare metal (ε 0.12) for x ≥ 0: a sharp apparent-temperature edge on a uniform temperature;
+//! - radiator panel: vertical rectangle y = 0.8 m, x ∈ [−0.45, 0.45], z ∈ [0.05, 0.65], fins
+//!   every 6 cm (318 ± 4 K), ε 0.93.
+//!
+//! Rays that hit nothing see a background at [`BACKGROUND_K`] (black body).
+//!
+//! Cameras: pinhole without distortion (COLMAP `PINHOLE`), on an orbit of radius 1.6 m at
+//! height 0.9 m around (0, 0, 0.15), all looking at that point; 57° horizontal field of view.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DQuat, DVec2, DVec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use s3tir_calib::{BrownConrady, CameraModel, Intrinsics, Rigid3};
+use serde::Serialize;
+
+use crate::error::SimError;
+use crate::physics::Radiometry;
+use crate::render::{RayGrid, gaussian_blur};
+use crate::sensor::{
+    RgbProfile, ThermalOutput, ThermalProfile, ThermalSensor, expose_rgb_channels,
+};
+
+/// Temperature of the surroundings every surface reflects, kelvin.
+pub const ENV_K: f64 = 290.0;
+/// Apparent temperature of rays that hit nothing, kelvin.
+pub const BACKGROUND_K: f64 = 285.0;
+const BACKGROUND_RGB: [f64; 3] = [0.30, 0.34, 0.40];
+
+/// Parameters of a scene dataset.
+#[derive(Debug, Clone)]
+pub struct SceneConfig {
+    pub out_dir: PathBuf,
+    pub views: usize,
+    pub width_px: u32,
+    pub height_px: u32,
+    pub seed: u64,
+}
+
+/// What a ray hits.
+#[derive(Debug, Clone, Copy)]
+pub struct SurfaceHit {
+    /// Ray parameter: distance along the (unit-z) camera ray, i.e. depth if the ray has z = 1.
+    pub t: f64,
+    pub temp_k: f64,
+    pub emissivity: f64,
+    pub albedo: [f64; 3],
+    /// Unit normal facing the ray origin (world frame).
+    pub normal: DVec3,
+}
+
+const PIPE_X: (f64, f64) = (-0.6, 0.6);
+const PIPE_R: f64 = 0.05;
+const PIPE_YZ: (f64, f64) = (0.3, 0.25);
+const BOX_C: DVec3 = DVec3::new(0.0, -0.35, 0.15);
+const BOX_H: f64 = 0.15;
+const RAD_Y: f64 = 0.8;
+const RAD_X: (f64, f64) = (-0.45, 0.45);
+const RAD_Z: (f64, f64) = (0.05, 0.65);
+
+fn pipe_temp_k(x: f64) -> f64 {
+    let f = ((x - PIPE_X.0) / (PIPE_X.1 - PIPE_X.0)).clamp(0.0, 1.0);
+    333.0 - 30.0 * f
+}
+
+fn radiator_temp_k(x: f64) -> f64 {
+    318.0 + 4.0 * (2.0 * std::f64::consts::PI * x / 0.06).cos()
+}
+
+fn face(n: DVec3, d: DVec3) -> DVec3 {
+    if n.dot(d) > 0.0 { -n } else { n }
+}
+
+/// Nearest surface along the ray `o + t d` (t > 1e-9), world frame.
+pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    let mut best: Option<SurfaceHit> = None;
+    let mut consider = |h: SurfaceHit| {
+        if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
+            best = Some(h);
+        }
+    };
+    // Ground.
+    if d.z.abs() > 1e-12 {
+        let t = -o.z / d.z;
+        let p = o + d * t;
+        if p.x.abs() <= 2.0 && p.y.abs() <= 2.0 {
+            let tile = ((p.x / 0.2).floor() + (p.y / 0.2).floor()) as i64 % 2 == 0;
+            let a = if tile { 0.30 } else { 0.38 };
+            consider(SurfaceHit {
+                t,
+                temp_k: 291.0,
+                emissivity: 0.95,
+                albedo: [a, a * 0.95, a * 0.85],
+                normal: face(DVec3::Z, d),
+            });
+        }
+    }
+    // Pipe side.
+    let (oy, oz) = (o.y - PIPE_YZ.0, o.z - PIPE_YZ.1);
+    let a = d.y * d.y + d.z * d.z;
+    if a > 1e-15 {
+        let b = 2.0 * (oy * d.y + oz * d.z);
+        let c = oy * oy + oz * oz - PIPE_R * PIPE_R;
+        let disc = b * b - 4.0 * a * c;
+        if disc >= 0.0 {
+            for t in [
+                (-b - disc.sqrt()) / (2.0 * a),
+                (-b + disc.sqrt()) / (2.0 * a),
+            ] {
+                let p = o + d * t;
+                if t > 1e-9 && p.x >= PIPE_X.0 && p.x <= PIPE_X.1 {
+                    let n = DVec3::new(0.0, p.y - PIPE_YZ.0, p.z - PIPE_YZ.1) / PIPE_R;
+                    consider(SurfaceHit {
+                        t,
+                        temp_k: pipe_temp_k(p.x),
+                        emissivity: 0.9,
+                        albedo: [0.55, 0.25, 0.12],
+                        normal: face(n, d),
+                    });
+                    break;
+                }
+            }
+        }
+    }
+    // Pipe end caps.
+    if d.x.abs() > 1e-12 {
+        for x in [PIPE_X.0, PIPE_X.1] {
+            let t = (x - o.x) / d.x;
+            let p = o + d * t;
+            if (p.y - PIPE_YZ.0).powi(2) + (p.z - PIPE_YZ.1).powi(2) <= PIPE_R * PIPE_R {
+                consider(SurfaceHit {
+                    t,
+                    temp_k: pipe_temp_k(x),
+                    emissivity: 0.9,
+                    albedo: [0.45, 0.2, 0.1],
+                    normal: face(DVec3::X, d),
+                });
+            }
+        }
+    }
+    // Box (slabs).
+    let lo = BOX_C - DVec3::splat(BOX_H);
+    let hi = BOX_C + DVec3::splat(BOX_H);
+    let (mut t0, mut t1, mut axis0) = (f64::MIN, f64::MAX, 0usize);
+    let mut hit_box = true;
+    for k in 0..3 {
+        let (ok, dk, lk, hk) = (o[k], d[k], lo[k], hi[k]);
+        if dk.abs() < 1e-15 {
+            if ok < lk || ok > hk {
+                hit_box = false;
+            }
+            continue;
+        }
+        let (mut a, mut b) = ((lk - ok) / dk, (hk - ok) / dk);
+        if a > b {
+            std::mem::swap(&mut a, &mut b);
+        }
+        if a > t0 {
+            t0 = a;
+            axis0 = k;
+        }
+        t1 = t1.min(b);
+    }
+    if hit_box && t0 <= t1 && t0 > 1e-9 {
+        let p = o + d * t0;
+        let mut n = DVec3::ZERO;
+        n[axis0] = 1.0;
+        let painted = p.x < BOX_C.x;
+        consider(SurfaceHit {
+            t: t0,
+            temp_k: 313.0,
+            emissivity: if painted { 0.95 } else { 0.12 },
+            albedo: if painted {
+                [0.15, 0.25, 0.6]
+            } else {
+                [0.6, 0.6, 0.62]
+            },
+            normal: face(n, d),
+        });
+    }
+    // Radiator panel (double-sided).
+    if d.y.abs() > 1e-12 {
+        let t = (RAD_Y - o.y) / d.y;
+        let p = o + d * t;
+        if p.x >= RAD_X.0 && p.x <= RAD_X.1 && p.z >= RAD_Z.0 && p.z <= RAD_Z.1 {
+            let fin = 0.75 + 0.1 * (2.0 * std::f64::consts::PI * p.x / 0.06).cos();
+            consider(SurfaceHit {
+                t,
+                temp_k: radiator_temp_k(p.x),
+                emissivity: 0.93,
+                albedo: [fin, fin, fin * 0.97],
+                normal: face(DVec3::Y, d),
+            });
+        }
+    }
+    best
+}
+
+/// `cam_from_world` of a camera at `eye` looking at `target` (world z up, image y down).
+pub fn look_at(eye: DVec3, target: DVec3) -> Rigid3 {
+    let fwd = (target - eye).normalize();
+    let right = fwd.cross(DVec3::Z).normalize();
+    let down = fwd.cross(right);
+    let world_from_cam = Rigid3::new(DQuat::from_mat3(&DMat3::from_cols(right, down, fwd)), eye);
+    world_from_cam.inverse()
+}
+
+/// The orbit: `n` cameras evenly spaced in azimuth.
+pub fn orbit(n: usize) -> Vec<Rigid3> {
+    let target = DVec3::new(0.0, 0.0, 0.15);
+    (0..n)
+        .map(|k| {
+            let a = 2.0 * std::f64::consts::PI * k as f64 / n.max(1) as f64 + 0.3;
+            let eye = DVec3::new(1.6 * a.cos(), 1.6 * a.sin(), 0.9);
+            look_at(eye, target)
+        })
+        .collect()
+}
+
+/// The pinhole camera of a `width × height` scene image (57° horizontal field of view).
+pub fn scene_camera(width_px: u32, height_px: u32) -> CameraModel {
+    let f = f64::from(width_px) / 2.0 / (28.5f64.to_radians()).tan();
+    CameraModel {
+        width_px,
+        height_px,
+        intrinsics: Intrinsics {
+            fx: f,
+            fy: f,
+            cx: (f64::from(width_px) - 1.0) / 2.0,
+            cy: (f64::from(height_px) - 1.0) / 2.0,
+        },
+        distortion: BrownConrady::default(),
+    }
+}
+
+/// Per-view renders.
+#[derive(Debug, Clone)]
+pub struct SceneRender {
+    /// Area-averaged apparent in-band radiance (4×4 sub-samples per pixel).
+    pub radiance: Vec<f64>,
+    /// Area-averaged linear RGB (shaded albedo).
+    pub rgb_linear: [Vec<f64>; 3],
+    /// Depth (camera z, metres) along the pixel-centre ray; 0 where nothing is hit.
+    pub depth_m: Vec<f64>,
+    /// True surface temperature along the pixel-centre ray, kelvin; 0 where nothing is hit.
+    pub temp_k: Vec<f64>,
+}
+
+/// Sub-samples per pixel axis.
+pub const SCENE_SUBPIXELS: usize = 4;
+
+/// Renders one view of the scene.
+pub fn render_scene(
+    grid: &RayGrid,
+    cam_from_world: &Rigid3,
+    radiometry: &Radiometry,
+) -> SceneRender {
+    let (w, h) = (grid.width(), grid.height());
+    let world_from_cam = cam_from_world.inverse();
+    let eye = world_from_cam.translation_m;
+    let light = DVec3::new(0.3, -0.4, 1.0).normalize();
+    let l_env = radiometry.radiance(ENV_K);
+    let l_bg = radiometry.radiance(BACKGROUND_K);
+    let n = SCENE_SUBPIXELS;
+    let mut out = SceneRender {
+        radiance: vec![0.0; w * h],
+        rgb_linear: [vec![0.0; w * h], vec![0.0; w * h], vec![0.0; w * h]],
+        depth_m: vec![0.0; w * h],
+        temp_k: vec![0.0; w * h],
+    };
+    for v in 0..h {
+        for u in 0..w {
+            let k = v * w + u;
+            let (mut l_acc, mut c_acc) = (0.0, [0.0; 3]);
+            for j in 0..n {
+                for i in 0..n {
+                    let ray = grid.sub_ray(
+                        u,
+                        v,
+                        (i as f64 + 0.5) / n as f64,
+                        (j as f64 + 0.5) / n as f64,
+                    );
+                    let d = world_from_cam.transform_vector(ray);
+                    match trace(eye, d) {
+                        Some(s) => {
+                            l_acc += s.emissivity * radiometry.radiance(s.temp_k)
+                                + (1.0 - s.emissivity) * l_env;
+                            let shade = 0.35 + 0.65 * s.normal.dot(light).max(0.0);
+                            for (c, a) in c_acc.iter_mut().zip(s.albedo) {
+                                *c += a * shade;
+                            }
+                        }
+                        None => {
+                            l_acc += l_bg;
+                            for (c, a) in c_acc.iter_mut().zip(BACKGROUND_RGB) {
+                                *c += a;
+                            }
+                        }
+                    }
+                }
+            }
+            let nn = (n * n) as f64;
+            out.radiance[k] = l_acc / nn;
+            for (ch, c) in out.rgb_linear.iter_mut().zip(c_acc) {
+                ch[k] = c / nn;
+            }
+            let centre = grid.centre_ray(u, v);
+            if let Some(s) = trace(eye, world_from_cam.transform_vector(centre)) {
+                // The ray has camera z = 1, so t is the depth.
+                out.depth_m[k] = s.t;
+                out.temp_k[k] = s.temp_k;
+            }
+        }
+    }
+    out
+}
+
+/// `count` points sampled on the object surfaces (not the ground's far field), with colour.
+pub fn sample_surface_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, [u8; 3])> {
+    let mut pts = Vec::with_capacity(count);
+    let to8 = |a: [f64; 3]| a.map(|c| (crate::sensor::srgb_encode(c) * 255.0).round() as u8);
+    while pts.len() < count {
+        let kind = rng.random_range(0..4);
+        let (p, albedo) = match kind {
+            0 => {
+                let p = DVec3::new(
+                    rng.random_range(-1.2..1.2),
+                    rng.random_range(-1.2..1.2),
+                    0.0,
+                );
+                let h = trace(p + DVec3::Z * 1e-3, DVec3::NEG_Z);
+                (p, h.map_or([0.3; 3], |h| h.albedo))
+            }
+            1 => {
+                let x = rng.random_range(PIPE_X.0..PIPE_X.1);
+                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                (
+                    DVec3::new(
+                        x,
+                        PIPE_YZ.0 + PIPE_R * a.cos(),
+                        PIPE_YZ.1 + PIPE_R * a.sin(),
+                    ),
+                    [0.55, 0.25, 0.12],
+                )
+            }
+            2 => {
+                // A point on one of the five visible box faces (not the bottom).
+                let f = rng.random_range(0..5usize);
+                let (s, t): (f64, f64) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let local = match f {
+                    0 => DVec3::new(1.0, s, t),
+                    1 => DVec3::new(-1.0, s, t),
+                    2 => DVec3::new(s, 1.0, t),
+                    3 => DVec3::new(s, -1.0, t),
+                    _ => DVec3::new(s, t, 1.0),
+                };
+                let p = BOX_C + local * BOX_H;
+                (
+                    p,
+                    if p.x < BOX_C.x {
+                        [0.15, 0.25, 0.6]
+                    } else {
+                        [0.6, 0.6, 0.62]
+                    },
+                )
+            }
+            _ => {
+                let p = DVec3::new(
+                    rng.random_range(RAD_X.0..RAD_X.1),
+                    RAD_Y,
+                    rng.random_range(RAD_Z.0..RAD_Z.1),
+                );
+                (p, [0.75; 3])
+            }
+        };
+        pts.push((p, to8(albedo)));
+    }
+    pts
+}
+
+#[derive(Debug, Serialize)]
+struct SceneJson {
+    world_frame: &'static str,
+    env_k: f64,
+    background_k: f64,
+    camera: CameraModel,
+    colmap_camera_model: &'static str,
+    pixel_convention: &'static str,
+    thermal_units: &'static str,
+    depth_units: &'static str,
+    temperature_units: &'static str,
+    netd_k: f64,
+    seed: u64,
+    views: usize,
+}
+
+fn io(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> SimError {
+    let path = path.to_path_buf();
+    move |source| SimError::Io { path, what, source }
+}
+
+fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError> {
+    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, data).ok_or(
+        SimError::InvalidParameter {
+            parameter: "image buffer",
+            value: path.display().to_string(),
+            why: "size does not match",
+        },
+    )?;
+    img.save(path).map_err(|e| SimError::Encode {
+        what: "16-bit PNG",
+        reason: format!("{}: {e}", path.display()),
+    })
+}
+
+/// Writes the scene dataset (layout in firmware-sim/README.md).
+pub fn write_scene_set(
+    cfg: &SceneConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(), SimError> {
+    if cfg.width_px < 2 || cfg.height_px < 2 || cfg.views == 0 {
+        return Err(SimError::InvalidParameter {
+            parameter: "width/height/views",
+            value: format!("{}x{} x {}", cfg.width_px, cfg.height_px, cfg.views),
+            why: "need at least 2x2 pixels and one view",
+        });
+    }
+    let out = &cfg.out_dir;
+    for d in ["sparse/0", "images", "rgb", "depth", "temperature"] {
+        let p = out.join(d);
+        fs::create_dir_all(&p).map_err(io(&p, "create directory"))?;
+    }
+    let cam = scene_camera(cfg.width_px, cfg.height_px);
+    let grid = RayGrid::new(&cam);
+    let mut profile = ThermalProfile::lepton35();
+    profile.camera = cam;
+    profile.telemetry_rows = 0;
+    profile.drop_probability = 0.0;
+    profile.auto_ffc_period_s = 0.0;
+    profile.fpn_drift_k_per_s = 0.0;
+    let mut sensor = ThermalSensor::new(profile, cfg.seed);
+    let radiometry = Radiometry::new();
+    let rgb_profile = RgbProfile {
+        camera: cam,
+        ..RgbProfile::hd720()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5C3E);
+    let poses = orbit(cfg.views);
+    let (w, h) = (cfg.width_px, cfg.height_px);
+    let mut images_txt = String::from(
+        "# Image list with two lines of data per image:\n\
+         #   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n\
+         #   POINTS2D[] as (X, Y, POINT3D_ID)  (left empty: no feature tracks)\n",
+    );
+    images_txt.push_str(&format!(
+        "# Number of images: {}, mean observations per image: 0\n",
+        cfg.views
+    ));
+    for (k, cam_from_world) in poses.iter().enumerate() {
+        let r = render_scene(&grid, cam_from_world, &radiometry);
+        let blurred = gaussian_blur(&r.radiance, w as usize, h as usize, profile.psf_sigma_px);
+        let words = match sensor.next_frame(&blurred) {
+            ThermalOutput::Frame(f) => f.words,
+            ThermalOutput::Dropped { .. } => {
+                return Err(SimError::InvalidParameter {
+                    parameter: "drop_probability",
+                    value: "0".into(),
+                    why: "a frame was dropped although dropping is disabled",
+                });
+            }
+        };
+        let name = format!("{k:04}.png");
+        save_u16(&out.join("images").join(&name), w, h, words)?;
+        let depth: Vec<u16> = r
+            .depth_m
+            .iter()
+            .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        save_u16(&out.join("depth").join(&name), w, h, depth)?;
+        let temp: Vec<u16> = r
+            .temp_k
+            .iter()
+            .map(|t| (t * 100.0).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        save_u16(&out.join("temperature").join(&name), w, h, temp)?;
+        // RGB: the same pixels; interleave the three blurred linear channels.
+        let chans: Vec<Vec<f64>> = r
+            .rgb_linear
+            .iter()
+            .map(|c| gaussian_blur(c, w as usize, h as usize, 0.5))
+            .collect();
+        let rgb = expose_rgb_channels(&rgb_profile, [&chans[0], &chans[1], &chans[2]], &mut rng);
+        let p = out.join("rgb").join(&name);
+        image::RgbImage::from_raw(w, h, rgb)
+            .ok_or(SimError::InvalidParameter {
+                parameter: "rgb buffer",
+                value: name.clone(),
+                why: "size does not match",
+            })?
+            .save(&p)
+            .map_err(|e| SimError::Encode {
+                what: "RGB PNG",
+                reason: format!("{}: {e}", p.display()),
+            })?;
+        // One of ±q, with w ≥ 0 (COLMAP's habit).
+        let q = if cam_from_world.rotation.w < 0.0 {
+            -cam_from_world.rotation
+        } else {
+            cam_from_world.rotation
+        };
+        let t = cam_from_world.translation_m;
+        images_txt.push_str(&format!(
+            "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} 1 {}\n\n",
+            k + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t.x,
+            t.y,
+            t.z,
+            name
+        ));
+        progress(k + 1, cfg.views);
+    }
+    let i = cam.intrinsics;
+    // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); ours is at (0, 0).
+    let cameras_txt = format!(
+        "# Camera list with one line of data per camera:\n\
+         #   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n\
+         # Number of cameras: 1\n\
+         1 PINHOLE {w} {h} {:.17} {:.17} {:.17} {:.17}\n",
+        i.fx,
+        i.fy,
+        i.cx + 0.5,
+        i.cy + 0.5
+    );
+    let points = sample_surface_points(2000, &mut rng);
+    let mut points_txt = String::from(
+        "# 3D point list with one line of data per point:\n\
+         #   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n",
+    );
+    points_txt.push_str(&format!(
+        "# Number of points: {}, mean track length: 0\n",
+        points.len()
+    ));
+    for (k, (p, c)) in points.iter().enumerate() {
+        points_txt.push_str(&format!(
+            "{} {:.9} {:.9} {:.9} {} {} {} 0\n",
+            k + 1,
+            p.x,
+            p.y,
+            p.z,
+            c[0],
+            c[1],
+            c[2]
+        ));
+    }
+    for (name, text) in [
+        ("sparse/0/cameras.txt", cameras_txt),
+        ("sparse/0/images.txt", images_txt),
+        ("sparse/0/points3D.txt", points_txt),
+    ] {
+        let p = out.join(name);
+        let mut f = fs::File::create(&p).map_err(io(&p, "create"))?;
+        f.write_all(text.as_bytes()).map_err(io(&p, "write"))?;
+    }
+    let meta = SceneJson {
+        world_frame: "x east, y north, z up, metres; ground plane z = 0",
+        env_k: ENV_K,
+        background_k: BACKGROUND_K,
+        camera: cam,
+        colmap_camera_model: "PINHOLE (cx, cy shifted by +0.5 px to COLMAP's pixel convention)",
+        pixel_convention: "camera.intrinsics: OpenCV, centre of the top-left pixel at (0, 0)",
+        thermal_units: "images/: TLinear centikelvin (apparent black-body temperature x 100)",
+        depth_units: "depth/: camera z along the pixel-centre ray, millimetres, 0 = no surface",
+        temperature_units: "temperature/: true surface temperature along the pixel-centre ray, centikelvin, 0 = no surface",
+        netd_k: profile.netd_k,
+        seed: cfg.seed,
+        views: cfg.views,
+    };
+    let p = out.join("scene.json");
+    let text = serde_json::to_string_pretty(&meta).map_err(|e| SimError::Encode {
+        what: "scene.json",
+        reason: e.to_string(),
+    })?;
+    fs::write(&p, text + "\n").map_err(io(&p, "write"))?;
+    Ok(())
+}
+
+/// Projects a world point into a scene view (for tests and tools): pixel, OpenCV convention.
+pub fn project_world(cam: &CameraModel, cam_from_world: &Rigid3, p: DVec3) -> Option<DVec2> {
+    cam.project(cam_from_world.transform_point(p))
+}

@@ -1,0 +1,5 @@
+// Backward rasteriser with atomicAdd(float): see raster_backward.glsl.
+#version 450
+#extension GL_EXT_shader_atomic_float : require
+#define USE_FLOAT_ATOMICS
+#include "raster_backward.glsl"

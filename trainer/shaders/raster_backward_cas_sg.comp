@@ -1,0 +1,6 @@
+// Backward rasteriser with compare-and-swap loops after a subgroup sum: see raster_backward.glsl.
+#version 450
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#define USE_SUBGROUP_REDUCE
+#include "raster_backward.glsl"

@@ -1,0 +1,108 @@
+// Backward rasteriser, final step, one invocation per primitive: chains the view-space gradient
+// sums of raster_backward_* (dL/da, dL/dB p^T, direct dL/dmu, dL/dopacity, dL/dbeta) to the
+// primitive parameters (mean, log-scales, quaternion through its normalisation, opacity logit,
+// raw beta), as the CPU reference's final loop (trainer/src/render/backward.rs). The spectrum
+// parameters' gradients were accumulated directly by the raster kernel and are left as they are.
+#version 450
+#include "raster_common.glsl"
+
+layout(local_size_x = 128) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Acc { float acc[]; };
+layout(std430, set = 0, binding = 3) buffer Grads { float grads[]; };
+
+layout(push_constant) uniform Push {
+    uint n;
+    uint m;
+} pc;
+
+#define ACC_STRIDE 17u
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.n) {
+        return;
+    }
+    uint n = pc.n, m = pc.m;
+    uint base = ACC_STRIDE * i;
+    vec3 g_a = vec3(acc[base], acc[base + 1u], acc[base + 2u]);
+    float g_bp[9];
+    for (uint k = 0u; k < 9u; ++k) {
+        g_bp[k] = acc[base + 3u + k];
+    }
+    vec3 acc_mu = vec3(acc[base + 12u], acc[base + 13u], acc[base + 14u]);
+    float g_o = acc[base + 15u];
+    float g_beta = acc[base + 16u];
+
+    vec3 mu = vec3(params[off_means(n, m) + 3u * i], params[off_means(n, m) + 3u * i + 1u],
+                   params[off_means(n, m) + 3u * i + 2u]);
+    vec3 s = exp(vec3(params[off_log_scales(n, m) + 3u * i], params[off_log_scales(n, m) + 3u * i + 1u],
+                      params[off_log_scales(n, m) + 3u * i + 2u]));
+    vec4 q = vec4(params[off_quats(n, m) + 4u * i], params[off_quats(n, m) + 4u * i + 1u],
+                  params[off_quats(n, m) + 4u * i + 2u], params[off_quats(n, m) + 4u * i + 3u]);
+    float qn2 = dot(q, q);
+    bool degenerate = !(qn2 > QUAT_NORM_MIN * QUAT_NORM_MIN);
+    float norm = degenerate ? 0.0 : sqrt(qn2);
+    vec4 u = degenerate ? vec4(1.0, 0.0, 0.0, 0.0) : q / norm;
+    float w = u.x, x = u.y, y = u.z, z = u.w;
+    float R[9] = float[9](1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+                          2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+                          2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y));
+    float N[9];  // N = diag(1/s) R^T, row-major
+    for (uint r = 0u; r < 3u; ++r) {
+        for (uint c = 0u; c < 3u; ++c) {
+            N[3u * r + c] = R[3u * c + r] / s[r];
+        }
+    }
+    vec3 c_cam = vec3(cam[CAM_C], cam[CAM_C + 1], cam[CAM_C + 2]);
+    vec3 cmm = c_cam - mu;
+
+    // dL/dN = g_a (c - mu)^T + g_bp W^T
+    float g_n[9];
+    for (uint r = 0u; r < 3u; ++r) {
+        for (uint c = 0u; c < 3u; ++c) {
+            float bw = g_bp[3u * r] * cam[CAM_W + 3u * c] + g_bp[3u * r + 1u] * cam[CAM_W + 3u * c + 1u] +
+                       g_bp[3u * r + 2u] * cam[CAM_W + 3u * c + 2u];
+            g_n[3u * r + c] = g_a[r] * cmm[c] + bw;
+        }
+    }
+    // mean: direct part minus N^T g_a
+    vec3 nt_ga = vec3(N[0] * g_a.x + N[3] * g_a.y + N[6] * g_a.z, N[1] * g_a.x + N[4] * g_a.y + N[7] * g_a.z,
+                      N[2] * g_a.x + N[5] * g_a.y + N[8] * g_a.z);
+    vec3 g_mu = acc_mu - nt_ga;
+    for (uint a = 0u; a < 3u; ++a) {
+        grads[off_means(n, m) + 3u * i + a] = g_mu[a];
+    }
+    // N_rc = R_cr / s_r
+    float g[9];
+    for (uint r = 0u; r < 3u; ++r) {
+        float g_ls = 0.0;
+        for (uint c = 0u; c < 3u; ++c) {
+            g_ls -= g_n[3u * r + c] * N[3u * r + c];
+            g[3u * c + r] = g_n[3u * r + c] / s[r];
+        }
+        grads[off_log_scales(n, m) + 3u * i + r] = g_ls;
+    }
+    // Quaternion through the normalisation (primitive.rs quat_backward).
+    vec4 gq = vec4(0.0);
+    if (!degenerate) {
+        float gw = 2.0 * (-z * g[1] + y * g[2] + z * g[3] - x * g[5] - y * g[6] + x * g[7]);
+        float gx = 2.0 * (y * g[1] + z * g[2] + y * g[3] - 2.0 * x * g[4] - w * g[5] + z * g[6] + w * g[7] - 2.0 * x * g[8]);
+        float gy = 2.0 * (-2.0 * y * g[0] + x * g[1] + w * g[2] + x * g[3] + z * g[5] - w * g[6] + z * g[7] - 2.0 * y * g[8]);
+        float gz = 2.0 * (-2.0 * z * g[0] - w * g[1] + x * g[2] + w * g[3] - 2.0 * z * g[4] + y * g[5] + x * g[6] + y * g[7]);
+        vec4 gu = vec4(gw, gx, gy, gz);
+        gq = (gu - dot(gu, u) * u) / norm;
+    }
+    for (uint a = 0u; a < 4u; ++a) {
+        grads[off_quats(n, m) + 4u * i + a] = gq[a];
+    }
+    float logit = params[off_opacity(n, m) + i];
+    float o = 1.0 / (1.0 + exp(-logit));
+    grads[off_opacity(n, m) + i] = g_o * o * (1.0 - o);
+    float raw = params[off_beta(n, m) + i];
+    float beta = 2.0 + max(raw, 0.0) + log(1.0 + exp(-abs(raw)));
+    float d_beta = beta >= BETA_MAX ? 0.0 : 1.0 / (1.0 + exp(-raw));
+    grads[off_beta(n, m) + i] = g_beta * d_beta;
+}

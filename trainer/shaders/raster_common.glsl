@@ -1,0 +1,57 @@
+// Shared by the rasteriser kernels: buffer layouts and constants. They mirror the CPU
+// reference (trainer/src/render, trainer/src/primitive.rs); change both together.
+
+#define TILE_SIZE 16u
+#define ALPHA_MAX 0.99
+#define ALPHA_MIN (1.0 / 255.0)
+#define T_MIN 1e-4
+#define BETA_MAX 64.0
+#define QUAT_NORM_MIN 1e-12
+#define CULL_PAD_PX 1.0
+
+// Camera buffer (floats): centre c (0..3), W = R_world_from_cam K^-1 row-major (3..12),
+// R_cam_from_world row-major (12..21), t_cam_from_world (21..24), fx fy cx cy (24..28),
+// near_m (28), width (29), height (30), cull flag (31).
+#define CAM_C 0
+#define CAM_W 3
+#define CAM_R 12
+#define CAM_T 21
+#define CAM_FX 24
+#define CAM_FY 25
+#define CAM_CX 26
+#define CAM_CY 27
+#define CAM_NEAR 28
+#define CAM_WIDTH 29
+#define CAM_HEIGHT 30
+#define CAM_CULL 31
+
+// Parameter buffer (floats), sections for n primitives with m bands, in this order:
+// means 3n, log_scales 3n, quats 4n (w x y z), opacity_logits n, beta_raw n, omega_low n,
+// band_amp m n, band_freq 3 m n, band_phase m n.
+uint off_means(uint n, uint m) { return 0u; }
+uint off_log_scales(uint n, uint m) { return 3u * n; }
+uint off_quats(uint n, uint m) { return 6u * n; }
+uint off_opacity(uint n, uint m) { return 10u * n; }
+uint off_beta(uint n, uint m) { return 11u * n; }
+uint off_omega_low(uint n, uint m) { return 12u * n; }
+uint off_band_amp(uint n, uint m) { return 13u * n; }
+uint off_band_freq(uint n, uint m) { return 13u * n + m * n; }
+uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
+
+// Samples with q* > q_max (1 + QMAX_MARGIN) cannot reach alpha >= 1/255: q_max = L^(2/beta),
+// L = ln(255 o), is where o exp(-q^(beta/2)) = 1/255. The margin keeps every sample whose exact
+// test could pass (f32 rounding of pow/log is ~1e-6 relative), so the early reject never changes
+// a decision; it only skips pow/exp for the many samples far outside the support.
+#define QMAX_MARGIN 1e-3
+
+// One primitive as seen from the current view (128 bytes).
+struct PrimView {
+    vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p
+    vec4 b1;
+    vec4 b2;
+    vec4 a_opacity; // a = N (c - mu), opacity
+    vec4 cmm_beta;  // c - mu, beta
+    vec4 misc;      // psi_high, camera depth of mu, visible (0/1), q_max (see QMAX_MARGIN)
+    uvec4 rect;     // tiles [tx0, ty0, tx1, ty1)
+    vec4 unused;
+};

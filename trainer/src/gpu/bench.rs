@@ -1,0 +1,265 @@
+//! `s3tir-train bench`: training steps per second of the Vulkan backend against the CPU
+//! backend on the same scene, budget and loop, the cost of the full S³-TIR primitive against the
+//! 3DGS mode, and where the GPU time goes (timestamp queries per kernel). Every figure is a
+//! ratio between runs made in the same invocation, on this machine.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::backend::VulkanBackend;
+use super::context::ContextOptions;
+use super::error::GpuError;
+use crate::dataset::synth::{self, SynthConfig};
+use crate::dataset::{Dataset, DatasetError, LoadOptions};
+use crate::render::RenderSettings;
+use crate::train::{Backend, CpuBackend, Mode, TrainConfig, TrainError, Trainer};
+
+/// What to measure.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    pub width: usize,
+    pub height: usize,
+    pub views: usize,
+    /// Primitives (initialised from as many sparse points; densification off, so constant).
+    pub primitives: usize,
+    /// Timed steps per configuration.
+    pub steps: usize,
+    /// Untimed steps before timing (pipeline compilation, buffer growth).
+    pub warmup_steps: usize,
+    pub device: ContextOptions,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        Self {
+            width: 96,
+            height: 72,
+            views: 12,
+            primitives: 2_000,
+            steps: 20,
+            warmup_steps: 3,
+            device: ContextOptions::default(),
+        }
+    }
+}
+
+/// GPU time of one kernel per training step.
+#[derive(Debug, Clone, Serialize)]
+pub struct KernelShare {
+    pub kernel: String,
+    pub ms_per_step: f64,
+    /// Fraction of all kernels' GPU time.
+    pub share: f64,
+}
+
+/// The benchmark's figures (`--json` prints this object).
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    pub device: String,
+    pub width: usize,
+    pub height: usize,
+    pub primitives: usize,
+    pub steps: usize,
+    /// CPU backend, s3tir mode.
+    pub cpu_steps_per_s: f64,
+    /// Vulkan backend, s3tir mode (= `s3tir_steps_per_s`).
+    pub vulkan_steps_per_s: f64,
+    /// Vulkan backend, s3tir mode (learnable β, M bands).
+    pub s3tir_steps_per_s: f64,
+    /// Vulkan backend, 3dgs mode (β ≡ 2, no bands).
+    pub gaussian_steps_per_s: f64,
+    /// `vulkan_steps_per_s / cpu_steps_per_s` (goal ≥ 3).
+    pub vulkan_speedup_over_cpu: f64,
+    /// `gaussian_steps_per_s / s3tir_steps_per_s`: cost of the full primitive (goal ≤ 1.5).
+    pub s3tir_cost_over_gaussian: f64,
+    /// Per-kernel GPU time in s3tir mode, largest first.
+    pub kernels: Vec<KernelShare>,
+    pub peak_gpu_bytes: u64,
+}
+
+/// Errors of the benchmark.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error("benchmark scene in {path}: {source}")]
+    Scene {
+        path: PathBuf,
+        #[source]
+        source: DatasetError,
+    },
+    #[error("benchmark training run: {source}")]
+    Train {
+        #[source]
+        source: TrainError,
+    },
+    #[error("benchmark Vulkan backend: {source}")]
+    Gpu {
+        #[source]
+        source: GpuError,
+    },
+    #[error("benchmark: {what} needs at least 1, got 0")]
+    Zero { what: &'static str },
+}
+
+fn config(data: &Path, mode: Mode, opts: &BenchOptions) -> TrainConfig {
+    let mut c = TrainConfig::new(data.to_path_buf());
+    c.mode = mode;
+    c.iters = (opts.steps + opts.warmup_steps) as u64 + 1;
+    c.warmup = 0; // spectral modulation and shape on from the first step
+    c.budget = opts.primitives;
+    c.seed = 1;
+    c.eval_every_s = 1e12;
+    c.checkpoint_every_s = 1e12;
+    c.densify.from = u64::MAX; // constant primitive count
+    c.capacity.every = u64::MAX;
+    c
+}
+
+/// Steps per second of `backend` in `mode`; `on_timed` runs after every timed step.
+fn measure<B: Backend>(
+    data_dir: &Path,
+    run_dir: &Path,
+    mode: Mode,
+    opts: &BenchOptions,
+    backend: B,
+    before_timing: &mut dyn FnMut(&mut B),
+) -> Result<(f64, B), BenchError> {
+    let train = |source| BenchError::Train { source };
+    let data =
+        Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| BenchError::Scene {
+            path: data_dir.to_path_buf(),
+            source,
+        })?;
+    let mut t =
+        Trainer::new(config(data_dir, mode, opts), data, backend, run_dir).map_err(train)?;
+    for _ in 0..opts.warmup_steps {
+        t.step().map_err(train)?;
+    }
+    before_timing(&mut t.backend);
+    let start = Instant::now();
+    for _ in 0..opts.steps {
+        t.step().map_err(train)?;
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    Ok((opts.steps as f64 / seconds.max(1e-9), t.backend))
+}
+
+/// Runs the benchmark; `progress` gets one line per stage.
+pub fn run(opts: &BenchOptions, progress: &mut dyn FnMut(&str)) -> Result<BenchReport, BenchError> {
+    if opts.steps == 0 {
+        return Err(BenchError::Zero { what: "--steps" });
+    }
+    if opts.primitives == 0 {
+        return Err(BenchError::Zero {
+            what: "--primitives",
+        });
+    }
+    let root = std::env::temp_dir().join(format!("s3tir-bench-{}", std::process::id()));
+    let result = run_in(&root, opts, progress);
+    let _ = std::fs::remove_dir_all(&root);
+    result
+}
+
+fn run_in(
+    root: &Path,
+    opts: &BenchOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<BenchReport, BenchError> {
+    let data_dir = root.join("scene");
+    let scene = SynthConfig {
+        views: opts.views,
+        width: opts.width,
+        height: opts.height,
+        f_px: 0.85 * opts.width as f64,
+        points: opts.primitives,
+        ..SynthConfig::default()
+    };
+    progress(&format!(
+        "scene: {} views of {}x{}, {} primitives",
+        opts.views, opts.width, opts.height, opts.primitives
+    ));
+    synth::write_scene(&data_dir, &scene).map_err(|source| BenchError::Scene {
+        path: data_dir.clone(),
+        source,
+    })?;
+    let settings = RenderSettings::default();
+    let gpu = |source| BenchError::Gpu { source };
+
+    progress("CPU backend, s3tir mode");
+    let (cpu, _) = measure(
+        &data_dir,
+        &root.join("cpu"),
+        Mode::S3tir,
+        opts,
+        CpuBackend { settings },
+        &mut |_| {},
+    )?;
+
+    progress("Vulkan backend, 3dgs mode");
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let (gaussian, _) = measure(
+        &data_dir,
+        &root.join("vk-3dgs"),
+        Mode::Gaussian,
+        opts,
+        vk,
+        &mut |_| {},
+    )?;
+
+    progress("Vulkan backend, s3tir mode (with per-kernel timestamps in a second pass)");
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let device = vk.context().report().name.clone();
+    let (s3tir, _) = measure(
+        &data_dir,
+        &root.join("vk-s3tir"),
+        Mode::S3tir,
+        opts,
+        vk,
+        &mut |_| {},
+    )?;
+    // Timestamps add work of their own: time the kernels in a separate pass.
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let (_, vk) = measure(
+        &data_dir,
+        &root.join("vk-prof"),
+        Mode::S3tir,
+        opts,
+        vk,
+        &mut |b: &mut VulkanBackend| {
+            b.set_profiling(true);
+            let _ = b.take_timings();
+        },
+    )?;
+    let mut per_kernel: BTreeMap<String, f64> = BTreeMap::new();
+    for t in vk.take_timings() {
+        *per_kernel.entry(t.kernel).or_default() += t.duration_ns;
+    }
+    let total_ns: f64 = per_kernel.values().sum();
+    let mut kernels: Vec<KernelShare> = per_kernel
+        .into_iter()
+        .map(|(kernel, ns)| KernelShare {
+            kernel,
+            ms_per_step: ns / 1e6 / opts.steps as f64,
+            share: if total_ns > 0.0 { ns / total_ns } else { 0.0 },
+        })
+        .collect();
+    kernels.sort_by(|a, b| b.ms_per_step.total_cmp(&a.ms_per_step));
+    let peak_gpu_bytes = vk.context().peak_allocated_bytes();
+    Ok(BenchReport {
+        device,
+        width: opts.width,
+        height: opts.height,
+        primitives: opts.primitives,
+        steps: opts.steps,
+        cpu_steps_per_s: cpu,
+        vulkan_steps_per_s: s3tir,
+        s3tir_steps_per_s: s3tir,
+        gaussian_steps_per_s: gaussian,
+        vulkan_speedup_over_cpu: s3tir / cpu,
+        s3tir_cost_over_gaussian: gaussian / s3tir,
+        kernels,
+        peak_gpu_bytes,
+    })
+}

@@ -1,0 +1,141 @@
+//! `L_render = (1 − λ)·L1 + λ·(1 − SSIM)` on one image plane, with its gradient.
+//!
+//! SSIM as in 3DGS: 11×11 Gaussian window (σ = 1.5, normalised), zero padding ("same" size),
+//! `C1 = 0.01²`, `C2 = 0.03²` (data range 1: inputs normalised to [0, 1]), averaged over all
+//! pixels. L1 is the mean absolute difference; its subgradient at 0 is 0.
+
+use super::check_len;
+use crate::error::TrainerError;
+use crate::real::Real;
+
+/// Window radius (11×11 window).
+pub const SSIM_RADIUS: usize = 5;
+/// Window standard deviation, pixels.
+pub const SSIM_SIGMA_PX: f64 = 1.5;
+const C1: f64 = 0.01 * 0.01;
+const C2: f64 = 0.03 * 0.03;
+
+/// Values of the photometric terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Photometric {
+    pub l1: f64,
+    pub ssim: f64,
+    /// `(1 − λ)·l1 + λ·(1 − ssim)`.
+    pub loss: f64,
+}
+
+fn window() -> [f64; 2 * SSIM_RADIUS + 1] {
+    let mut g = [0.0; 2 * SSIM_RADIUS + 1];
+    for (k, v) in g.iter_mut().enumerate() {
+        let x = k as f64 - SSIM_RADIUS as f64;
+        *v = (-x * x / (2.0 * SSIM_SIGMA_PX * SSIM_SIGMA_PX)).exp();
+    }
+    let s: f64 = g.iter().sum();
+    g.map(|v| v / s)
+}
+
+/// Separable Gaussian blur with zero padding (self-adjoint: the kernel is symmetric).
+fn blur<T: Real>(src: &[T], w: usize, h: usize, g: &[T]) -> Vec<T> {
+    let r = SSIM_RADIUS as isize;
+    let mut tmp = vec![T::ZERO; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = T::ZERO;
+            for (k, gk) in g.iter().enumerate() {
+                let xx = x as isize + k as isize - r;
+                if xx >= 0 && (xx as usize) < w {
+                    acc += *gk * src[y * w + xx as usize];
+                }
+            }
+            tmp[y * w + x] = acc;
+        }
+    }
+    let mut out = vec![T::ZERO; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = T::ZERO;
+            for (k, gk) in g.iter().enumerate() {
+                let yy = y as isize + k as isize - r;
+                if yy >= 0 && (yy as usize) < h {
+                    acc += *gk * tmp[yy as usize * w + x];
+                }
+            }
+            out[y * w + x] = acc;
+        }
+    }
+    out
+}
+
+/// Mean SSIM of `x` against `y` and, if `grad` is given, `d(mean SSIM)/dx` added with `scale`.
+pub fn ssim<T: Real>(x: &[T], y: &[T], w: usize, h: usize, grad: Option<(&mut [T], T)>) -> f64 {
+    let g: Vec<T> = window().iter().map(|v| T::from_f64(*v)).collect();
+    let n = w * h;
+    let xx: Vec<T> = x.iter().map(|v| *v * *v).collect();
+    let yy: Vec<T> = y.iter().map(|v| *v * *v).collect();
+    let xy: Vec<T> = x.iter().zip(y).map(|(a, b)| *a * *b).collect();
+    let mu_x = blur(x, w, h, &g);
+    let mu_y = blur(y, w, h, &g);
+    let e_xx = blur(&xx, w, h, &g);
+    let e_yy = blur(&yy, w, h, &g);
+    let e_xy = blur(&xy, w, h, &g);
+    let (c1, c2) = (T::from_f64(C1), T::from_f64(C2));
+    let two = T::TWO;
+    let mut sum = 0.0;
+    let mut g_mu = vec![T::ZERO; n];
+    let mut g_exx = vec![T::ZERO; n];
+    let mut g_exy = vec![T::ZERO; n];
+    for p in 0..n {
+        let (mx, my) = (mu_x[p], mu_y[p]);
+        let a1 = two * mx * my + c1;
+        let a2 = two * (e_xy[p] - mx * my) + c2;
+        let b1 = mx * mx + my * my + c1;
+        let b2 = (e_xx[p] - mx * mx) + (e_yy[p] - my * my) + c2;
+        let s = a1 * a2 / (b1 * b2);
+        sum += s.to_f64();
+        g_mu[p] = s * (two * my / a1 - two * my / a2 - two * mx / b1 + two * mx / b2);
+        g_exx[p] = -s / b2;
+        g_exy[p] = s * two / a2;
+    }
+    let mean = sum / n as f64;
+    if let Some((out, scale)) = grad {
+        let k = scale / T::from_f64(n as f64);
+        let b_mu = blur(&g_mu, w, h, &g);
+        let b_exx = blur(&g_exx, w, h, &g);
+        let b_exy = blur(&g_exy, w, h, &g);
+        for p in 0..n {
+            out[p] += k * (b_mu[p] + two * x[p] * b_exx[p] + y[p] * b_exy[p]);
+        }
+    }
+    mean
+}
+
+/// `(1 − λ)·L1 + λ·(1 − SSIM)` of `image` against `target`; adds `scale · dL/dimage` to `grad`.
+pub fn l1_dssim<T: Real>(
+    image: &[T],
+    target: &[T],
+    w: usize,
+    h: usize,
+    lambda_dssim: f64,
+    scale: T,
+    grad: &mut [T],
+) -> Result<Photometric, TrainerError> {
+    check_len("image", image.len(), w, h)?;
+    check_len("target", target.len(), w, h)?;
+    check_len("grad", grad.len(), w, h)?;
+    let n = (w * h) as f64;
+    let lam = T::from_f64(lambda_dssim);
+    let k1 = scale * (T::ONE - lam) / T::from_f64(n);
+    let mut l1 = 0.0;
+    for ((g, a), b) in grad.iter_mut().zip(image).zip(target) {
+        let d = *a - *b;
+        l1 += d.abs().to_f64();
+        *g += k1 * d.sign0();
+    }
+    let l1 = l1 / n;
+    let s = ssim(image, target, w, h, Some((grad, -scale * lam)));
+    Ok(Photometric {
+        l1,
+        ssim: s,
+        loss: (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s),
+    })
+}

@@ -1,0 +1,244 @@
+//! Backward pass: exact gradients of every output buffer w.r.t. every parameter, through the
+//! reverse blending recurrence.
+//!
+//! Each pixel's samples are recomputed front to back (no stored per-pixel lists, no division by
+//! `1 − α`), then walked back to front with `S_after = Σ_{l>i} α_l w_l Π_{i<k<l}(1 − α_k)`:
+//! `dL/dα_i = T_i (w_i − S_after)` where `w_i = Σ_k g_k v_{i,k}` is the upstream-weighted value.
+//! Per sample the chain is `α → (o, S) → (q*, β)` and `(q*, t*) → (a, b) → (N, μ)`, with
+//! `∂q*/∂a = 2r`, `∂q*/∂b = 2t* r` (envelope theorem: `t*` minimises `q`), `∂t*/∂a = −b/b·b`,
+//! `∂t*/∂b = −(a + 2t* b)/b·b`. Special cases: `∂S/∂β = −S m^β ln m` is taken as 0 at `m = 0`;
+//! the ReLU of `F` and of the colour pass gradient only where their input is > 0; the α clamp
+//! blocks the gradient to `o` and `S`; β on its clamp blocks the gradient to `beta_raw`;
+//! `sign(0) = 0` for `|ω_j|`. The early-stop threshold and the α ≥ 1/255 cut are treated as
+//! constants (as in 3DGS): gradients are those of the blended sum over the samples taken.
+
+use super::forward::{pixel, sample};
+use super::prepare::{Prepared, prepare};
+use super::{GBuffers, RenderSettings, T_MIN};
+use crate::camera::PinholeCamera;
+use crate::error::TrainerError;
+use crate::primitive::{Primitives, quat_backward};
+use crate::real::{Real, v3};
+use crate::sh;
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Acc<T> {
+    g_a: [T; 3],
+    /// `Σ dL/db ⊗ (u, v, 1)`.
+    g_bp: [T; 9],
+    g_mu: [T; 3],
+    g_o: T,
+    g_beta: T,
+    g_colour: [T; 3],
+    touched: bool,
+}
+
+/// Gradient w.r.t. every parameter of `prims` (same layout as `prims`) given `dL/d(buffer)` for
+/// every buffer in `upstream` (an empty buffer counts as zero).
+pub fn render_backward<T: Real>(
+    prims: &Primitives<T>,
+    cam: &PinholeCamera,
+    settings: &RenderSettings,
+    upstream: &GBuffers<T>,
+) -> Result<Primitives<T>, TrainerError> {
+    let prep = prepare(prims, cam, settings)?;
+    check_upstream(&prep, upstream)?;
+    Ok(render_backward_prepared(prims, &prep, upstream))
+}
+
+fn check_upstream<T: Real>(prep: &Prepared<T>, g: &GBuffers<T>) -> Result<(), TrainerError> {
+    let n = prep.width * prep.height;
+    for (name, v) in g.planes() {
+        let expected = if name == "rgb" { 3 * n } else { n };
+        if !v.is_empty() && v.len() != expected {
+            return Err(TrainerError::BufferSize {
+                buffer: name,
+                width: prep.width,
+                height: prep.height,
+                expected,
+                actual: v.len(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Backward pass on prepared per-view data (upstream sizes must match the view).
+pub fn render_backward_prepared<T: Real>(
+    prims: &Primitives<T>,
+    prep: &Prepared<T>,
+    upstream: &GBuffers<T>,
+) -> Primitives<T> {
+    let _span =
+        tracing::trace_span!("cpu_render_backward", primitives = prep.order.len()).entered();
+    let mut grads = prims.zeros_like();
+    let mut acc = vec![Acc::<T>::default(); prims.len()];
+    let npix = prep.width * prep.height;
+    let t_min = T::from_f64(T_MIN);
+    let two_pi = T::from_f64(std::f64::consts::TAU);
+    let m = prims.bands;
+    let up = |v: &Vec<T>, idx: usize| v.get(idx).copied().unwrap_or(T::ZERO);
+    let mut samples = Vec::new();
+
+    for y in 0..prep.height {
+        for x in 0..prep.width {
+            let pidx = y * prep.width + x;
+            let g = [
+                up(&upstream.thermal, pidx),
+                up(&upstream.psi_low, pidx),
+                up(&upstream.psi_high, pidx),
+                up(&upstream.psi_beta, pidx),
+                up(&upstream.depth, pidx),
+                up(&upstream.alpha, pidx),
+                up(&upstream.rgb, pidx),
+                up(&upstream.rgb, npix + pidx),
+                up(&upstream.rgb, 2 * npix + pidx),
+            ];
+            if g.iter().all(|v| *v == T::ZERO) {
+                continue;
+            }
+            let p = pixel::<T>(x, y);
+            // Recompute the front-to-back samples with their transmittance.
+            samples.clear();
+            let mut trans = T::ONE;
+            for &i in &prep.tile_lists[prep.tile_of(x, y)] {
+                let i = i as usize;
+                let pv = &prep.prims[i];
+                let Some(s) = sample(prims, prep, pv, i, p) else {
+                    continue;
+                };
+                let next = trans * (T::ONE - s.alpha);
+                if next < t_min {
+                    break;
+                }
+                samples.push((i, trans, s));
+                trans = next;
+            }
+            let mut s_after = T::ZERO;
+            for &(i, trans_i, s) in samples.iter().rev() {
+                let pv = &prep.prims[i];
+                let vals = [
+                    s.f,
+                    prims.omega_low[i],
+                    pv.psi_high,
+                    pv.beta,
+                    s.t,
+                    T::ONE,
+                    pv.colour[0],
+                    pv.colour[1],
+                    pv.colour[2],
+                ];
+                let w_i = g.iter().zip(vals).fold(T::ZERO, |a, (gk, vk)| a + *gk * vk);
+                let d_alpha = trans_i * (w_i - s_after);
+                s_after = s.alpha * w_i + (T::ONE - s.alpha) * s_after;
+                let wt = trans_i * s.alpha;
+                let dv: [T; 9] = std::array::from_fn(|k| wt * g[k]);
+
+                let ac = &mut acc[i];
+                ac.touched = true;
+                for c in 0..3 {
+                    ac.g_colour[c] += dv[6 + c];
+                }
+                // Spectrum.
+                let g_f = if s.f_active { dv[0] } else { T::ZERO };
+                grads.omega_low[i] += dv[1] + g_f;
+                let mut g_delta = [T::ZERO; 3];
+                for j in 0..m {
+                    let k = m * i + j;
+                    let amp = prims.band_amp[k];
+                    grads.band_amp[k] += dv[2] * amp.sign0();
+                    if g_f != T::ZERO {
+                        let fr = [
+                            prims.band_freq[3 * k],
+                            prims.band_freq[3 * k + 1],
+                            prims.band_freq[3 * k + 2],
+                        ];
+                        let theta = two_pi * v3::dot(fr, s.delta) + prims.band_phase[k];
+                        grads.band_amp[k] += g_f * theta.cos();
+                        let g_theta = -g_f * amp * theta.sin();
+                        grads.band_phase[k] += g_theta;
+                        for a in 0..3 {
+                            grads.band_freq[3 * k + a] += g_theta * two_pi * s.delta[a];
+                            g_delta[a] += g_theta * two_pi * fr[a];
+                        }
+                    }
+                }
+                // δ = (c − μ) + t* d.
+                for (gm, gd) in ac.g_mu.iter_mut().zip(g_delta) {
+                    *gm -= gd;
+                }
+                let g_t = v3::dot(g_delta, s.d) + dv[4];
+                // Support and opacity.
+                ac.g_beta += dv[3];
+                let mut g_q = T::ZERO;
+                if !s.clamped {
+                    ac.g_o += d_alpha * s.s;
+                    let g_s = d_alpha * pv.opacity;
+                    let half_beta = pv.beta * T::HALF;
+                    g_q = -g_s * s.s * half_beta * s.q.powf(half_beta - T::ONE);
+                    if s.q > T::ZERO {
+                        ac.g_beta += -g_s * s.s * s.mb * T::HALF * s.q.ln();
+                    }
+                }
+                // (q*, t*) → (a, b).
+                let inv_bb = T::ONE / s.bb;
+                let two = T::TWO;
+                for c in 0..3 {
+                    ac.g_a[c] += g_q * two * s.r[c] - g_t * s.b[c] * inv_bb;
+                    let g_b =
+                        g_q * two * s.t * s.r[c] - g_t * (pv.a[c] + two * s.t * s.b[c]) * inv_bb;
+                    for (col, pc) in p.iter().enumerate() {
+                        ac.g_bp[3 * c + col] += g_b * *pc;
+                    }
+                }
+            }
+        }
+    }
+
+    let k_sh = prims.sh_k();
+    let w = &prep.pix_to_dir;
+    for (i, ac) in acc.iter().enumerate() {
+        if !ac.touched {
+            continue;
+        }
+        let pv = &prep.prims[i];
+        // dL/dN = g_a ⊗ (c − μ) + g_bp Wᵀ.
+        let mut g_n = [T::ZERO; 9];
+        for r in 0..3 {
+            for c in 0..3 {
+                let bw = ac.g_bp[3 * r] * w[3 * c]
+                    + ac.g_bp[3 * r + 1] * w[3 * c + 1]
+                    + ac.g_bp[3 * r + 2] * w[3 * c + 2];
+                g_n[3 * r + c] = ac.g_a[r] * pv.c_minus_mu[c] + bw;
+            }
+        }
+        let nt_ga = v3::mat_t_vec(&pv.n_mat, ac.g_a);
+        let mut g_mu = v3::sub(ac.g_mu, nt_ga);
+        if k_sh > 0 {
+            let coeffs = &prims.sh[3 * k_sh * i..3 * k_sh * (i + 1)];
+            let g_coeffs = &mut grads.sh[3 * k_sh * i..3 * k_sh * (i + 1)];
+            let g_v = sh::backward(coeffs, k_sh, pv.sh_dir, pv.sh_norm, ac.g_colour, g_coeffs);
+            g_mu = v3::add(g_mu, g_v);
+        }
+        for (g, v) in grads.means[3 * i..3 * i + 3].iter_mut().zip(g_mu) {
+            *g += v;
+        }
+        // N_rc = R_cr / s_r.
+        let mut g_rot = [T::ZERO; 9];
+        for r in 0..3 {
+            let mut g_ls = T::ZERO;
+            for c in 0..3 {
+                g_ls -= g_n[3 * r + c] * pv.n_mat[3 * r + c];
+                g_rot[3 * c + r] = g_n[3 * r + c] / pv.scales[r];
+            }
+            grads.log_scales[3 * i + r] += g_ls;
+        }
+        let gq = quat_backward(pv.unit_quat, pv.quat_norm, &g_rot);
+        for (g, v) in grads.quats[4 * i..4 * i + 4].iter_mut().zip(gq) {
+            *g += v;
+        }
+        grads.opacity_logits[i] += ac.g_o * pv.d_opacity;
+        grads.beta_raw[i] += ac.g_beta * pv.d_beta;
+    }
+    grads
+}

@@ -1,0 +1,177 @@
+//! Forward pass: per-pixel sample evaluation (shared with the backward pass) and front-to-back
+//! blending.
+
+use super::prepare::{Prepared, PrimView, prepare};
+use super::{ALPHA_MAX, ALPHA_MIN, GBuffers, RenderSettings, T_MIN};
+use crate::camera::PinholeCamera;
+use crate::error::TrainerError;
+use crate::primitive::Primitives;
+use crate::real::{Real, v3};
+
+/// One primitive evaluated at one pixel's peak point.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Sample<T> {
+    pub alpha: T,
+    /// Support `S` at the peak.
+    pub s: T,
+    /// `o·S > ALPHA_MAX` (α clamped, zero gradient through `o·S`).
+    pub clamped: bool,
+    /// Squared Mahalanobis distance `q*` at the peak.
+    pub q: T,
+    /// `m^β = q*^{β/2}`.
+    pub mb: T,
+    /// Peak ray parameter = camera depth.
+    pub t: T,
+    /// Whitened residual `a + t* b`.
+    pub r: [T; 3],
+    /// Whitened ray direction `b`.
+    pub b: [T; 3],
+    pub bb: T,
+    /// World ray direction `d`.
+    pub d: [T; 3],
+    /// `x* − μ`.
+    pub delta: [T; 3],
+    /// `F` (after ReLU) and whether the ReLU passes.
+    pub f: T,
+    pub f_active: bool,
+}
+
+/// Evaluates primitive `i` on the ray of pixel `(u, v)`; `None` if it does not contribute.
+#[inline]
+pub(crate) fn sample<T: Real>(
+    prims: &Primitives<T>,
+    prep: &Prepared<T>,
+    pv: &PrimView<T>,
+    i: usize,
+    p: [T; 3],
+) -> Option<Sample<T>> {
+    let a = pv.a;
+    let b = v3::mat_vec(&pv.b_mat, p);
+    let bb = v3::dot(b, b);
+    let t = -v3::dot(a, b) / bb;
+    let in_front = t > T::from_f64(prep.settings.near_m); // false for NaN
+    if !in_front {
+        return None;
+    }
+    let r = v3::add(a, v3::scale(b, t));
+    let q = v3::dot(r, r);
+    let mb = q.powf(pv.beta * T::HALF);
+    let s = (-mb).exp();
+    let os = pv.opacity * s;
+    let clamped = os > T::from_f64(ALPHA_MAX);
+    let alpha = if clamped { T::from_f64(ALPHA_MAX) } else { os };
+    let visible = alpha >= T::from_f64(ALPHA_MIN); // false for NaN
+    if !visible {
+        return None;
+    }
+    let d = v3::mat_vec(&prep.pix_to_dir, p);
+    let delta = v3::add(pv.c_minus_mu, v3::scale(d, t));
+    let (pre, _) = spectrum_pre(prims, i, delta);
+    let f_active = pre > T::ZERO;
+    Some(Sample {
+        alpha,
+        s,
+        clamped,
+        q,
+        mb,
+        t,
+        r,
+        b,
+        bb,
+        d,
+        delta,
+        f: if f_active { pre } else { T::ZERO },
+        f_active,
+    })
+}
+
+/// Pre-ReLU spectrum `ω_low + Σ_j ω_j cos θ_j` at offset `delta = x − μ`.
+#[inline]
+pub(crate) fn spectrum_pre<T: Real>(prims: &Primitives<T>, i: usize, delta: [T; 3]) -> (T, ()) {
+    let m = prims.bands;
+    let two_pi = T::from_f64(std::f64::consts::TAU);
+    let mut pre = prims.omega_low[i];
+    for j in 0..m {
+        let k = m * i + j;
+        let fr = [
+            prims.band_freq[3 * k],
+            prims.band_freq[3 * k + 1],
+            prims.band_freq[3 * k + 2],
+        ];
+        let theta = two_pi * v3::dot(fr, delta) + prims.band_phase[k];
+        pre += prims.band_amp[k] * theta.cos();
+    }
+    (pre, ())
+}
+
+/// Pixel centre `(x, y, 1)` in the scalar type.
+#[inline]
+pub(crate) fn pixel<T: Real>(x: usize, y: usize) -> [T; 3] {
+    [T::from_f64(x as f64), T::from_f64(y as f64), T::ONE]
+}
+
+/// Renders the image and G-buffers of `prims` seen by `cam`.
+pub fn render<T: Real>(
+    prims: &Primitives<T>,
+    cam: &PinholeCamera,
+    settings: &RenderSettings,
+) -> Result<GBuffers<T>, TrainerError> {
+    let prep = prepare(prims, cam, settings)?;
+    Ok(render_prepared(prims, &prep))
+}
+
+/// Forward pass on prepared per-view data.
+pub fn render_prepared<T: Real>(prims: &Primitives<T>, prep: &Prepared<T>) -> GBuffers<T> {
+    let _span = tracing::trace_span!("cpu_render_forward", primitives = prep.order.len()).entered();
+    let has_rgb = prims.sh_k() > 0;
+    let mut out = GBuffers::zeros(prep.width, prep.height, has_rgb);
+    let npix = prep.width * prep.height;
+    let t_min = T::from_f64(T_MIN);
+    for y in 0..prep.height {
+        for x in 0..prep.width {
+            let pidx = y * prep.width + x;
+            let p = pixel::<T>(x, y);
+            let mut trans = T::ONE;
+            let mut acc = [T::ZERO; 9];
+            for &i in &prep.tile_lists[prep.tile_of(x, y)] {
+                let i = i as usize;
+                let pv = &prep.prims[i];
+                let Some(s) = sample(prims, prep, pv, i, p) else {
+                    continue;
+                };
+                let next = trans * (T::ONE - s.alpha);
+                if next < t_min {
+                    break;
+                }
+                let w = trans * s.alpha;
+                let vals = [
+                    s.f,
+                    prims.omega_low[i],
+                    pv.psi_high,
+                    pv.beta,
+                    s.t,
+                    T::ONE,
+                    pv.colour[0],
+                    pv.colour[1],
+                    pv.colour[2],
+                ];
+                for (a, v) in acc.iter_mut().zip(vals) {
+                    *a += w * v;
+                }
+                trans = next;
+            }
+            out.thermal[pidx] = acc[0];
+            out.psi_low[pidx] = acc[1];
+            out.psi_high[pidx] = acc[2];
+            out.psi_beta[pidx] = acc[3];
+            out.depth[pidx] = acc[4];
+            out.alpha[pidx] = acc[5];
+            if has_rgb {
+                for c in 0..3 {
+                    out.rgb[c * npix + pidx] = acc[6 + c];
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,372 @@
+//! Run reports: `metrics.csv` (error against training wall time), its PNG plot, the `compare`
+//! overlay of several runs, G-buffer images (paper Fig. 4) and the log-histogram of β (Fig. 6).
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::primitive::BETA_MAX;
+
+#[derive(Debug, Error)]
+pub enum ReportError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: {reason}")]
+    Format { path: PathBuf, reason: String },
+    #[error("plot {path}: {reason}")]
+    Plot { path: PathBuf, reason: String },
+}
+
+/// Header of `metrics.csv`.
+pub const CSV_HEADER: &str =
+    "iteration,seconds,loss,psnr,ssim,kelvin_mae,kelvin_rmse,primitives,memory_bytes";
+
+/// One row of `metrics.csv`: held-out metrics at a training wall time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MetricsRow {
+    pub iteration: u64,
+    /// Training wall time (evaluation excluded), seconds.
+    pub seconds: f64,
+    /// Mean training loss since the previous row.
+    pub loss: f64,
+    pub psnr: f64,
+    pub ssim: f64,
+    pub kelvin_mae: Option<f64>,
+    pub kelvin_rmse: Option<f64>,
+    pub primitives: usize,
+    /// Parameters and optimiser moments, bytes.
+    pub memory_bytes: usize,
+}
+
+impl MetricsRow {
+    fn to_csv(&self) -> String {
+        let o = |x: Option<f64>| x.map_or_else(String::new, |v| format!("{v:.6}"));
+        format!(
+            "{},{:.3},{:.6},{:.4},{:.5},{},{},{},{}",
+            self.iteration,
+            self.seconds,
+            self.loss,
+            self.psnr,
+            self.ssim,
+            o(self.kelvin_mae),
+            o(self.kelvin_rmse),
+            self.primitives,
+            self.memory_bytes
+        )
+    }
+}
+
+/// Appends a row to `path`, writing the header first if the file is new.
+pub fn append_row(path: &Path, row: &MetricsRow) -> Result<(), ReportError> {
+    let io = |source| ReportError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let new = !path.exists();
+    let mut f = fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(io)?;
+    if new {
+        writeln!(f, "{CSV_HEADER}").map_err(io)?;
+    }
+    writeln!(f, "{}", row.to_csv()).map_err(io)?;
+    Ok(())
+}
+
+/// Reads `metrics.csv` (columns found by header name, so extra columns are fine).
+pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, ReportError> {
+    let text = fs::read_to_string(path).map_err(|source| ReportError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let bad = |line: usize, reason: &str| ReportError::Format {
+        path: path.to_path_buf(),
+        reason: format!("line {line}: {reason}"),
+    };
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name);
+    let need = |name: &str| col(name).ok_or_else(|| bad(1, &format!("no column {name}")));
+    let (ci, cs, cl, cp, css) = (
+        need("iteration")?,
+        need("seconds")?,
+        need("loss")?,
+        need("psnr")?,
+        need("ssim")?,
+    );
+    let (ck, ckr, cn, cm) = (
+        need("kelvin_mae")?,
+        col("kelvin_rmse"),
+        need("primitives")?,
+        need("memory_bytes")?,
+    );
+    let mut rows = Vec::new();
+    for (n, l) in lines.enumerate() {
+        if l.trim().is_empty() {
+            continue;
+        }
+        let t: Vec<&str> = l.split(',').collect();
+        let get = |c: usize| t.get(c).copied().unwrap_or("");
+        let f = |c: usize| {
+            get(c)
+                .parse::<f64>()
+                .map_err(|_| bad(n + 2, &format!("`{}` is not a number", get(c))))
+        };
+        let fo = |c: Option<usize>| c.and_then(|c| get(c).parse::<f64>().ok());
+        rows.push(MetricsRow {
+            iteration: f(ci)? as u64,
+            seconds: f(cs)?,
+            loss: f(cl)?,
+            psnr: f(cp)?,
+            ssim: f(css)?,
+            kelvin_mae: fo(Some(ck)),
+            kelvin_rmse: fo(ckr),
+            primitives: f(cn)? as usize,
+            memory_bytes: f(cm)? as usize,
+        });
+    }
+    Ok(rows)
+}
+
+const PALETTE: [RGBColor; 6] = [
+    RGBColor(220, 50, 32),
+    RGBColor(0, 90, 181),
+    RGBColor(0, 150, 80),
+    RGBColor(160, 80, 200),
+    RGBColor(230, 150, 0),
+    RGBColor(90, 90, 90),
+];
+
+fn plot_err(path: &Path, e: impl std::fmt::Display) -> ReportError {
+    ReportError::Plot {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
+}
+
+/// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
+/// seconds, one line per run: `runs = [(label, rows)]`.
+pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), ReportError> {
+    let root = BitMapBackend::new(path, (1100, 450)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let (left, right) = root.split_horizontally(550);
+    let all: Vec<&MetricsRow> = runs.iter().flat_map(|r| r.1.iter()).collect();
+    let t_max = all.iter().map(|r| r.seconds).fold(1e-3, f64::max);
+    let radiometric = all.iter().any(|r| r.kelvin_mae.is_some());
+    let range = |vals: Vec<f64>| {
+        let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if lo.is_finite() && hi.is_finite() {
+            let pad = ((hi - lo) * 0.05).max(1e-3);
+            (lo - pad, hi + pad)
+        } else {
+            (0.0, 1.0)
+        }
+    };
+    type Getter = Box<dyn Fn(&MetricsRow) -> Option<f64>>;
+    let panels: [(&str, Getter); 2] = [
+        ("held-out PSNR (dB)", Box::new(|r| Some(r.psnr))),
+        if radiometric {
+            ("held-out MAE (K)", Box::new(|r| r.kelvin_mae))
+        } else {
+            ("held-out SSIM", Box::new(|r| Some(r.ssim)))
+        },
+    ];
+    for (area, (label, get)) in [left, right].iter().zip(panels.iter()) {
+        let (lo, hi) = range(all.iter().filter_map(|r| get(r)).collect());
+        let mut chart = ChartBuilder::on(area)
+            .caption(*label, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(35)
+            .y_label_area_size(55)
+            .build_cartesian_2d(0.0..t_max * 1.02, lo..hi)
+            .map_err(|e| plot_err(path, e))?;
+        chart
+            .configure_mesh()
+            .x_desc("training time (s)")
+            .draw()
+            .map_err(|e| plot_err(path, e))?;
+        for (k, (name, rows)) in runs.iter().enumerate() {
+            let colour = PALETTE[k % PALETTE.len()];
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter_map(|r| get(r).map(|v| (r.seconds, v)))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                .map_err(|e| plot_err(path, e))?
+                .label(name.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                .map_err(|e| plot_err(path, e))?;
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| plot_err(path, e))?;
+    }
+    root.present().map_err(|e| plot_err(path, e))?;
+    Ok(())
+}
+
+/// Writes a scalar plane as an 8-bit grey PNG mapping `[lo, hi]` to `[0, 255]`.
+pub fn write_plane_png(
+    path: &Path,
+    plane: &[f32],
+    width: usize,
+    height: usize,
+    lo: f64,
+    hi: f64,
+) -> Result<(), ReportError> {
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let bytes: Vec<u8> = plane
+        .iter()
+        .map(|&v| (((f64::from(v) - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let img = image::GrayImage::from_raw(width as u32, height as u32, bytes).ok_or_else(|| {
+        ReportError::Format {
+            path: path.to_path_buf(),
+            reason: format!("plane has {} values, not {width}×{height}", plane.len()),
+        }
+    })?;
+    img.save(path).map_err(|e| ReportError::Format {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
+/// Writes a normalised thermal plane as a 16-bit PNG in the scene's raw units (centikelvin for
+/// radiometric data), so renders compare with the inputs word for word.
+pub fn write_thermal_png16(
+    path: &Path,
+    plane: &[f32],
+    width: usize,
+    height: usize,
+    range: &crate::dataset::ThermalRange,
+) -> Result<(), ReportError> {
+    let words: Vec<u16> = plane
+        .iter()
+        .map(|&v| range.raw(f64::from(v)).round().clamp(0.0, 65535.0) as u16)
+        .collect();
+    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
+        width as u32,
+        height as u32,
+        words,
+    )
+    .ok_or_else(|| ReportError::Format {
+        path: path.to_path_buf(),
+        reason: format!("plane has {} values, not {width}×{height}", plane.len()),
+    })?;
+    img.save(path).map_err(|e| ReportError::Format {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
+/// Writes the G-buffers of one view as grey PNGs `PREFIX_{psi_low,psi_high,psi_beta,depth}.png`:
+/// Ψ_low and Ψ_high over [0, max], Ψ_β over [2, max(3, max β)] (normalised by accumulated
+/// alpha, so a pixel covered by primitives of β = 2 is black), depth (expected, `depth/alpha`)
+/// over its range. Returns the files written.
+pub fn write_gbuffers(
+    dir: &Path,
+    prefix: &str,
+    gb: &crate::render::GBuffers<f32>,
+) -> Result<Vec<PathBuf>, ReportError> {
+    let (w, h) = (gb.width, gb.height);
+    let norm = |v: &[f32]| -> Vec<f32> {
+        v.iter()
+            .zip(&gb.alpha)
+            .map(|(x, a)| if *a > 1e-3 { x / a } else { 0.0 })
+            .collect()
+    };
+    let max = |v: &[f32]| -> f64 { f64::from(v.iter().copied().fold(0.0f32, f32::max)) };
+    let beta = norm(&gb.psi_beta);
+    let depth = norm(&gb.depth);
+    let dmin = depth
+        .iter()
+        .zip(&gb.alpha)
+        .filter(|(_, a)| **a > 1e-3)
+        .map(|(d, _)| f64::from(*d))
+        .fold(f64::INFINITY, f64::min);
+    let mut out = Vec::new();
+    let planes: [(&str, Vec<f32>, f64, f64); 4] = [
+        ("psi_low", gb.psi_low.clone(), 0.0, max(&gb.psi_low)),
+        ("psi_high", gb.psi_high.clone(), 0.0, max(&gb.psi_high)),
+        (
+            "psi_beta",
+            beta.clone(),
+            2.0,
+            max(&beta).clamp(3.0, BETA_MAX),
+        ),
+        (
+            "depth",
+            depth.clone(),
+            if dmin.is_finite() { dmin } else { 0.0 },
+            max(&depth),
+        ),
+    ];
+    for (name, plane, lo, hi) in planes {
+        let p = dir.join(format!("{prefix}_{name}.png"));
+        write_plane_png(&p, &plane, w, h, lo, hi)?;
+        out.push(p);
+    }
+    Ok(out)
+}
+
+/// Log-histogram of β (paper Fig. 6): 24 log-spaced bins over [2, 64], bar height
+/// `log10(1 + count)`.
+pub fn plot_beta_histogram(path: &Path, betas: &[f64]) -> Result<(), ReportError> {
+    const BINS: usize = 24;
+    let (l0, l1) = (2f64.ln(), BETA_MAX.ln());
+    let mut counts = [0usize; BINS];
+    for &b in betas {
+        let t = ((b.clamp(2.0, BETA_MAX).ln() - l0) / (l1 - l0) * BINS as f64).floor() as usize;
+        counts[t.min(BINS - 1)] += 1;
+    }
+    let top = counts
+        .iter()
+        .map(|&c| (1.0 + c as f64).log10())
+        .fold(0.5, f64::max);
+    let root = BitMapBackend::new(path, (640, 400)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("β of {} primitives", betas.len()),
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(55)
+        .build_cartesian_2d((2.0f64..BETA_MAX).log_scale(), 0.0..top * 1.05)
+        .map_err(|e| plot_err(path, e))?;
+    chart
+        .configure_mesh()
+        .x_desc("β (log scale)")
+        .y_desc("log10(1 + count)")
+        .draw()
+        .map_err(|e| plot_err(path, e))?;
+    let edge = |k: usize| (l0 + (l1 - l0) * k as f64 / BINS as f64).exp();
+    chart
+        .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+            Rectangle::new(
+                [(edge(k), 0.0), (edge(k + 1), (1.0 + c as f64).log10())],
+                PALETTE[1].filled(),
+            )
+        }))
+        .map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))?;
+    Ok(())
+}

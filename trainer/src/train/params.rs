@@ -1,0 +1,67 @@
+//! Row-wise operations on [`Primitives`] (and on Adam moments, which share its layout): gather
+//! rows (prune, clone), zero rows, compact bands.
+
+use crate::primitive::Primitives;
+
+/// Values per primitive of a parameter group.
+pub fn stride(group: &str, bands: usize, sh_k: usize) -> usize {
+    match group {
+        "means" | "log_scales" => 3,
+        "quats" => 4,
+        "opacity_logits" | "beta_raw" | "omega_low" => 1,
+        "band_amp" | "band_phase" => bands,
+        "band_freq" => 3 * bands,
+        _ => 3 * sh_k,
+    }
+}
+
+/// A new set holding rows `idx` of `p` (indices may repeat: clones).
+pub fn gather(p: &Primitives<f32>, idx: &[usize]) -> Primitives<f32> {
+    let mut out = Primitives::<f32>::new(p.bands, p.sh_degree);
+    let (m, k) = (p.bands, p.sh_k());
+    for ((name, src), (_, dst)) in p.groups().into_iter().zip(out.groups_mut()) {
+        let s = stride(name, m, k);
+        dst.reserve(s * idx.len());
+        for &i in idx {
+            dst.extend_from_slice(&src[s * i..s * (i + 1)]);
+        }
+    }
+    out
+}
+
+/// Sets every value of rows `from..` to zero.
+pub fn zero_rows_from(p: &mut Primitives<f32>, from: usize) {
+    let (m, k) = (p.bands, p.sh_k());
+    for (name, v) in p.groups_mut() {
+        let s = stride(name, m, k);
+        for x in v.iter_mut().skip(s * from) {
+            *x = 0.0;
+        }
+    }
+}
+
+/// Re-lays the bands: row i keeps its bands `keep[i]` (in that order, at most `new_m`), the
+/// remaining slots are zero. Non-band groups are unchanged.
+pub fn compact_bands(p: &Primitives<f32>, keep: &[Vec<usize>], new_m: usize) -> Primitives<f32> {
+    let m = p.bands;
+    let n = p.len();
+    let mut out = p.clone();
+    out.bands = new_m;
+    out.band_amp = vec![0.0; n * new_m];
+    out.band_phase = vec![0.0; n * new_m];
+    out.band_freq = vec![0.0; 3 * n * new_m];
+    for (i, live) in keep.iter().enumerate().take(n) {
+        for (slot, &j) in live.iter().take(new_m).enumerate() {
+            let (src, dst) = (m * i + j, new_m * i + slot);
+            out.band_amp[dst] = p.band_amp[src];
+            out.band_phase[dst] = p.band_phase[src];
+            out.band_freq[3 * dst..3 * dst + 3].copy_from_slice(&p.band_freq[3 * src..3 * src + 3]);
+        }
+    }
+    out
+}
+
+/// Number of f32 values of a set.
+pub fn value_count(p: &Primitives<f32>) -> usize {
+    p.groups().iter().map(|(_, v)| v.len()).sum()
+}

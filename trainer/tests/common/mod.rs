@@ -1,0 +1,265 @@
+//! Shared helpers of the trainer's integration tests: seeded scenes, cameras and a
+//! central-difference gradient checker. Not a test by itself.
+#![allow(dead_code, clippy::unwrap_used)]
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use s3tir_trainer::camera::PinholeCamera;
+use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::real::Real;
+use s3tir_trainer::render::{GBuffers, RenderSettings, render, render_backward};
+
+pub fn rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// Camera at the origin looking down +z (world = camera frame).
+pub fn front_camera(width: usize, height: usize, f_px: f64) -> PinholeCamera {
+    PinholeCamera::look_at(
+        [0.0; 3],
+        [0.0, 0.0, 1.0],
+        [0.0, -1.0, 0.0],
+        f_px,
+        width,
+        height,
+    )
+}
+
+/// World point that camera `cam` sees at pixel `(u, v)` with depth `z`.
+pub fn point_at_pixel(cam: &PinholeCamera, u: f64, v: f64, z: f64) -> [f64; 3] {
+    cam.unproject(u, v, z)
+}
+
+pub fn random_quat(r: &mut ChaCha8Rng) -> [f64; 4] {
+    [
+        r.random_range(-1.0..1.0),
+        r.random_range(-1.0..1.0),
+        r.random_range(-1.0..1.0),
+        r.random_range(-1.0..1.0),
+    ]
+}
+
+/// A random primitive near `centre` with the given β, `bands` bands and SH degree `sh_degree`.
+pub fn random_primitive(
+    r: &mut ChaCha8Rng,
+    centre: [f64; 3],
+    beta: f64,
+    bands: usize,
+    sh_k: usize,
+) -> PrimitiveInit {
+    PrimitiveInit {
+        mean_m: [
+            centre[0] + r.random_range(-0.3..0.3),
+            centre[1] + r.random_range(-0.3..0.3),
+            centre[2] + r.random_range(-0.3..0.3),
+        ],
+        scale_m: [
+            r.random_range(0.2..0.6),
+            r.random_range(0.2..0.6),
+            r.random_range(0.2..0.6),
+        ],
+        quat: random_quat(r),
+        opacity: r.random_range(0.3..0.85),
+        beta,
+        omega_low: r.random_range(0.4..0.9),
+        bands: (0..bands)
+            .map(|_| {
+                (
+                    r.random_range(-0.15..0.15),
+                    [
+                        r.random_range(-0.8..0.8),
+                        r.random_range(-0.8..0.8),
+                        r.random_range(-0.8..0.8),
+                    ],
+                    r.random_range(-3.0..3.0),
+                )
+            })
+            .collect(),
+        sh: (0..sh_k)
+            .map(|_| {
+                [
+                    r.random_range(-0.1..0.1),
+                    r.random_range(-0.1..0.1),
+                    r.random_range(-0.1..0.1),
+                ]
+            })
+            .collect(),
+    }
+}
+
+/// Random upstream gradients for every buffer (the linear functional whose gradient is checked).
+pub fn random_upstream<T: Real>(r: &mut ChaCha8Rng, like: &GBuffers<T>) -> GBuffers<T> {
+    let mut g = GBuffers::zeros(like.width, like.height, !like.rgb.is_empty());
+    for (_, v) in g.planes_mut() {
+        for x in v.iter_mut() {
+            *x = T::from_f64(r.random_range(-1.0..1.0));
+        }
+    }
+    g
+}
+
+/// `Σ upstream · buffers`.
+pub fn dot_buffers<T: Real>(a: &GBuffers<T>, b: &GBuffers<T>) -> f64 {
+    a.planes()
+        .iter()
+        .zip(b.planes().iter())
+        .map(|((_, x), (_, y))| {
+            x.iter()
+                .zip(y.iter())
+                .map(|(p, q)| p.to_f64() * q.to_f64())
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+/// Worst disagreement between the analytic render gradient and central differences, per
+/// parameter group: returns `(group, index, analytic, numeric)` for every entry that fails
+/// `|a − n| ≤ atol + rtol·max(|a|, |n|)`, plus the number of entries checked.
+pub fn check_render_gradient(
+    prims: &Primitives<f64>,
+    cam: &PinholeCamera,
+    settings: &RenderSettings,
+    seed: u64,
+    h: f64,
+    atol: f64,
+    rtol: f64,
+) -> (Vec<(String, usize, f64, f64)>, usize) {
+    let out = render(prims, cam, settings).unwrap();
+    let mut r = rng(seed);
+    let up = random_upstream(&mut r, &out);
+    let grads = render_backward(prims, cam, settings, &up).unwrap();
+    let loss = |p: &Primitives<f64>| dot_buffers(&render(p, cam, settings).unwrap(), &up);
+    let mut failures = Vec::new();
+    let mut checked = 0;
+    let names: Vec<&'static str> = prims.groups().iter().map(|(n, _)| *n).collect();
+    for (gi, name) in names.iter().enumerate() {
+        let len = prims.groups()[gi].1.len();
+        for k in 0..len {
+            let mut plus = prims.clone();
+            plus.groups_mut()[gi].1[k] += h;
+            let mut minus = prims.clone();
+            minus.groups_mut()[gi].1[k] -= h;
+            let numeric = (loss(&plus) - loss(&minus)) / (2.0 * h);
+            let analytic = grads.groups()[gi].1[k];
+            checked += 1;
+            let ok = (analytic - numeric).abs() <= atol + rtol * analytic.abs().max(numeric.abs());
+            if !ok || !analytic.is_finite() {
+                failures.push((name.to_string(), k, analytic, numeric));
+            }
+        }
+        // A group whose gradient is identically zero would pass vacuously.
+        if len > 0 && grads.groups()[gi].1.iter().all(|g| g.abs() < 1e-9) {
+            failures.push((format!("{name} (identically zero)"), 0, 0.0, 0.0));
+        }
+    }
+    (failures, checked)
+}
+
+/// Largest |x| over every buffer.
+pub fn max_abs_buffers<T: Real>(b: &GBuffers<T>) -> f64 {
+    b.planes()
+        .iter()
+        .flat_map(|(_, v)| v.iter())
+        .fold(0.0f64, |m, x| m.max(x.to_f64().abs()))
+}
+
+// ---- Adam for the fitting tests (the trainer's own optimiser lives in `train::adam`) ----
+
+/// Learning rates per parameter group, in the order of [`Primitives::groups`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroupLr {
+    pub means: f64,
+    pub log_scales: f64,
+    pub quats: f64,
+    pub opacity_logits: f64,
+    pub beta_raw: f64,
+    pub omega_low: f64,
+    pub band_amp: f64,
+    pub band_freq: f64,
+    pub band_phase: f64,
+    pub sh: f64,
+}
+
+impl GroupLr {
+    fn as_array(&self) -> [f64; 10] {
+        [
+            self.means,
+            self.log_scales,
+            self.quats,
+            self.opacity_logits,
+            self.beta_raw,
+            self.omega_low,
+            self.band_amp,
+            self.band_freq,
+            self.band_phase,
+            self.sh,
+        ]
+    }
+}
+
+/// Adam (Kingma & Ba) with bias correction.
+#[derive(Debug, Clone)]
+pub struct Adam<T> {
+    pub lr: GroupLr,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub epsilon: f64,
+    step: u32,
+    m: Primitives<T>,
+    v: Primitives<T>,
+}
+
+impl<T: Real> Adam<T> {
+    /// State shaped like `params` with the usual β1 = 0.9, β2 = 0.999, ε = 1e-15 (3DGS's ε).
+    pub fn new(params: &Primitives<T>, lr: GroupLr) -> Self {
+        Self {
+            lr,
+            beta1: 0.9,
+            beta2: 0.999,
+            epsilon: 1e-15,
+            step: 0,
+            m: params.zeros_like(),
+            v: params.zeros_like(),
+        }
+    }
+
+    /// One update `params −= lr · m̂ / (√v̂ + ε)`. The shapes must match the construction's.
+    pub fn step(&mut self, params: &mut Primitives<T>, grads: &Primitives<T>) {
+        self.step += 1;
+        let t = f64::from(self.step);
+        let bc1 = 1.0 - self.beta1.powf(t);
+        let bc2 = 1.0 - self.beta2.powf(t);
+        let (b1, b2, eps) = (
+            T::from_f64(self.beta1),
+            T::from_f64(self.beta2),
+            T::from_f64(self.epsilon),
+        );
+        let lrs = self.lr.as_array();
+        let grads_g = grads.groups();
+        let m_g = self.m.groups_mut();
+        let v_g = self.v.groups_mut();
+        for ((((_, p), (_, g)), (_, m)), ((_, v), lr)) in params
+            .groups_mut()
+            .into_iter()
+            .zip(grads_g)
+            .zip(m_g)
+            .zip(v_g.into_iter().zip(lrs))
+        {
+            if lr == 0.0 {
+                continue;
+            }
+            let step = T::from_f64(lr / bc1);
+            let c2 = T::from_f64(bc2);
+            for (((pk, gk), mk), vk) in p
+                .iter_mut()
+                .zip(g.iter())
+                .zip(m.iter_mut())
+                .zip(v.iter_mut())
+            {
+                *mk = b1 * *mk + (T::ONE - b1) * *gk;
+                *vk = b2 * *vk + (T::ONE - b2) * *gk * *gk;
+                *pk -= step * *mk / ((*vk / c2).sqrt() + eps);
+            }
+        }
+    }
+}

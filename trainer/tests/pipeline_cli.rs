@@ -1,0 +1,248 @@
+//! Proves, through the `s3tir-train` binary, that a run killed with SIGKILL continues from its
+//! last checkpoint with `--resume` (iteration count carries on, no restart from 0), that Ctrl-C
+//! (SIGINT) writes a checkpoint and exits with 130, that `eval --json` prints the documented
+//! object, that `compare` overlays runs into a PNG, and that a bad dataset path fails with a
+//! message naming it. Does NOT check training quality (pipeline_modes.rs does).
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_s3tir-train"))
+}
+
+fn checkpoint_iteration(run: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(run.join("checkpoint.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    v["iteration"].as_u64()
+}
+
+fn wait_for_checkpoint_past(run: &Path, min_iter: u64) -> u64 {
+    let t0 = Instant::now();
+    loop {
+        if let Some(i) = checkpoint_iteration(run)
+            && i > min_iter
+        {
+            return i;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(90),
+            "no checkpoint past {min_iter} within 90 s"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn train_args(data: &Path, run: &Path) -> Vec<String> {
+    [
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--warmup",
+        "20",
+        "--budget",
+        "120",
+        "--checkpoint-every-s",
+        "0.2",
+        "--eval-every-s",
+        "0.5",
+        "--seed",
+        "4",
+    ]
+    .iter()
+    .map(|s| (*s).to_owned())
+    .collect()
+}
+
+#[test]
+fn kill_resume_ctrl_c_eval_and_compare() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("scene");
+    let run = tmp.path().join("run");
+    let st = bin()
+        .args([
+            "synth",
+            data.to_str().unwrap(),
+            "--views",
+            "9",
+            "--width",
+            "24",
+            "--height",
+            "18",
+        ])
+        .status()
+        .unwrap();
+    assert!(st.success(), "synth failed");
+
+    // 1. Start a long run and SIGKILL it after two checkpoints.
+    let mut child = bin()
+        .args(train_args(&data, &run))
+        .args(["--iters", "1000000"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let first = wait_for_checkpoint_past(&run, 0);
+    wait_for_checkpoint_past(&run, first);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let killed_at = checkpoint_iteration(&run).unwrap();
+    assert!(killed_at > 0);
+
+    // 2. Resume to a fixed end.
+    let target = killed_at + 25;
+    let out = bin()
+        .args(train_args(&data, &run))
+        .args(["--resume", "--iters", &target.to_string()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "resume failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        checkpoint_iteration(&run),
+        Some(target),
+        "resumed run ends at {target}"
+    );
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let iters: Vec<u64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(
+        iters.iter().filter(|&&i| i == 0).count(),
+        1,
+        "resume must not restart from 0: {iters:?}"
+    );
+    assert_eq!(
+        *iters.last().unwrap(),
+        target,
+        "last metrics row: {iters:?}"
+    );
+    assert!(
+        csv.starts_with("iteration,seconds,loss,psnr,ssim,kelvin_mae,"),
+        "header: {csv}"
+    );
+    for f in [
+        "point_cloud.ply",
+        "error_vs_time.png",
+        "beta_hist.png",
+        "eval.json",
+        "capacity.json",
+    ] {
+        assert!(run.join(f).exists(), "{f} missing");
+    }
+    let gb = std::fs::read_dir(run.join("gbuffers")).unwrap().count();
+    assert_eq!(gb, 2 * 4, "4 G-buffer images per held-out view (2 views)");
+
+    // 3. Ctrl-C: checkpoint, then exit 130.
+    let child = bin()
+        .args(train_args(&data, &run))
+        .args(["--resume", "--iters", "1000000"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint_past(&run, target);
+    let st = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "Ctrl-C exit code");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("interrupted at iteration"),
+        "stdout: {stdout}"
+    );
+    assert!(checkpoint_iteration(&run).unwrap() > target);
+
+    // 4. eval --json.
+    let out = bin()
+        .args(["eval", run.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "eval: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["psnr", "ssim", "kelvin_mae", "views", "primitives"] {
+        assert!(v.get(key).is_some(), "eval --json lacks `{key}`: {v}");
+    }
+    assert!(v["psnr"].as_f64().unwrap() > 10.0, "psnr {}", v["psnr"]);
+    assert!(
+        v["kelvin_mae"].as_f64().is_some(),
+        "radiometric data: kelvin_mae is a number"
+    );
+    assert_eq!(v["views"].as_array().unwrap().len(), 2);
+
+    // 5. compare.
+    let png = tmp.path().join("cmp.png");
+    let out = bin()
+        .args([
+            "compare",
+            run.to_str().unwrap(),
+            run.to_str().unwrap(),
+            "--out",
+            png.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "compare: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::metadata(&png).unwrap().len() > 1000,
+        "compare plot is empty"
+    );
+
+    // 6. A new run into a folder that holds one is refused (no silent overwrite).
+    let out = bin()
+        .args(train_args(&data, &run))
+        .args(["--iters", "5"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--resume"),
+        "error should point to --resume: {err}"
+    );
+
+    // 7. A bad dataset path.
+    let out = bin()
+        .args([
+            tmp.path().join("nope").to_str().unwrap(),
+            "--out",
+            tmp.path().join("r2").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("nope"), "error should name the path: {err}");
+}
+
+#[test]
+fn devices_subcommand_still_parses() {
+    let out = bin().args(["devices", "--help"]).output().unwrap();
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stdout).contains("--json"));
+    let out = bin().args(["--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    for s in [
+        "devices", "eval", "compare", "--mode", "--budget", "--resume",
+    ] {
+        assert!(help.contains(s), "--help lacks {s}");
+    }
+}
