@@ -556,6 +556,21 @@ fn lm(
     converged
 }
 
+/// Pooled residual σ in pixels (per axis, Huber-weighted, without the per-camera weights).
+fn residual_sigma_px(p: &Problem, huber: f64, dof: usize) -> f64 {
+    let res = residuals(p);
+    let mut ss = 0.0;
+    for (o, r) in p.observations.iter().zip(&res) {
+        for (j, e) in r.iter().enumerate() {
+            if o.inlier[j] {
+                let e = e.length();
+                ss += if e <= huber { e * e } else { huber * e };
+            }
+        }
+    }
+    (ss / dof.max(1) as f64).sqrt()
+}
+
 /// Solves the joint problem in place.
 pub fn solve(p: &mut Problem, opts: &SolveOptions) -> SolveReport {
     let start = Instant::now();
@@ -656,7 +671,7 @@ pub fn solve(p: &mut Problem, opts: &SolveOptions) -> SolveReport {
         rejected,
         intrinsic_sigma,
         extrinsic_sigma,
-        residual_sigma_px: s2.sqrt(),
+        residual_sigma_px: residual_sigma_px(p, opts.huber_px, dof),
         unconstrained,
         converged,
         wall_s: start.elapsed().as_secs_f64(),
