@@ -73,3 +73,53 @@ fn devices_without_a_driver_fails_with_the_reason() {
         "stderr: {err}"
     );
 }
+
+#[test]
+fn bench_json_reports_both_backends_both_modes_and_kernels() {
+    let out = train()
+        .args([
+            "bench", "--json", "--width", "32", "--height", "24", "--views", "4",
+        ])
+        .args(["--primitives", "150", "--steps", "2", "--warmup-steps", "1"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "bench failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("stdout must be one JSON object");
+    for key in [
+        "cpu_steps_per_s",
+        "vulkan_steps_per_s",
+        "s3tir_steps_per_s",
+        "gaussian_steps_per_s",
+    ] {
+        let x = v[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key} missing in {v}"));
+        assert!(x.is_finite() && x > 0.0, "{key} = {x}");
+    }
+    assert!(
+        v["device"].as_str().is_some_and(|d| d.contains("llvmpipe")),
+        "device: {}",
+        v["device"]
+    );
+    let kernels: Vec<&str> = v["kernels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|k| k["kernel"].as_str())
+        .collect();
+    for k in ["raster_forward", "raster_project", "radix_scatter"] {
+        assert!(
+            kernels.contains(&k),
+            "kernel breakdown lacks {k}: {kernels:?}"
+        );
+    }
+    assert!(
+        kernels.iter().any(|k| k.starts_with("raster_backward_")),
+        "no backward kernel in {kernels:?}"
+    );
+}

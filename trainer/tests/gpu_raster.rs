@@ -341,5 +341,10 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
             relative_l2(&format!("{label} vs f64"), &got, &want64);
         }
         raster.destroy(&ctx);
+        assert_eq!(
+            ctx.allocated_bytes(),
+            0,
+            "the rasteriser must release every buffer it allocated"
+        );
     }
 }

@@ -532,6 +532,12 @@ impl GpuRasterizer {
         ] {
             ctx.destroy_kernel(k);
         }
+        if let Some(s) = self.scan.into_inner().ok().flatten() {
+            s.destroy(ctx);
+        }
+        if let Some(s) = self.sort.into_inner().ok().flatten() {
+            s.destroy(ctx);
+        }
     }
 }
 
