@@ -17,7 +17,7 @@ build: deps
 
 # The whole pipeline on the simulated rig: capture a session, calibrate the board set, train and
 # evaluate a small S3-TIR model. Every step runs against s3tir-firmware-sim; outputs in DEMO_DIR.
-DEMO_ITERS ?= 600
+DEMO_ITERS ?= 300
 demo: build
 	@mkdir -p $(DEMO_DIR)
 	@echo "== 1/5 Vulkan devices the trainer can use"
@@ -29,9 +29,11 @@ demo: build
 	$(BIN)/s3tir-firmware-sim board --out $(DEMO_DIR)/board --views 30
 	$(BIN)/s3tir-calib $(DEMO_DIR)/board --out $(DEMO_DIR)/calibration/calibration.yaml \
 	  --report $(DEMO_DIR)/calibration/report --summary-json $(DEMO_DIR)/calibration/summary.json
-	@echo "== 4/5 Train S3-TIR on the simulated thermal scene ($(DEMO_ITERS) iterations, CPU backend)"
+	@echo "== 4/5 Train S3-TIR on the simulated thermal scene ($(DEMO_ITERS) iterations, CPU backend;"
+	@echo "        short warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
 	$(BIN)/s3tir-firmware-sim scene --out $(DEMO_DIR)/scene
-	$(BIN)/s3tir-train $(DEMO_DIR)/scene --out $(DEMO_DIR)/run --iters $(DEMO_ITERS)
+	$(BIN)/s3tir-train $(DEMO_DIR)/scene --out $(DEMO_DIR)/run --iters $(DEMO_ITERS) \
+	  --warmup 100 --budget 1000 --beta-lr 0.05 --eval-every-s 5
 	@echo "== 5/5 Evaluate the held-out views"
 	$(BIN)/s3tir-train eval $(DEMO_DIR)/run
 	@echo "== demo finished: session, calibration, trained model, plots and renders are in $(DEMO_DIR)"
