@@ -455,7 +455,13 @@ impl GpuRasterizer {
             return Ok(grads);
         };
         let n = prims.len();
-        let param_count = parameter_block(prims).len();
+        // Floats of the parameter block (raster_common.glsl): every group but the SH colour.
+        let param_count: usize = prims
+            .groups()
+            .iter()
+            .filter(|(name, _)| *name != "sh")
+            .map(|(_, v)| v.len())
+            .sum();
         let up_buf = binned.scope.keep(ctx.upload("raster.upstream", &up)?);
         let acc = binned
             .scope

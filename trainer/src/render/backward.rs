@@ -12,7 +12,7 @@
 //! `sign(0) = 0` for `|ω_j|`. The early-stop threshold and the α ≥ 1/255 cut are treated as
 //! constants (as in 3DGS): gradients are those of the blended sum over the samples taken.
 
-use super::forward::{pixel, sample};
+use super::forward::{blended_values, pixel, sample};
 use super::prepare::{Prepared, prepare};
 use super::{GBuffers, RenderSettings, T_MIN};
 use crate::camera::PinholeCamera;
@@ -117,17 +117,7 @@ pub fn render_backward_prepared<T: Real>(
             let mut s_after = T::ZERO;
             for &(i, trans_i, s) in samples.iter().rev() {
                 let pv = &prep.prims[i];
-                let vals = [
-                    s.f,
-                    prims.omega_low[i],
-                    pv.psi_high,
-                    pv.beta,
-                    s.t,
-                    T::ONE,
-                    pv.colour[0],
-                    pv.colour[1],
-                    pv.colour[2],
-                ];
+                let vals = blended_values(prims, pv, i, &s);
                 let w_i = g.iter().zip(vals).fold(T::ZERO, |a, (gk, vk)| a + *gk * vk);
                 let d_alpha = trans_i * (w_i - s_after);
                 s_after = s.alpha * w_i + (T::ONE - s.alpha) * s_after;

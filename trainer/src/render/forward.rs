@@ -104,6 +104,28 @@ pub(crate) fn spectrum_pre<T: Real>(prims: &Primitives<T>, i: usize, delta: [T; 
     (pre, ())
 }
 
+/// The values a sample contributes to the 9 blended outputs, in buffer order: thermal `F`,
+/// Ψ_low, Ψ_high, Ψ_β, depth `t*`, alpha (1), RGB colour. Shared by forward and backward.
+#[inline]
+pub(crate) fn blended_values<T: Real>(
+    prims: &Primitives<T>,
+    pv: &PrimView<T>,
+    i: usize,
+    s: &Sample<T>,
+) -> [T; 9] {
+    [
+        s.f,
+        prims.omega_low[i],
+        pv.psi_high,
+        pv.beta,
+        s.t,
+        T::ONE,
+        pv.colour[0],
+        pv.colour[1],
+        pv.colour[2],
+    ]
+}
+
 /// Pixel centre `(x, y, 1)` in the scalar type.
 #[inline]
 pub(crate) fn pixel<T: Real>(x: usize, y: usize) -> [T; 3] {
@@ -144,17 +166,7 @@ pub fn render_prepared<T: Real>(prims: &Primitives<T>, prep: &Prepared<T>) -> GB
                     break;
                 }
                 let w = trans * s.alpha;
-                let vals = [
-                    s.f,
-                    prims.omega_low[i],
-                    pv.psi_high,
-                    pv.beta,
-                    s.t,
-                    T::ONE,
-                    pv.colour[0],
-                    pv.colour[1],
-                    pv.colour[2],
-                ];
+                let vals = blended_values(prims, pv, i, &s);
                 for (a, v) in acc.iter_mut().zip(vals) {
                     *a += w * v;
                 }
