@@ -1,46 +1,56 @@
-// Backward rasteriser body, compiled twice: raster_backward_atomic.comp (USE_FLOAT_ATOMICS:
-// atomicAdd(float)) and raster_backward_cas.comp (compare-and-swap loop on the bits, for drivers
-// without float atomics). One workgroup per 16x16 tile, one invocation per pixel.
+// Backward rasteriser body, compiled four times (raster_backward_{atomic,cas}{,_sg}.comp):
+//   USE_FLOAT_ATOMICS  global sums with atomicAdd(float); otherwise a compare-and-swap loop on
+//                      the bits, for drivers without float atomics (Raspberry Pi 5).
+//   USE_SUBGROUP_REDUCE each subgroup sums its pixels' contributions (subgroupAdd) and one
+//                      invocation adds the sum to global memory; without it every pixel adds
+//                      its own. (Batching the subgroup sums in shared memory and adding them per
+//                      tile was measured 2.8x slower on lavapipe: its barriers are expensive.)
+// One workgroup per 16x16 tile, one invocation per PIX pixels of a column.
 //
 // Mirrors the CPU reference (trainer/src/render/backward.rs) sample by sample. The CPU walks the
-// samples back to front with S_after; here each pixel replays its samples twice front to back:
-// pass 1 sums W = sum_l T_l alpha_l w_l (w = upstream-weighted values), pass 2 uses
+// samples back to front with S_after; here each pixel walks them front to back using what the
+// forward pass of the same view left in its planes: the upstream-weighted blend
+//   W = sum_l T_l alpha_l w_l = sum_c g_c plane_c   (w = upstream-weighted values)
+// and the end of the pixel's samples (END_PLANE). Then
 //   dL/dalpha_i = T_i w_i - (W - W_{<=i}) / (1 - alpha_i),   1 - alpha_i >= 0.01,
 // which equals T_i (w_i - S_after_i) and needs no per-pixel sample list.
 //
-// Per sample it accumulates, per primitive, the view-space gradients (dL/da, dL/dB p^T, the
-// direct dL/dmu, dL/dopacity, dL/dbeta: 17 floats, ACC_STRIDE) and the spectrum parameters'
-// gradients (omega_low, band amp/phase/freq) straight into the gradient buffer (the parameter
-// layout of raster_common.glsl). raster_backward_finish chains the view-space sums to the
-// primitive parameters.
+// Per sample it accumulates, per primitive, the view-space sums of raster_common.glsl
+// (acc_fields(m) floats: ACC_GEOM geometry/spectrum-base fields, ACC_BAND per band);
+// raster_backward_finish chains them to the primitive parameters.
+//
+// With subgroup sums, the walk over the tile's list is uniform across the subgroup (it runs to
+// the last sample of any of its pixels; a pixel past its own end contributes zeros), so every
+// subgroup operation sees all its invocations.
 
 #include "raster_common.glsl"
 
-layout(local_size_x = 16, local_size_y = 16) in;
+// Each invocation handles PIX pixels of its tile column (rows ly, ly + ROW_STEP, ...): the
+// primitive's view data is loaded once for all of them and their contributions are summed in
+// registers before the subgroup sum, so the global adds per (primitive, field) and tile drop by
+// PIX. The per-pixel arithmetic is unchanged.
+#define PIX 8u
+#define ROW_STEP (16u / PIX)
+#define CACHED_BANDS 4u
+layout(local_size_x = 16, local_size_y = 2) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
-layout(std430, set = 0, binding = 2) readonly buffer Views { PrimView views[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Views { PrimView views[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Bands { BandView bands[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Values { uint sorted_prims[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Ranges { uvec2 ranges[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Upstream { float upstream[]; };
+layout(std430, set = 0, binding = 6) readonly buffer Planes { float planes[]; };
 #ifdef USE_FLOAT_ATOMICS
-layout(std430, set = 0, binding = 6) buffer Acc { float acc[]; };
-layout(std430, set = 0, binding = 7) buffer Grads { float grads[]; };
-void acc_add_raw(uint idx, float v) {
+layout(std430, set = 0, binding = 7) buffer Acc { float acc[]; };
+void global_add(uint idx, float v) {
     if (v != 0.0) {
         atomicAdd(acc[idx], v);
     }
 }
-void grad_add_raw(uint idx, float v) {
-    if (v != 0.0) {
-        atomicAdd(grads[idx], v);
-    }
-}
 #else
-layout(std430, set = 0, binding = 6) buffer Acc { uint acc[]; };
-layout(std430, set = 0, binding = 7) buffer Grads { uint grads[]; };
-void acc_add_raw(uint idx, float v) {
+layout(std430, set = 0, binding = 7) buffer Acc { uint acc[]; };
+void global_add(uint idx, float v) {
     if (v == 0.0) {
         return;
     }
@@ -53,47 +63,7 @@ void acc_add_raw(uint idx, float v) {
         }
     }
 }
-void grad_add_raw(uint idx, float v) {
-    if (v == 0.0) {
-        return;
-    }
-    uint seen = grads[idx];
-    for (;;) {
-        uint expected = seen;
-        seen = atomicCompSwap(grads[idx], expected, floatBitsToUint(uintBitsToFloat(expected) + v));
-        if (seen == expected) {
-            break;
-        }
-    }
-}
 #endif
-
-#ifdef USE_SUBGROUP_REDUCE
-// Every invocation of a subgroup walks the same tile list in lockstep (see main), so at each
-// call all active invocations add to the same index: sum across the subgroup first, then one
-// atomic per subgroup instead of one per pixel.
-void acc_add(uint idx, float v) {
-    float total = subgroupAdd(v);
-    if (subgroupElect()) {
-        acc_add_raw(idx, total);
-    }
-}
-void grad_add(uint idx, float v) {
-    float total = subgroupAdd(v);
-    if (subgroupElect()) {
-        grad_add_raw(idx, total);
-    }
-}
-#else
-void acc_add(uint idx, float v) {
-    acc_add_raw(idx, v);
-}
-void grad_add(uint idx, float v) {
-    grad_add_raw(idx, v);
-}
-#endif
-
-#define ACC_STRIDE 17u  // g_a (3), g_bp (9, row-major: row = component of b), g_mu (3), g_o, g_beta
 
 layout(push_constant) uniform Push {
     uint n;
@@ -103,184 +73,237 @@ layout(push_constant) uniform Push {
     uint tiles_x;
 } pc;
 
-const float TWO_PI = 6.28318530717958647692;
-
-struct Sample {
-    float alpha;
-    float s;
-    bool clamped;
-    float q;
-    float mb;
-    float t;
-    vec3 r;
-    vec3 b;
-    float bb;
-    vec3 delta;
-    float pre;  // spectrum before the ReLU
-};
-
-bool eval_sample(uint i, PrimView v, vec3 p, vec3 d, float near_m, out Sample smp) {
-    vec3 b = vec3(dot(v.b0.xyz, p), dot(v.b1.xyz, p), dot(v.b2.xyz, p));
-    float bb = dot(b, b);
-    float t = -dot(v.a_opacity.xyz, b) / bb;
-    if (!(t > near_m)) {
-        return false;
+// Where put() sends a field of the current sample (set per sample in main).
+uint g_fields;  // acc_fields(m)
+uint g_prim;    // primitive of the current sample
+#ifdef USE_SUBGROUP_REDUCE
+void put(uint f, float v) {
+    float total = subgroupAdd(v);
+    if (subgroupElect()) {
+        global_add(g_prim * g_fields + f, total);
     }
-    vec3 r = v.a_opacity.xyz + t * b;
-    float q = dot(r, r);
-    if (q > v.misc.w * (1.0 + QMAX_MARGIN) + 1e-7) {
-        return false;
-    }
-    float mb = pow(q, 0.5 * v.cmm_beta.w);
-    float s = exp(-mb);
-    float os = v.a_opacity.w * s;
-    bool clamped = os > ALPHA_MAX;
-    float alpha = clamped ? ALPHA_MAX : os;
-    if (!(alpha >= ALPHA_MIN)) {
-        return false;
-    }
-    uint n = pc.n, m = pc.m;
-    vec3 delta = v.cmm_beta.xyz + t * d;
-    float pre = params[off_omega_low(n, m) + i];
-    for (uint j = 0u; j < m; ++j) {
-        uint bj = m * i + j;
-        vec3 f = vec3(params[off_band_freq(n, m) + 3u * bj], params[off_band_freq(n, m) + 3u * bj + 1u],
-                      params[off_band_freq(n, m) + 3u * bj + 2u]);
-        pre += params[off_band_amp(n, m) + bj] * cos(TWO_PI * dot(f, delta) + params[off_band_phase(n, m) + bj]);
-    }
-    smp = Sample(alpha, s, clamped, q, mb, t, r, b, bb, delta, pre);
-    return true;
 }
-
-// Upstream-weighted value of a sample: sum_k g_k v_k over thermal, psi_low, psi_high, psi_beta,
-// depth, alpha.
-float weighted(float g[6], Sample smp, uint i, PrimView v) {
-    return g[0] * max(smp.pre, 0.0) + g[1] * params[off_omega_low(pc.n, pc.m) + i] + g[2] * v.misc.x +
-           g[3] * v.cmm_beta.w + g[4] * smp.t + g[5];
+#else
+void put(uint f, float v) {
+    global_add(g_prim * g_fields + f, v);
 }
+#endif
 
 void main() {
     uint x = gl_GlobalInvocationID.x;
-    uint y = gl_GlobalInvocationID.y;
-    if (x >= pc.width || y >= pc.height) {
-        return;
-    }
-    uint npix = pc.width * pc.height;
-    uint pidx = y * pc.width + x;
-    float g[6];
-    bool any_g = false;
-    for (uint c = 0u; c < 6u; ++c) {
-        g[c] = upstream[c * npix + pidx];
-        any_g = any_g || g[c] != 0.0;
-    }
-    if (!any_g) {
-        return;
-    }
     uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x;
+    uint y0 = gl_WorkGroupID.y * 16u + gl_LocalInvocationID.y;
+    uint npix = pc.width * pc.height;
     uvec2 range = ranges[tile];
-    vec3 p = vec3(float(x), float(y), 1.0);
-    mat3 W = transpose(mat3(cam[CAM_W], cam[CAM_W + 1], cam[CAM_W + 2], cam[CAM_W + 3], cam[CAM_W + 4],
-                            cam[CAM_W + 5], cam[CAM_W + 6], cam[CAM_W + 7], cam[CAM_W + 8]));
-    vec3 d = W * p;
     float near_m = cam[CAM_NEAR];
-    uint n = pc.n, m = pc.m;
+    uint m = pc.m;
+    g_fields = acc_fields(m);
 
-    // Pass 1: the total upstream-weighted blend W and where the pixel stopped.
-    float trans = 1.0;
-    float w_total = 0.0;
-    uint end = range.x;
-    for (uint k = range.x; k < range.y; ++k) {
+    // Per pixel: upstream gradients, W = sum_c g_c plane_c (see the top), end of its samples.
+    float g[PIX * 6u];
+    float w_total[PIX];
+    uint end[PIX];
+    vec3 p[PIX];
+    uint walk_end = range.x;
+    for (uint r = 0u; r < PIX; ++r) {
+        uint y = y0 + r * ROW_STEP;
+        p[r] = vec3(float(x), float(y), 1.0);
+        w_total[r] = 0.0;
+        end[r] = range.x;
+        bool any_g = false;
+        for (uint c = 0u; c < 6u; ++c) {
+            g[6u * r + c] = 0.0;
+        }
+        if (x < pc.width && y < pc.height) {
+            uint pidx = y * pc.width + x;
+            for (uint c = 0u; c < 6u; ++c) {
+                float gc = upstream[c * npix + pidx];
+                g[6u * r + c] = gc;
+                any_g = any_g || gc != 0.0;
+                w_total[r] += gc * planes[c * npix + pidx];
+            }
+            // A pixel without upstream gradient contributes nothing: give it an empty walk.
+            end[r] = any_g ? floatBitsToUint(planes[END_PLANE * npix + pidx]) : range.x;
+        }
+        walk_end = max(walk_end, end[r]);
+    }
+    // The walk ends at the last sample of any pixel of the subgroup.
+#ifdef USE_SUBGROUP_REDUCE
+    walk_end = subgroupMax(walk_end);
+#endif
+
+    float trans[PIX];
+    float w_upto[PIX];
+    for (uint r = 0u; r < PIX; ++r) {
+        trans[r] = 1.0;
+        w_upto[r] = 0.0;
+    }
+    for (uint k = range.x; k < walk_end; ++k) {
         uint i = sorted_prims[k];
-        PrimView v = views[i];
-        Sample smp;
-        if (!eval_sample(i, v, p, d, near_m, smp)) {
+        g_prim = i;
+        vec4 a_o = views[i].a_opacity;
+        vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
+        vec4 misc = views[i].misc;
+        float beta = views[i].cmm_beta.w;
+        float omega = views[i].b0.w;
+        float half_beta = 0.5 * beta;
+        vec4 bbox = views[i].bbox;
+        bool in_cols = float(x) >= bbox.x && float(x) <= bbox.z;
+
+        // The sample of each pixel, as raster_forward evaluates it (same decisions).
+        bool valid[PIX];
+        float t[PIX], q[PIX], sv[PIX], mb[PIX], alpha[PIX], pre[PIX];
+        vec3 rv[PIX], bv3[PIX];
+        bool clamped[PIX];
+        for (uint r = 0u; r < PIX; ++r) {
+            bool ok = k < end[r] && in_cols && p[r].y >= bbox.y && p[r].y <= bbox.w;
+            vec3 b = vec3(0.0, 0.0, 1.0);
+            float tt = 0.0;
+            vec3 rr = vec3(0.0);
+            float qq = 0.0;
+            if (ok) {
+                b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
+                tt = -dot(a_o.xyz, b) / dot(b, b);
+                rr = a_o.xyz + tt * b;
+                qq = dot(rr, rr);
+                ok = tt > near_m && qq <= misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+            }
+            float mbb = 0.0, ss = 0.0, al = 0.0;
+            bool cl = true;
+            if (ok) {
+                mbb = beta == 2.0 ? qq : pow(qq, half_beta);
+                ss = exp(-mbb);
+                float os = a_o.w * ss;
+                cl = os > ALPHA_MAX;
+                al = cl ? ALPHA_MAX : os;
+                ok = al >= ALPHA_MIN;
+            }
+            valid[r] = ok;
+            t[r] = ok ? tt : 0.0;
+            q[r] = qq;
+            rv[r] = rr;
+            bv3[r] = b;
+            mb[r] = mbb;
+            sv[r] = ss;
+            alpha[r] = al;
+            clamped[r] = cl || !ok;
+            pre[r] = omega;
+        }
+        // Nothing to add when no pixel of the subgroup (invocation) has this sample.
+        bool any_valid = false;
+        for (uint r = 0u; r < PIX; ++r) {
+            any_valid = any_valid || valid[r];
+        }
+#ifdef USE_SUBGROUP_REDUCE
+        any_valid = subgroupMax(any_valid ? 1u : 0u) != 0u;
+#endif
+        if (!any_valid) {
             continue;
         }
-        float next = trans * (1.0 - smp.alpha);
-        if (next < T_MIN) {
-            break;
-        }
-        w_total += trans * smp.alpha * weighted(g, smp, i, v);
-        trans = next;
-        end = k + 1u;
-    }
-
-    // Pass 2: per-sample gradients, front to back. The loop runs to the last sample of any
-    // invocation of the subgroup and every accumulation is called by every invocation (zero
-    // where its pixel has no sample), so the subgroup-reducing variant sums the same index.
-#ifdef USE_SUBGROUP_REDUCE
-    uint loop_end = subgroupMax(end);
-#else
-    uint loop_end = end;
-#endif
-    trans = 1.0;
-    float w_upto = 0.0;
-    for (uint k = range.x; k < loop_end; ++k) {
-        uint i = sorted_prims[k];
-        PrimView v = views[i];
-        Sample smp;
-        bool valid = k < end && eval_sample(i, v, p, d, near_m, smp);
-        float wt = 0.0;
-        float d_alpha = 0.0;
-        float g_f = 0.0;
-        if (valid) {
-            float w_i = weighted(g, smp, i, v);
-            w_upto += trans * smp.alpha * w_i;
-            d_alpha = trans * w_i - (w_total - w_upto) / (1.0 - smp.alpha);
-            wt = trans * smp.alpha;
-            trans *= 1.0 - smp.alpha;
-            g_f = smp.pre > 0.0 ? wt * g[0] : 0.0;
-        } else {
-            smp = Sample(0.0, 0.0, true, 0.0, 0.0, 0.0, vec3(0.0), vec3(0.0), 1.0, vec3(0.0), 0.0);
-        }
-
-        // Spectrum.
-        grad_add(off_omega_low(n, m) + i, wt * g[1] + g_f);
-        vec3 g_delta = vec3(0.0);
+        // cos and sin of the first CACHED_BANDS bands' phases, reused by the gradients.
+        float c_th[PIX * CACHED_BANDS];
+        float s_th[PIX * CACHED_BANDS];
         for (uint j = 0u; j < m; ++j) {
-            uint bj = m * i + j;
-            float amp = params[off_band_amp(n, m) + bj];
-            vec3 f = vec3(params[off_band_freq(n, m) + 3u * bj], params[off_band_freq(n, m) + 3u * bj + 1u],
-                          params[off_band_freq(n, m) + 3u * bj + 2u]);
-            float theta = TWO_PI * dot(f, smp.delta) + params[off_band_phase(n, m) + bj];
-            float g_theta = -g_f * amp * sin(theta);
-            grad_add(off_band_amp(n, m) + bj, wt * g[2] * sign(amp) + g_f * cos(theta));
-            grad_add(off_band_phase(n, m) + bj, g_theta);
-            for (uint a = 0u; a < 3u; ++a) {
-                grad_add(off_band_freq(n, m) + 3u * bj + a, g_theta * TWO_PI * smp.delta[a]);
-            }
-            g_delta += g_theta * TWO_PI * f;
-        }
-        uint base = ACC_STRIDE * i;
-        // delta = (c - mu) + t d
-        for (uint a = 0u; a < 3u; ++a) {
-            acc_add(base + 12u + a, -g_delta[a]);
-        }
-        float g_t = dot(g_delta, d) + wt * g[4];
-        // Support and opacity (no gradient through a clamped alpha).
-        float g_beta = wt * g[3];
-        float g_q = 0.0;
-        float g_o = 0.0;
-        if (!smp.clamped) {
-            g_o = d_alpha * smp.s;
-            float g_s = d_alpha * v.a_opacity.w;
-            float half_beta = 0.5 * v.cmm_beta.w;
-            g_q = -g_s * smp.s * half_beta * pow(smp.q, half_beta - 1.0);
-            if (smp.q > 0.0) {
-                g_beta += -g_s * smp.s * smp.mb * 0.5 * log(smp.q);
+            BandView bv = bands[m * i + j];
+            for (uint r = 0u; r < PIX; ++r) {
+                if (valid[r]) {
+                    float theta = bv.g_theta0.w + t[r] * dot(bv.g_theta0.xyz, p[r]);
+                    float c = cos(theta);
+                    pre[r] += bv.amp.x * c;
+                    if (j < CACHED_BANDS) {
+                        c_th[CACHED_BANDS * r + j] = c;
+                        s_th[CACHED_BANDS * r + j] = sin(theta);
+                    }
+                }
             }
         }
-        acc_add(base + 15u, g_o);
-        acc_add(base + 16u, g_beta);
-        // (q*, t*) -> (a, b)
-        float inv_bb = 1.0 / smp.bb;
-        vec3 a_vec = v.a_opacity.xyz;
+        float wt[PIX], d_alpha[PIX], g_f[PIX], g_t[PIX];
+        float sum_omega = 0.0;
+        for (uint r = 0u; r < PIX; ++r) {
+            wt[r] = 0.0;
+            d_alpha[r] = 0.0;
+            g_f[r] = 0.0;
+            if (valid[r]) {
+                float w_i = g[6u * r] * max(pre[r], 0.0) + g[6u * r + 1u] * omega + g[6u * r + 2u] * misc.x +
+                            g[6u * r + 3u] * beta + g[6u * r + 4u] * t[r] + g[6u * r + 5u];
+                w_upto[r] += trans[r] * alpha[r] * w_i;
+                d_alpha[r] = trans[r] * w_i - (w_total[r] - w_upto[r]) / (1.0 - alpha[r]);
+                wt[r] = trans[r] * alpha[r];
+                trans[r] *= 1.0 - alpha[r];
+                g_f[r] = pre[r] > 0.0 ? wt[r] * g[6u * r] : 0.0;
+            }
+            g_t[r] = wt[r] * g[6u * r + 4u];
+            sum_omega += wt[r] * g[6u * r + 1u] + g_f[r];
+        }
+
+        // Spectrum: omega_low, then per band amplitude, theta0 and sum g_theta t p.
+        put(14u, sum_omega);
+        for (uint j = 0u; j < m; ++j) {
+            BandView bv = bands[m * i + j];
+            float amp = bv.amp.x;
+            float g_amp = 0.0, g_th = 0.0;
+            vec3 g_tp = vec3(0.0);
+            for (uint r = 0u; r < PIX; ++r) {
+                if (!valid[r]) {
+                    continue;
+                }
+                float gp = dot(bv.g_theta0.xyz, p[r]);
+                float c, sn;
+                if (j < CACHED_BANDS) {
+                    c = c_th[CACHED_BANDS * r + j];
+                    sn = s_th[CACHED_BANDS * r + j];
+                } else {
+                    float theta = bv.g_theta0.w + t[r] * gp;
+                    c = cos(theta);
+                    sn = sin(theta);
+                }
+                float g_theta = -g_f[r] * amp * sn;
+                g_amp += wt[r] * g[6u * r + 2u] * sign(amp) + g_f[r] * c;
+                g_th += g_theta;
+                g_tp += g_theta * t[r] * p[r];
+                g_t[r] += g_theta * gp;
+            }
+            uint f = ACC_GEOM + ACC_BAND * j;
+            put(f, g_amp);
+            put(f + 1u, g_th);
+            put(f + 2u, g_tp.x);
+            put(f + 3u, g_tp.y);
+            put(f + 4u, g_tp.z);
+        }
+        // Support and opacity (no gradient through a clamped alpha), then (q*, t*) -> (a, b).
+        float g_o = 0.0, g_beta = 0.0;
+        vec3 g_a = vec3(0.0);
+        vec3 g_bp[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+        for (uint r = 0u; r < PIX; ++r) {
+            g_beta += wt[r] * g[6u * r + 3u];
+            float g_q = 0.0;
+            if (!clamped[r]) {
+                g_o += d_alpha[r] * sv[r];
+                float g_s = d_alpha[r] * a_o.w;
+                // d(q^(beta/2))/dq = (beta/2) q^(beta/2 - 1) = (beta/2) mb / q
+                float dmb_dq = q[r] > 0.0 ? half_beta * mb[r] / q[r] : (half_beta == 1.0 ? 1.0 : 0.0);
+                g_q = -g_s * sv[r] * dmb_dq;
+                if (q[r] > 0.0) {
+                    g_beta += -g_s * sv[r] * mb[r] * 0.5 * log(q[r]);
+                }
+            }
+            if (valid[r]) {
+                float inv_bb = 1.0 / dot(bv3[r], bv3[r]);
+                vec3 ga = g_q * 2.0 * rv[r] - g_t[r] * bv3[r] * inv_bb;
+                vec3 gb = g_q * 2.0 * t[r] * rv[r] - g_t[r] * (a_o.xyz + 2.0 * t[r] * bv3[r]) * inv_bb;
+                g_a += ga;
+                g_bp[0] += gb.x * p[r];
+                g_bp[1] += gb.y * p[r];
+                g_bp[2] += gb.z * p[r];
+            }
+        }
+        put(12u, g_o);
+        put(13u, g_beta);
         for (uint c = 0u; c < 3u; ++c) {
-            acc_add(base + c, g_q * 2.0 * smp.r[c] - g_t * smp.b[c] * inv_bb);
-            float g_b = g_q * 2.0 * smp.t * smp.r[c] - g_t * (a_vec[c] + 2.0 * smp.t * smp.b[c]) * inv_bb;
-            acc_add(base + 3u + 3u * c, g_b * p.x);
-            acc_add(base + 3u + 3u * c + 1u, g_b * p.y);
-            acc_add(base + 3u + 3u * c + 2u, g_b * p.z);
+            put(c, g_a[c]);
+            put(3u + 3u * c, g_bp[c].x);
+            put(3u + 3u * c + 1u, g_bp[c].y);
+            put(3u + 3u * c + 2u, g_bp[c].z);
         }
     }
 }

@@ -1,8 +1,11 @@
 // Backward rasteriser, final step, one invocation per primitive: chains the view-space gradient
-// sums of raster_backward_* (dL/da, dL/dB p^T, direct dL/dmu, dL/dopacity, dL/dbeta) to the
-// primitive parameters (mean, log-scales, quaternion through its normalisation, opacity logit,
-// raw beta), as the CPU reference's final loop (trainer/src/render/backward.rs). The spectrum
-// parameters' gradients were accumulated directly by the raster kernel and are left as they are.
+// sums of raster_backward_* (raster_common.glsl: dL/da, dL/dB p^T, dL/dopacity, dL/dbeta,
+// dL/domega_low, per band dL/damp, dL/dtheta0, sum dL/dtheta t p) to the primitive parameters
+// (mean, log-scales, quaternion through its normalisation, opacity logit, raw beta, the
+// spectrum), as the CPU reference's final loop (trainer/src/render/backward.rs).
+// Bands (BandView): theta = 2 pi f . (c - mu) + phase + t 2 pi f . (W p), so
+//   dL/dphase = dL/dtheta0,  dL/df = 2 pi (dL/dtheta0 (c - mu) + W sum dL/dtheta t p),
+//   and the mean gets -2 pi f dL/dtheta0 from every band.
 #version 450
 #include "raster_common.glsl"
 
@@ -11,14 +14,14 @@ layout(local_size_x = 128) in;
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Acc { float acc[]; };
-layout(std430, set = 0, binding = 3) buffer Grads { float grads[]; };
+layout(std430, set = 0, binding = 3) writeonly buffer Grads { float grads[]; };
 
 layout(push_constant) uniform Push {
     uint n;
     uint m;
 } pc;
 
-#define ACC_STRIDE 17u
+const float TWO_PI = 6.28318530717958647692;
 
 void main() {
     uint i = gl_GlobalInvocationID.x;
@@ -26,15 +29,14 @@ void main() {
         return;
     }
     uint n = pc.n, m = pc.m;
-    uint base = ACC_STRIDE * i;
+    uint base = acc_fields(m) * i;
     vec3 g_a = vec3(acc[base], acc[base + 1u], acc[base + 2u]);
     float g_bp[9];
     for (uint k = 0u; k < 9u; ++k) {
         g_bp[k] = acc[base + 3u + k];
     }
-    vec3 acc_mu = vec3(acc[base + 12u], acc[base + 13u], acc[base + 14u]);
-    float g_o = acc[base + 15u];
-    float g_beta = acc[base + 16u];
+    float g_o = acc[base + 12u];
+    float g_beta = acc[base + 13u];
 
     vec3 mu = vec3(params[off_means(n, m) + 3u * i], params[off_means(n, m) + 3u * i + 1u],
                    params[off_means(n, m) + 3u * i + 2u]);
@@ -58,6 +60,29 @@ void main() {
     }
     vec3 c_cam = vec3(cam[CAM_C], cam[CAM_C + 1], cam[CAM_C + 2]);
     vec3 cmm = c_cam - mu;
+
+    // Spectrum.
+    grads[off_omega_low(n, m) + i] = acc[base + 14u];
+    vec3 acc_mu = vec3(0.0);
+    for (uint j = 0u; j < m; ++j) {
+        uint bj = m * i + j;
+        uint f = base + ACC_GEOM + ACC_BAND * j;
+        float g_theta0 = acc[f + 1u];
+        vec3 s_tp = vec3(acc[f + 2u], acc[f + 3u], acc[f + 4u]);
+        vec3 freq = vec3(params[off_band_freq(n, m) + 3u * bj], params[off_band_freq(n, m) + 3u * bj + 1u],
+                         params[off_band_freq(n, m) + 3u * bj + 2u]);
+        // W s_tp with W row-major in cam[CAM_W..]
+        vec3 w_stp = vec3(dot(vec3(cam[CAM_W], cam[CAM_W + 1], cam[CAM_W + 2]), s_tp),
+                          dot(vec3(cam[CAM_W + 3], cam[CAM_W + 4], cam[CAM_W + 5]), s_tp),
+                          dot(vec3(cam[CAM_W + 6], cam[CAM_W + 7], cam[CAM_W + 8]), s_tp));
+        vec3 g_freq = TWO_PI * (g_theta0 * cmm + w_stp);
+        grads[off_band_amp(n, m) + bj] = acc[f];
+        grads[off_band_phase(n, m) + bj] = g_theta0;
+        for (uint a = 0u; a < 3u; ++a) {
+            grads[off_band_freq(n, m) + 3u * bj + a] = g_freq[a];
+        }
+        acc_mu -= TWO_PI * g_theta0 * freq;
+    }
 
     // dL/dN = g_a (c - mu)^T + g_bp W^T
     float g_n[9];

@@ -46,12 +46,38 @@ uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
 
 // One primitive as seen from the current view (128 bytes).
 struct PrimView {
-    vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p
+    vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p; b0.w = omega_low
     vec4 b1;
     vec4 b2;
     vec4 a_opacity; // a = N (c - mu), opacity
     vec4 cmm_beta;  // c - mu, beta
     vec4 misc;      // psi_high, camera depth of mu, visible (0/1), q_max (see QMAX_MARGIN)
     uvec4 rect;     // tiles [tx0, ty0, tx1, ty1)
-    vec4 unused;
+    vec4 bbox;      // pixels [u0, u1] x [v0, v1] as (u0, v0, u1, v1): the padded silhouette of
+                    // the culling ellipsoid (unbounded without culling). Every pixel outside
+                    // it fails the q <= q_max test, so the rasterisers skip it up front.
 };
+
+// Band j of primitive i as seen from the current view (32 bytes, at index m i + j), written by
+// raster_project. The phase of the band at the sample (t, pixel p) of the ray c + t W p is
+//   theta = 2 pi f . (c - mu + t W p) + phase = theta0 + t (g . p),
+// g = 2 pi W^T f, theta0 = 2 pi f . (c - mu) + phase, so the rasterisers need one dot product
+// and one cosine per band and sample, and no parameter reads.
+struct BandView {
+    vec4 g_theta0;  // g, theta0
+    vec4 amp;       // amplitude, 0, 0, 0
+};
+
+// Planes written by raster_forward (each width*height floats): thermal, psi_low, psi_high,
+// psi_beta, depth, alpha, then the end plane: per pixel, one past the position in the tile's
+// list of the last sample blended (uint bits), which bounds the backward pass.
+#define FORWARD_PLANES 7u
+#define END_PLANE 6u
+
+// View-space gradient sums per primitive, written by raster_backward_* and chained to the
+// parameters by raster_backward_finish: dL/da (3), dL/dB p^T (9, row-major: row = component of
+// b), dL/dopacity, dL/dbeta, dL/domega_low, then per band: dL/damp, dL/dtheta0 (= dL/dphase),
+// sum dL/dtheta t p (3).
+#define ACC_GEOM 15u
+#define ACC_BAND 5u
+uint acc_fields(uint m) { return ACC_GEOM + ACC_BAND * m; }

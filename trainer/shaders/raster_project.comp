@@ -1,7 +1,8 @@
 // Rasteriser step 1, one invocation per primitive: derived parameters (rotation from the
 // normalised quaternion, scales, opacity, beta), the whitened-ray data for the view, visibility,
 // the tile rectangle from the bounding-Gaussian culling ellipsoid's silhouette, and the number
-// of tiles the primitive is listed in (scanned next for the key offsets).
+// of tiles the primitive is listed in (scanned next for the key offsets), and the bands in view
+// form (BandView) for the rasterisers.
 //
 // The silhouette box solves the tangent planes x = u' z of the ellipsoid (centre mu_cam, matrix
 // M = r^2 Sigma_cam) in the expanded form whose mu^4 terms cancel analytically, so f32 keeps
@@ -16,6 +17,7 @@ layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Views { PrimView views[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer TileCounts { uint tile_counts[]; };
+layout(std430, set = 0, binding = 4) writeonly buffer Bands { BandView bands[]; };
 
 layout(push_constant) uniform Push {
     uint n;
@@ -91,6 +93,7 @@ void main() {
     bool visible = finite && mu_cam.z > near_m && opacity >= ALPHA_MIN;
 
     uvec4 rect = uvec4(0u);
+    vec4 bbox = vec4(-3.0e38, -3.0e38, 3.0e38, 3.0e38);
     if (visible) {
         uint width = uint(cam[CAM_WIDTH]);
         uint height = uint(cam[CAM_HEIGHT]);
@@ -115,6 +118,7 @@ void main() {
                 float pad_u = CULL_PAD_PX + 1e-6 * max(abs(u0), abs(u1));
                 float pad_v = CULL_PAD_PX + 1e-6 * max(abs(v0), abs(v1));
                 u0 -= pad_u; u1 += pad_u; v0 -= pad_v; v1 += pad_v;
+                bbox = vec4(u0, v0, u1, v1);
                 float wmax = float(width - 1u), hmax = float(height - 1u);
                 if (u1 < 0.0 || v1 < 0.0 || u0 > wmax || v0 > hmax) {
                     rect = uvec4(0u);
@@ -129,7 +133,7 @@ void main() {
     }
     PrimView v;
     // Rows of B for B p: store B's rows (B is column-major: row k = (B[0][k], B[1][k], B[2][k])).
-    v.b0 = vec4(B[0][0], B[1][0], B[2][0], 0.0);
+    v.b0 = vec4(B[0][0], B[1][0], B[2][0], params[off_omega_low(n, m) + i]);
     v.b1 = vec4(B[0][1], B[1][1], B[2][1], 0.0);
     v.b2 = vec4(B[0][2], B[1][2], B[2][2], 0.0);
     v.a_opacity = vec4(a, opacity);
@@ -138,7 +142,17 @@ void main() {
     float q_max = cut > 0.0 ? pow(cut, 2.0 / beta) : 0.0;
     v.misc = vec4(psi_high, mu_cam.z, visible ? 1.0 : 0.0, q_max);
     v.rect = rect;
-    v.unused = vec4(0.0);
+    v.bbox = bbox;
     views[i] = v;
+    // Bands in view form (BandView): g = 2 pi W^T f, theta0 = 2 pi f . (c - mu) + phase.
+    const float TWO_PI = 6.28318530717958647692;
+    for (uint j = 0u; j < m; ++j) {
+        uint bj = m * i + j;
+        vec3 f = vec3(params[off_band_freq(n, m) + 3u * bj], params[off_band_freq(n, m) + 3u * bj + 1u],
+                      params[off_band_freq(n, m) + 3u * bj + 2u]);
+        vec3 g = TWO_PI * (f * W);  // row vector f^T W = (W^T f)^T
+        float theta0 = TWO_PI * dot(f, c - mu) + params[off_band_phase(n, m) + bj];
+        bands[bj] = BandView(vec4(g, theta0), vec4(params[off_band_amp(n, m) + bj], 0.0, 0.0, 0.0));
+    }
     tile_counts[i] = visible ? (rect.z - rect.x) * (rect.w - rect.y) : 0u;
 }

@@ -359,6 +359,10 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         r.s3tir_cost_over_gaussian
     );
     println!(
+        "  process CPU time per step: CPU backend {:.1} ms, Vulkan s3tir {:.1} ms, Vulkan 3dgs {:.1} ms",
+        r.cpu_backend_cpu_ms_per_step, r.vulkan_cpu_ms_per_step, r.gaussian_cpu_ms_per_step
+    );
+    println!(
         "  peak GPU memory             {:8.1} MiB",
         r.peak_gpu_bytes as f64 / (1024.0 * 1024.0)
     );

@@ -315,32 +315,43 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
             disable_float_atomics,
             "the switch must select the fallback"
         );
-        let raster = GpuRasterizer::new(&ctx, variant).unwrap();
-        for (seed, (n, bands, w, h)) in [(120usize, 4usize, 48usize, 40usize), (150, 0, 37, 29)]
+        // Subgroup sums before the global adds (the default where subgroup arithmetic exists)
+        // and per-invocation global adds (devices without it). M = 24 exercises band counts
+        // beyond the 4 whose phases the backward kernel caches.
+        for subgroup_reduce in [true, false] {
+            let raster = GpuRasterizer::with_reduction(&ctx, variant, subgroup_reduce).unwrap();
+            for (seed, (n, bands, w, h)) in [
+                (120usize, 4usize, 48usize, 40usize),
+                (150, 0, 37, 29),
+                (40, 24, 33, 21),
+            ]
             .into_iter()
             .enumerate()
-        {
-            let prims = random_scene(50 + seed as u64, n, bands);
-            let cam = camera(w, h);
-            let settings = RenderSettings {
-                near_m: 0.05,
-                cull: true,
-            };
-            let up = random_upstream(seed as u64, w, h);
-            let want64 = render_backward(&prims, &cam, &settings, &up).unwrap();
-            let prims32 = prims.cast::<f32>();
-            let up32 = cast_buffers(&up);
-            let want32 = render_backward(&prims32, &cam, &settings, &up32)
-                .unwrap()
-                .cast::<f64>();
-            let got = raster
-                .render_backward(&ctx, &prims32, &cam, &settings, &up32)
-                .unwrap();
-            let label = format!("{variant:?}, scene {seed} (n {n}, M {bands})");
-            relative_l2(&format!("{label} vs f32"), &got, &want32);
-            relative_l2(&format!("{label} vs f64"), &got, &want64);
+            {
+                let prims = random_scene(50 + seed as u64, n, bands);
+                let cam = camera(w, h);
+                let settings = RenderSettings {
+                    near_m: 0.05,
+                    cull: true,
+                };
+                let up = random_upstream(seed as u64, w, h);
+                let want64 = render_backward(&prims, &cam, &settings, &up).unwrap();
+                let prims32 = prims.cast::<f32>();
+                let up32 = cast_buffers(&up);
+                let want32 = render_backward(&prims32, &cam, &settings, &up32)
+                    .unwrap()
+                    .cast::<f64>();
+                let got = raster
+                    .render_backward(&ctx, &prims32, &cam, &settings, &up32)
+                    .unwrap();
+                let label = format!(
+                    "{variant:?}, subgroup reduce {subgroup_reduce}, scene {seed} (n {n}, M {bands})"
+                );
+                relative_l2(&format!("{label} vs f32"), &got, &want32);
+                relative_l2(&format!("{label} vs f64"), &got, &want64);
+            }
+            raster.destroy(&ctx);
         }
-        raster.destroy(&ctx);
         assert_eq!(
             ctx.allocated_bytes(),
             0,

@@ -71,6 +71,14 @@ pub struct BenchReport {
     pub s3tir_steps_per_s: f64,
     /// Vulkan backend, 3dgs mode (β ≡ 2, no bands).
     pub gaussian_steps_per_s: f64,
+    /// Process CPU time (every thread: lavapipe's workers included) per step, CPU backend.
+    /// Unlike steps/s, this hardly changes when other work loads the machine, so it compares
+    /// the backends' efficiency on a shared machine; on a GPU the Vulkan figure is host work only.
+    pub cpu_backend_cpu_ms_per_step: f64,
+    /// Process CPU time per step, Vulkan backend, s3tir mode.
+    pub vulkan_cpu_ms_per_step: f64,
+    /// Process CPU time per step, Vulkan backend, 3dgs mode.
+    pub gaussian_cpu_ms_per_step: f64,
     /// `vulkan_steps_per_s / cpu_steps_per_s` (goal ≥ 3).
     pub vulkan_speedup_over_cpu: f64,
     /// `gaussian_steps_per_s / s3tir_steps_per_s`: cost of the full primitive (goal ≤ 1.5).
@@ -117,7 +125,23 @@ fn config(data: &Path, mode: Mode, opts: &BenchOptions) -> TrainConfig {
     c
 }
 
-/// Steps per second of `backend` in `mode`; `on_timed` runs after every timed step.
+/// CPU time consumed so far by every thread of this process, in seconds.
+fn process_cpu_s() -> f64 {
+    use nix::time::{ClockId, clock_gettime};
+    clock_gettime(ClockId::CLOCK_PROCESS_CPUTIME_ID)
+        .map(|t| t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9)
+        .unwrap_or(f64::NAN)
+}
+
+/// What [`measure`] found.
+struct Measured<B> {
+    steps_per_s: f64,
+    cpu_ms_per_step: f64,
+    backend: B,
+}
+
+/// Steps per second and process CPU time per step of `backend` in `mode`; `before_timing` runs
+/// once after the warm-up steps.
 fn measure<B: Backend>(
     data_dir: &Path,
     run_dir: &Path,
@@ -125,7 +149,7 @@ fn measure<B: Backend>(
     opts: &BenchOptions,
     backend: B,
     before_timing: &mut dyn FnMut(&mut B),
-) -> Result<(f64, B), BenchError> {
+) -> Result<Measured<B>, BenchError> {
     let train = |source| BenchError::Train { source };
     let data =
         Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| BenchError::Scene {
@@ -139,11 +163,17 @@ fn measure<B: Backend>(
     }
     before_timing(&mut t.backend);
     let start = Instant::now();
+    let cpu_start = process_cpu_s();
     for _ in 0..opts.steps {
         t.step().map_err(train)?;
     }
+    let cpu_s = process_cpu_s() - cpu_start;
     let seconds = start.elapsed().as_secs_f64();
-    Ok((opts.steps as f64 / seconds.max(1e-9), t.backend))
+    Ok(Measured {
+        steps_per_s: opts.steps as f64 / seconds.max(1e-9),
+        cpu_ms_per_step: 1e3 * cpu_s / opts.steps as f64,
+        backend: t.backend,
+    })
 }
 
 /// Runs the benchmark; `progress` gets one line per stage.
@@ -188,7 +218,7 @@ fn run_in(
     let gpu = |source| BenchError::Gpu { source };
 
     progress("CPU backend, s3tir mode");
-    let (cpu, _) = measure(
+    let cpu = measure(
         &data_dir,
         &root.join("cpu"),
         Mode::S3tir,
@@ -199,7 +229,7 @@ fn run_in(
 
     progress("Vulkan backend, 3dgs mode");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let (gaussian, _) = measure(
+    let gaussian = measure(
         &data_dir,
         &root.join("vk-3dgs"),
         Mode::Gaussian,
@@ -211,7 +241,7 @@ fn run_in(
     progress("Vulkan backend, s3tir mode (with per-kernel timestamps in a second pass)");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
     let device = vk.context().report().name.clone();
-    let (s3tir, _) = measure(
+    let s3tir = measure(
         &data_dir,
         &root.join("vk-s3tir"),
         Mode::S3tir,
@@ -221,7 +251,7 @@ fn run_in(
     )?;
     // Timestamps add work of their own: time the kernels in a separate pass.
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let (_, vk) = measure(
+    let vk = measure(
         &data_dir,
         &root.join("vk-prof"),
         Mode::S3tir,
@@ -231,7 +261,8 @@ fn run_in(
             b.set_profiling(true);
             let _ = b.take_timings();
         },
-    )?;
+    )?
+    .backend;
     let mut per_kernel: BTreeMap<String, f64> = BTreeMap::new();
     for t in vk.take_timings() {
         *per_kernel.entry(t.kernel).or_default() += t.duration_ns;
@@ -253,12 +284,15 @@ fn run_in(
         height: opts.height,
         primitives: opts.primitives,
         steps: opts.steps,
-        cpu_steps_per_s: cpu,
-        vulkan_steps_per_s: s3tir,
-        s3tir_steps_per_s: s3tir,
-        gaussian_steps_per_s: gaussian,
-        vulkan_speedup_over_cpu: s3tir / cpu,
-        s3tir_cost_over_gaussian: gaussian / s3tir,
+        cpu_steps_per_s: cpu.steps_per_s,
+        vulkan_steps_per_s: s3tir.steps_per_s,
+        s3tir_steps_per_s: s3tir.steps_per_s,
+        gaussian_steps_per_s: gaussian.steps_per_s,
+        vulkan_speedup_over_cpu: s3tir.steps_per_s / cpu.steps_per_s,
+        s3tir_cost_over_gaussian: gaussian.steps_per_s / s3tir.steps_per_s,
+        cpu_backend_cpu_ms_per_step: cpu.cpu_ms_per_step,
+        vulkan_cpu_ms_per_step: s3tir.cpu_ms_per_step,
+        gaussian_cpu_ms_per_step: gaussian.cpu_ms_per_step,
         kernels,
         peak_gpu_bytes,
     })

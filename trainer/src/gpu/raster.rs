@@ -2,19 +2,32 @@
 //! (`crate::render`, same maths, same order, same thresholds) as compute kernels.
 //!
 //! Per view: `raster_project` (derived parameters, whitened ray data, visibility, culling
-//! rectangle, tile counts) → exclusive scan of the counts (one 4-byte readback: the number of
-//! (tile, primitive) keys) → `raster_emit` (keys `(tile, depth bits)` + primitive index) →
-//! stable radix sort → `raster_ranges` (per-tile ranges) → `raster_forward` (one workgroup per
-//! 16×16 tile: thermal image and the G-buffers Ψ_low, Ψ_high, Ψ_β, depth, alpha).
+//! rectangle and pixel box, tile counts, the bands in view form) → exclusive scan of the counts
+//! (one 4-byte readback: the number of (tile, primitive) keys) → `raster_emit` (keys
+//! `(tile, depth bits)` + primitive index) → stable radix sort → `raster_ranges` (per-tile
+//! ranges) → `raster_forward` (one workgroup per 16×16 tile: thermal image, the G-buffers Ψ_low,
+//! Ψ_high, Ψ_β, depth, alpha, and per pixel the end of its samples).
 //!
-//! Backward (`render_backward`): the same binning, then `raster_backward_{atomic,cas}` (per
-//! pixel, the exact gradients of the CPU reference's backward pass, accumulated per primitive
-//! with `atomicAdd(float)` or, without float atomics, a compare-and-swap loop — chosen from the
-//! context's capabilities) and `raster_backward_finish` (per primitive: chain to the parameters).
+//! Backward (`render_backward`): `raster_backward_{atomic,cas}{,_sg}` walks each pixel's samples
+//! once, front to back, using the forward planes of the same view (the upstream-weighted blend
+//! and the end of the samples), and accumulates the view-space gradient sums per primitive with
+//! `atomicAdd(float)` or, without float atomics, a compare-and-swap loop (chosen from the
+//! context's capabilities), after a subgroup sum where the device has subgroup arithmetic;
+//! `raster_backward_finish` (per primitive) chains them to the parameters. The training step
+//! renders a view before it back-propagates it: the last two rendered views keep
+//! their binning and planes on the GPU, so the backward pass of the same view and parameters
+//! reuses them (compared by value) instead of binning and rendering again.
 //!
-//! Not here yet: the RGB (SH colour) branch, buffer reuse across views and steps.
+//! Both rasterisers give each invocation 8 pixels of a tile column (the view data of a
+//! primitive is loaded once for them, and the backward sums them in registers before the
+//! subgroup sum: 8x fewer atomics), walk the tile's list uniformly across the subgroup, and skip
+//! pixels outside the primitive's padded silhouette box before any ray maths. The per-pixel
+//! arithmetic is the CPU reference's.
+//!
+//! Not here yet: the RGB (SH colour) branch.
 
 use super::accumulate::AccumulateVariant;
+use std::collections::VecDeque;
 use std::sync::Mutex;
 
 use super::context::{
@@ -53,6 +66,8 @@ pub struct GpuRasterizer {
     /// more (pipeline creation is expensive: JIT compilation on lavapipe).
     scan: Mutex<Option<GpuScan>>,
     sort: Mutex<Option<GpuRadixSort>>,
+    /// The last rendered views, for the backward pass of the same view and parameters.
+    kept: Mutex<VecDeque<BinnedView>>,
 }
 
 /// Capacity to allocate for `need` items: 25 % headroom so slowly growing views do not
@@ -61,18 +76,82 @@ fn grown(need: usize) -> usize {
     need + need / 4 + 64
 }
 
-/// Floats of per-primitive view-space gradient sums (`ACC_STRIDE` in the shaders).
-const ACC_STRIDE: usize = 17;
+/// Floats of per-primitive view-space gradient sums for `bands` bands (`acc_fields` in
+/// raster_common.glsl).
+fn acc_fields(bands: usize) -> usize {
+    15 + 5 * bands
+}
 
-/// A view binned on the GPU: buffers (released with the scope) and the number of keys.
-struct BinnedView<'a> {
-    scope: BufferScope<'a>,
+/// Bytes of one `BandView` (raster_common.glsl).
+const BAND_VIEW_BYTES: u64 = 32;
+/// Planes of `raster_forward`'s output: the six of [`PLANES`] and the end plane.
+const FORWARD_PLANES: usize = 7;
+/// Rendered views kept for the backward pass of the same view (the training step renders at
+/// most two views before it back-propagates them).
+const KEPT_VIEWS: usize = 2;
+
+/// A view binned (and, once rendered, with its forward planes) on the GPU. The buffers are
+/// owned here and released with [`BinnedView::destroy`]; [`Transient`] does that on drop.
+#[derive(Debug)]
+struct BinnedView {
+    buffers: Vec<GpuBuffer>,
     cam: usize,
     params: usize,
     views: usize,
+    bands: usize,
     /// Sorted primitive indices and per-tile ranges; `None` when no primitive covers a tile.
     lists: Option<(usize, usize)>,
+    /// Output of `raster_forward` ([`FORWARD_PLANES`] planes), once rendered.
+    planes: Option<usize>,
     tiles: [usize; 2],
+    /// What was binned: the camera and parameter blocks (the cache key of kept views).
+    camera_block: [f32; 32],
+    parameter_block: Vec<f32>,
+}
+
+impl BinnedView {
+    fn keep(&mut self, b: GpuBuffer) -> usize {
+        self.buffers.push(b);
+        self.buffers.len() - 1
+    }
+
+    fn get(&self, handle: usize) -> &GpuBuffer {
+        &self.buffers[handle]
+    }
+
+    fn destroy(mut self, ctx: &GpuContext) {
+        for b in self.buffers.drain(..) {
+            ctx.destroy_buffer(b);
+        }
+    }
+}
+
+/// A view's buffers on the way to the cache or to release: freed if the render fails.
+struct Transient<'a> {
+    ctx: &'a GpuContext,
+    view: Option<BinnedView>,
+}
+
+impl Transient<'_> {
+    fn view(&self) -> Result<&BinnedView, GpuError> {
+        self.view.as_ref().ok_or_else(|| poisoned("binned view"))
+    }
+
+    fn view_mut(&mut self) -> Result<&mut BinnedView, GpuError> {
+        self.view.as_mut().ok_or_else(|| poisoned("binned view"))
+    }
+
+    fn take(mut self) -> Option<BinnedView> {
+        self.view.take()
+    }
+}
+
+impl Drop for Transient<'_> {
+    fn drop(&mut self) {
+        if let Some(v) = self.view.take() {
+            v.destroy(self.ctx);
+        }
+    }
 }
 
 /// The camera block of `raster_common.glsl`.
@@ -126,9 +205,19 @@ impl GpuRasterizer {
     /// [`AccumulateVariant::best_for`]): asking for float atomics on a context without them is a
     /// typed `MissingFeature` error.
     pub fn new(ctx: &GpuContext, variant: AccumulateVariant) -> Result<Self, GpuError> {
-        // Subgroup arithmetic, where present, sums each subgroup's contributions before the
-        // atomic: 1 atomic per subgroup instead of one per pixel.
-        let backward = match (variant, ctx.capabilities().subgroup_arithmetic) {
+        Self::with_reduction(ctx, variant, ctx.capabilities().subgroup_arithmetic)
+    }
+
+    /// As [`GpuRasterizer::new`], choosing whether the backward pass sums each subgroup's
+    /// contributions in shared memory first (`subgroup_reduce`, needs subgroup arithmetic) or
+    /// adds every pixel's contribution to global memory (the path of devices without subgroup
+    /// arithmetic; tests force it to keep it correct).
+    pub fn with_reduction(
+        ctx: &GpuContext,
+        variant: AccumulateVariant,
+        subgroup_reduce: bool,
+    ) -> Result<Self, GpuError> {
+        let backward = match (variant, subgroup_reduce) {
             (AccumulateVariant::FloatAtomic, true) => "raster_backward_atomic_sg",
             (AccumulateVariant::FloatAtomic, false) => "raster_backward_atomic",
             (AccumulateVariant::CompareAndSwap, true) => "raster_backward_cas_sg",
@@ -181,6 +270,7 @@ impl GpuRasterizer {
                 timings: None,
                 scan: Mutex::new(None),
                 sort: Mutex::new(None),
+                kept: Mutex::new(VecDeque::new()),
             }),
             _ => Err(GpuError::Shader {
                 name: "raster".to_owned(),
@@ -231,7 +321,7 @@ impl GpuRasterizer {
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
         settings: &RenderSettings,
-    ) -> Result<BinnedView<'a>, GpuError> {
+    ) -> Result<Transient<'a>, GpuError> {
         let invalid = |reason: String| GpuError::InvalidInput { reason };
         prims.validate().map_err(|e| invalid(e.to_string()))?;
         cam.validate().map_err(|e| invalid(e.to_string()))?;
@@ -241,33 +331,42 @@ impl GpuRasterizer {
             cam.height.div_ceil(TILE_SIZE),
         );
         let tiles = tiles_x * tiles_y;
-        let mut scope = BufferScope {
+        let camera_block = camera_block(cam, settings);
+        let parameter_block = parameter_block(prims);
+        let mut out = Transient {
             ctx,
-            buffers: Vec::new(),
+            view: Some(BinnedView {
+                buffers: Vec::new(),
+                cam: 0,
+                params: 0,
+                views: 0,
+                bands: 0,
+                lists: None,
+                planes: None,
+                tiles: [tiles_x, tiles_y],
+                camera_block,
+                parameter_block,
+            }),
         };
-        let cam_buf = scope.keep(ctx.upload("raster.camera", &camera_block(cam, settings))?);
-        let params = scope.keep(ctx.upload("raster.params", &parameter_block(prims))?);
-        let views = scope.keep(ctx.create_buffer(
+        let binned = out.view_mut()?;
+        binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
+        let params = ctx.upload("raster.params", &binned.parameter_block)?;
+        binned.params = binned.keep(params);
+        binned.views = binned.keep(ctx.create_buffer(
             "raster.views",
             n.max(1) as u64 * PRIM_VIEW_BYTES,
             MemoryLocation::DeviceOnly,
         )?);
-        let mut binned = BinnedView {
-            scope,
-            cam: cam_buf,
-            params,
-            views,
-            lists: None,
-            tiles: [tiles_x, tiles_y],
-        };
+        binned.bands = binned.keep(ctx.create_buffer(
+            "raster.bands",
+            (n * prims.bands).max(1) as u64 * BAND_VIEW_BYTES,
+            MemoryLocation::DeviceOnly,
+        )?);
         if n == 0 {
-            return Ok(binned);
+            return Ok(out);
         }
         // n counts + 1 trailing zero: after the exclusive scan, element n is the key total.
-        let counts = binned
-            .scope
-            .keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
-        let scope = &binned.scope;
+        let counts = binned.keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
         let mut scan_slot = lock(&self.scan)?;
         if scan_slot.as_ref().is_none_or(|s| s.capacity() < n + 1) {
             if let Some(old) = scan_slot.take() {
@@ -278,45 +377,44 @@ impl GpuRasterizer {
         let scan = scan_slot.as_ref().ok_or_else(|| poisoned("scan"))?;
         let project_push =
             push_u32s(&[n as u32, prims.bands as u32, tiles_x as u32, tiles_y as u32]);
+        let b = &*binned;
         let first = self.submit(ctx, |rec| {
             rec.dispatch(
                 &self.project,
                 &[
-                    scope.get(cam_buf),
-                    scope.get(params),
-                    scope.get(views),
-                    scope.get(counts),
+                    b.get(b.cam),
+                    b.get(b.params),
+                    b.get(b.views),
+                    b.get(counts),
+                    b.get(b.bands),
                 ],
                 &project_push,
                 [n.div_ceil(PROJECT_WG) as u32, 1, 1],
             )?;
             rec.compute_barrier();
-            scan.record(rec, scope.get(counts), n + 1)
+            scan.record(rec, b.get(counts), n + 1)
         });
         drop(scan_slot);
         first?;
         let total = ctx
-            .read_at::<u32>(scope.get(counts), n, 1)?
+            .read_at::<u32>(binned.get(counts), n, 1)?
             .first()
             .copied()
             .unwrap_or(0) as usize;
         if total == 0 {
-            return Ok(binned);
+            return Ok(out);
         }
-        let keys = binned.scope.keep(ctx.create_buffer(
+        let keys = binned.keep(ctx.create_buffer(
             "raster.keys",
             (total * 8) as u64,
             MemoryLocation::DeviceOnly,
         )?);
-        let values = binned.scope.keep(ctx.create_buffer(
+        let values = binned.keep(ctx.create_buffer(
             "raster.values",
             (total * 4) as u64,
             MemoryLocation::DeviceOnly,
         )?);
-        let ranges = binned
-            .scope
-            .keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
-        let scope = &binned.scope;
+        let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
         let key_bits = 32 + (usize::BITS - (tiles.max(2) - 1).leading_zeros());
         let mut sort_slot = lock(&self.sort)?;
         if sort_slot.as_ref().is_none_or(|s| s.capacity() < total) {
@@ -326,23 +424,19 @@ impl GpuRasterizer {
             *sort_slot = Some(GpuRadixSort::new(ctx, grown(total))?);
         }
         let sort = sort_slot.as_ref().ok_or_else(|| poisoned("sort"))?;
+        let b = &*binned;
         let second = self.submit(ctx, |rec| {
             rec.dispatch(
                 &self.emit,
-                &[
-                    scope.get(views),
-                    scope.get(counts),
-                    scope.get(keys),
-                    scope.get(values),
-                ],
+                &[b.get(b.views), b.get(counts), b.get(keys), b.get(values)],
                 &push_u32s(&[n as u32, tiles_x as u32]),
                 [n.div_ceil(PROJECT_WG) as u32, 1, 1],
             )?;
             rec.compute_barrier();
-            sort.record(rec, scope.get(keys), scope.get(values), total, key_bits)?;
+            sort.record(rec, b.get(keys), b.get(values), total, key_bits)?;
             rec.dispatch(
                 &self.ranges,
-                &[scope.get(keys), scope.get(ranges)],
+                &[b.get(keys), b.get(ranges)],
                 &push_u32s(&[total as u32]),
                 [total.div_ceil(RANGES_WG) as u32, 1, 1],
             )?;
@@ -352,7 +446,65 @@ impl GpuRasterizer {
         drop(sort_slot);
         second?;
         binned.lists = Some((values, ranges));
-        Ok(binned)
+        Ok(out)
+    }
+
+    /// Bins `prims` for `cam` and runs the forward kernel; the planes stay on the GPU.
+    fn bin_and_render<'a>(
+        &self,
+        ctx: &'a GpuContext,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+        settings: &RenderSettings,
+    ) -> Result<Transient<'a>, GpuError> {
+        let mut out = self.bin_view(ctx, prims, cam, settings)?;
+        let binned = out.view_mut()?;
+        let Some((values, ranges)) = binned.lists else {
+            return Ok(out);
+        };
+        let npix = cam.width * cam.height;
+        let planes = binned.keep(ctx.create_buffer(
+            "raster.planes",
+            (FORWARD_PLANES * npix * 4) as u64,
+            MemoryLocation::Readback,
+        )?);
+        binned.planes = Some(planes);
+        let b = &*binned;
+        let [tiles_x, tiles_y] = b.tiles;
+        self.submit(ctx, |rec| {
+            rec.dispatch(
+                &self.forward,
+                &[
+                    b.get(b.cam),
+                    b.get(b.views),
+                    b.get(b.bands),
+                    b.get(values),
+                    b.get(ranges),
+                    b.get(planes),
+                ],
+                &push_u32s(&[
+                    prims.len() as u32,
+                    prims.bands as u32,
+                    cam.width as u32,
+                    cam.height as u32,
+                    tiles_x as u32,
+                ]),
+                [tiles_x as u32, tiles_y as u32, 1],
+            )
+        })?;
+        Ok(out)
+    }
+
+    /// Keeps a rendered view for the backward pass of the same view and parameters.
+    fn keep_view(&self, ctx: &GpuContext, view: BinnedView) -> Result<(), GpuError> {
+        let mut kept = lock(&self.kept)?;
+        kept.push_back(view);
+        while kept.len() > KEPT_VIEWS {
+            if let Some(old) = kept.pop_front() {
+                old.destroy(ctx);
+            }
+        }
+        Ok(())
     }
 
     /// Renders the thermal image and G-buffers (no RGB planes) of `prims` seen by `cam`.
@@ -363,52 +515,26 @@ impl GpuRasterizer {
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<GBuffers<f32>, GpuError> {
-        let mut binned = self.bin_view(ctx, prims, cam, settings)?;
-        let (width, height) = (cam.width, cam.height);
-        let npix = width * height;
-        let mut out = GBuffers::zeros(width, height, false);
-        let Some((values, ranges)) = binned.lists else {
-            return Ok(out);
-        };
-        let planes = binned.scope.keep(ctx.create_buffer(
-            "raster.planes",
-            (6 * npix * 4) as u64,
-            MemoryLocation::Readback,
-        )?);
-        let scope = &binned.scope;
-        let [tiles_x, tiles_y] = binned.tiles;
-        self.submit(ctx, |rec| {
-            rec.dispatch(
-                &self.forward,
-                &[
-                    scope.get(binned.cam),
-                    scope.get(binned.params),
-                    scope.get(binned.views),
-                    scope.get(values),
-                    scope.get(ranges),
-                    scope.get(planes),
-                ],
-                &push_u32s(&[
-                    prims.len() as u32,
-                    prims.bands as u32,
-                    width as u32,
-                    height as u32,
-                    tiles_x as u32,
-                ]),
-                [tiles_x as u32, tiles_y as u32, 1],
-            )
-        })?;
-        let data: Vec<f32> = ctx.read(scope.get(planes), 6 * npix)?;
-        let targets = [
-            &mut out.thermal,
-            &mut out.psi_low,
-            &mut out.psi_high,
-            &mut out.psi_beta,
-            &mut out.depth,
-            &mut out.alpha,
-        ];
-        for (plane, chunk) in targets.into_iter().zip(data.chunks_exact(npix)) {
-            plane.copy_from_slice(chunk);
+        let rendered = self.bin_and_render(ctx, prims, cam, settings)?;
+        let npix = cam.width * cam.height;
+        let mut out = GBuffers::zeros(cam.width, cam.height, false);
+        let view = rendered.view()?;
+        if let Some(planes) = view.planes {
+            let data: Vec<f32> = ctx.read(view.get(planes), 6 * npix)?;
+            let targets = [
+                &mut out.thermal,
+                &mut out.psi_low,
+                &mut out.psi_high,
+                &mut out.psi_beta,
+                &mut out.depth,
+                &mut out.alpha,
+            ];
+            for (plane, chunk) in targets.into_iter().zip(data.chunks_exact(npix)) {
+                plane.copy_from_slice(chunk);
+            }
+        }
+        if let Some(view) = rendered.take() {
+            self.keep_view(ctx, view)?;
         }
         Ok(out)
     }
@@ -416,6 +542,8 @@ impl GpuRasterizer {
     /// Gradient of `Σ upstream · buffers` w.r.t. every parameter of `prims` (same layout as
     /// `prims`; the SH colour group stays zero: no RGB branch on the GPU yet). `upstream` gives
     /// dL/d(thermal, psi_low, psi_high, psi_beta, depth, alpha); an empty plane counts as zero.
+    /// When the same view of the same parameters was just rendered, its binning and forward
+    /// planes are reused; otherwise the view is binned and rendered first.
     pub fn render_backward(
         &self,
         ctx: &GpuContext,
@@ -450,39 +578,71 @@ impl GpuRasterizer {
             dst.copy_from_slice(src);
         }
         let mut grads = prims.zeros_like();
-        let mut binned = self.bin_view(ctx, prims, cam, settings)?;
-        let Some((values, ranges)) = binned.lists else {
+        let key_cam = camera_block(cam, settings);
+        let key_params = parameter_block(prims);
+        let mut kept = lock(&self.kept)?;
+        let position = kept
+            .iter()
+            .position(|v| v.camera_block == key_cam && v.parameter_block == key_params);
+        let mut fresh = None;
+        let view: &mut BinnedView = match position {
+            Some(at) => &mut kept[at],
+            None => {
+                drop(kept);
+                fresh = Some(self.bin_and_render(ctx, prims, cam, settings)?);
+                kept = lock(&self.kept)?;
+                fresh
+                    .as_mut()
+                    .and_then(|t| t.view.as_mut())
+                    .ok_or_else(|| poisoned("binned view"))?
+            }
+        };
+        let (Some((values, ranges)), Some(planes)) = (view.lists, view.planes) else {
             return Ok(grads);
         };
         let n = prims.len();
+        let fields = acc_fields(prims.bands);
         // Floats of the parameter block (raster_common.glsl): every group but the SH colour.
-        let param_count: usize = prims
-            .groups()
-            .iter()
-            .filter(|(name, _)| *name != "sh")
-            .map(|(_, v)| v.len())
-            .sum();
-        let up_buf = binned.scope.keep(ctx.upload("raster.upstream", &up)?);
-        let acc = binned
-            .scope
-            .keep(ctx.upload("raster.grad_acc", &vec![0f32; ACC_STRIDE * n])?);
-        let out = binned
-            .scope
-            .keep(ctx.upload("raster.grads", &vec![0f32; param_count])?);
-        let scope = &binned.scope;
-        let [tiles_x, tiles_y] = binned.tiles;
+        let param_count = view.parameter_block.len();
+        // Per-step buffers, released at the end of this call (after the readback).
+        let mut scratch = Transient {
+            ctx,
+            view: Some(BinnedView {
+                buffers: Vec::new(),
+                cam: 0,
+                params: 0,
+                views: 0,
+                bands: 0,
+                lists: None,
+                planes: None,
+                tiles: view.tiles,
+                camera_block: [0.0; 32],
+                parameter_block: Vec::new(),
+            }),
+        };
+        let s = scratch.view_mut()?;
+        let up_buf = s.keep(ctx.upload("raster.upstream", &up)?);
+        let acc = s.keep(ctx.upload("raster.grad_acc", &vec![0f32; fields * n])?);
+        let out = s.keep(ctx.create_buffer(
+            "raster.grads",
+            (param_count.max(1) * 4) as u64,
+            MemoryLocation::Readback,
+        )?);
+        let s = &*s;
+        let v = &*view;
+        let [tiles_x, tiles_y] = v.tiles;
         self.submit(ctx, |rec| {
             rec.dispatch(
                 &self.backward,
                 &[
-                    scope.get(binned.cam),
-                    scope.get(binned.params),
-                    scope.get(binned.views),
-                    scope.get(values),
-                    scope.get(ranges),
-                    scope.get(up_buf),
-                    scope.get(acc),
-                    scope.get(out),
+                    v.get(v.cam),
+                    v.get(v.views),
+                    v.get(v.bands),
+                    v.get(values),
+                    v.get(ranges),
+                    s.get(up_buf),
+                    v.get(planes),
+                    s.get(acc),
                 ],
                 &push_u32s(&[
                     n as u32,
@@ -496,17 +656,14 @@ impl GpuRasterizer {
             rec.compute_barrier();
             rec.dispatch(
                 &self.finish,
-                &[
-                    scope.get(binned.cam),
-                    scope.get(binned.params),
-                    scope.get(acc),
-                    scope.get(out),
-                ],
+                &[v.get(v.cam), v.get(v.params), s.get(acc), s.get(out)],
                 &push_u32s(&[n as u32, prims.bands as u32]),
                 [n.div_ceil(PROJECT_WG) as u32, 1, 1],
             )
         })?;
-        let flat: Vec<f32> = ctx.read(scope.get(out), param_count)?;
+        let flat: Vec<f32> = ctx.read(s.get(out), param_count)?;
+        drop(kept);
+        drop(fresh);
         let mut rest = flat.as_slice();
         let targets = [
             &mut grads.means,
@@ -544,6 +701,11 @@ impl GpuRasterizer {
         if let Some(s) = self.sort.into_inner().ok().flatten() {
             s.destroy(ctx);
         }
+        if let Ok(kept) = self.kept.into_inner() {
+            for v in kept {
+                v.destroy(ctx);
+            }
+        }
     }
 }
 
@@ -554,30 +716,5 @@ fn lock<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>, GpuError> {
 fn poisoned(what: &str) -> GpuError {
     GpuError::InvalidInput {
         reason: format!("{what} unavailable: an earlier panic left it in an unknown state"),
-    }
-}
-
-/// Buffers of one render, released together whatever path the render takes.
-struct BufferScope<'a> {
-    ctx: &'a GpuContext,
-    buffers: Vec<GpuBuffer>,
-}
-
-impl BufferScope<'_> {
-    fn keep(&mut self, b: GpuBuffer) -> usize {
-        self.buffers.push(b);
-        self.buffers.len() - 1
-    }
-
-    fn get(&self, handle: usize) -> &GpuBuffer {
-        &self.buffers[handle]
-    }
-}
-
-impl Drop for BufferScope<'_> {
-    fn drop(&mut self) {
-        for b in self.buffers.drain(..) {
-            self.ctx.destroy_buffer(b);
-        }
     }
 }
