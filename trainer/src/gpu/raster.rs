@@ -132,7 +132,31 @@ struct Transient<'a> {
     view: Option<BinnedView>,
 }
 
-impl Transient<'_> {
+impl<'a> Transient<'a> {
+    /// A view with no buffers yet.
+    fn new(
+        ctx: &'a GpuContext,
+        tiles: [usize; 2],
+        camera_block: [f32; 32],
+        parameter_block: Vec<f32>,
+    ) -> Self {
+        Self {
+            ctx,
+            view: Some(BinnedView {
+                buffers: Vec::new(),
+                cam: 0,
+                params: 0,
+                views: 0,
+                bands: 0,
+                lists: None,
+                planes: None,
+                tiles,
+                camera_block,
+                parameter_block,
+            }),
+        }
+    }
+
     fn view(&self) -> Result<&BinnedView, GpuError> {
         self.view.as_ref().ok_or_else(|| poisoned("binned view"))
     }
@@ -333,21 +357,7 @@ impl GpuRasterizer {
         let tiles = tiles_x * tiles_y;
         let camera_block = camera_block(cam, settings);
         let parameter_block = parameter_block(prims);
-        let mut out = Transient {
-            ctx,
-            view: Some(BinnedView {
-                buffers: Vec::new(),
-                cam: 0,
-                params: 0,
-                views: 0,
-                bands: 0,
-                lists: None,
-                planes: None,
-                tiles: [tiles_x, tiles_y],
-                camera_block,
-                parameter_block,
-            }),
-        };
+        let mut out = Transient::new(ctx, [tiles_x, tiles_y], camera_block, parameter_block);
         let binned = out.view_mut()?;
         binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
         let params = ctx.upload("raster.params", &binned.parameter_block)?;
@@ -605,21 +615,7 @@ impl GpuRasterizer {
         // Floats of the parameter block (raster_common.glsl): every group but the SH colour.
         let param_count = view.parameter_block.len();
         // Per-step buffers, released at the end of this call (after the readback).
-        let mut scratch = Transient {
-            ctx,
-            view: Some(BinnedView {
-                buffers: Vec::new(),
-                cam: 0,
-                params: 0,
-                views: 0,
-                bands: 0,
-                lists: None,
-                planes: None,
-                tiles: view.tiles,
-                camera_block: [0.0; 32],
-                parameter_block: Vec::new(),
-            }),
-        };
+        let mut scratch = Transient::new(ctx, view.tiles, [0.0; 32], Vec::new());
         let s = scratch.view_mut()?;
         let up_buf = s.keep(ctx.upload("raster.upstream", &up)?);
         let acc = s.keep(ctx.upload("raster.grad_acc", &vec![0f32; fields * n])?);
