@@ -8,7 +8,7 @@
 //! → `loss_ssim_map` (SSIM and its three backward maps) → `loss_blur` ×2 (the blur is
 //! self-adjoint) → `loss_grad` (every upstream plane and the per-pixel terms) → 4 sums.
 //!
-//! Not here yet: the multi-view consistency term (warp by rendered depth).
+//! The multi-view consistency term is [`super::consistency`].
 
 use super::context::{ComputeKernel, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;

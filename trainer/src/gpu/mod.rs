@@ -14,6 +14,7 @@
 //!   the thermal image and G-buffers) and its exact backward pass, held to the CPU reference
 //!   renderer by parity tests,
 //! - [`loss`]: the single-view loss (L1 + D-SSIM, sparsity, TV) and its gradient,
+//! - [`consistency`]: the multi-view frequency consistency term and its gradients,
 //! - [`backend`]: the training loop's `Backend` on the GPU (`s3tir-train --backend vulkan`),
 //! - [`bench`]: `s3tir-train bench`, Vulkan vs CPU steps/s and the per-kernel breakdown.
 //!
@@ -23,6 +24,7 @@
 pub mod accumulate;
 pub mod backend;
 pub mod bench;
+pub mod consistency;
 pub mod context;
 pub mod devices;
 pub mod error;

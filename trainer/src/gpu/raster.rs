@@ -179,7 +179,7 @@ impl Drop for Transient<'_> {
 }
 
 /// The camera block of `raster_common.glsl`.
-fn camera_block(cam: &PinholeCamera, settings: &RenderSettings) -> [f32; 32] {
+pub fn camera_block(cam: &PinholeCamera, settings: &RenderSettings) -> [f32; 32] {
     let mut out = [0f32; 32];
     let c = cam.centre_world();
     let w = cam.pixel_to_world_dir();

@@ -173,6 +173,20 @@ pub const KERNELS: &[KernelSpec] = &[
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
+    KernelSpec {
+        name: "loss_consistency_atomic",
+        storage_buffers: 7,
+        push_constant_bytes: 32,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: true,
+    },
+    KernelSpec {
+        name: "loss_consistency_cas",
+        storage_buffers: 7,
+        push_constant_bytes: 32,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
 ];
 
 /// Push constants as the little-endian bytes of consecutive `u32` fields (std430 `uint`s).
