@@ -1,25 +1,106 @@
 //! The Vulkan training backend: [`crate::train::backend::Backend`] over the GPU rasteriser, so
 //! `s3tir-train --backend vulkan` runs the same training loop as the CPU backend.
 //!
-//! This first version keeps the loop's host-side interface: the image and G-buffers come back
-//! to the host for the losses and the upstream gradients go up again each step. The GPU loss
-//! kernels ([`super::loss`]) and a GPU optimiser step remove those transfers next.
+//! Thermal training steps take the device path ([`Backend::device_step`]): both views are
+//! rendered into buffers that stay on the GPU, the single-view loss ([`super::loss`]) and the
+//! consistency term ([`super::consistency`]) write the upstream gradient planes on the GPU, and
+//! the backward passes read them there. Per step the host reads back the two key counts, six
+//! loss floats and the parameter gradients (the optimiser still runs on the host); targets are
+//! uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
+
+use std::collections::HashMap;
 
 use super::accumulate::AccumulateVariant;
-use super::context::{ContextOptions, GpuContext};
+use super::consistency::{ConsistencyViews, GpuConsistency};
+use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation};
 use super::error::GpuError;
-use super::raster::GpuRasterizer;
+use super::loss::GpuViewLoss;
+use super::raster::{GpuRasterizer, KeptView};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
-use crate::train::backend::Backend;
+use crate::train::backend::{Backend, DeviceStep, DeviceStepResult};
+
+/// Loss kernels and buffers of the device path, for views of one size.
+#[derive(Debug)]
+struct DeviceLosses {
+    width: usize,
+    height: usize,
+    view_loss: GpuViewLoss,
+    consistency: GpuConsistency,
+    /// Thermal targets by view index, uploaded on first use.
+    targets: HashMap<usize, GpuBuffer>,
+    /// Upstream gradient planes (6 each) of the reference and the paired view.
+    up_i: GpuBuffer,
+    up_j: GpuBuffer,
+}
+
+impl DeviceLosses {
+    fn new(
+        ctx: &GpuContext,
+        variant: AccumulateVariant,
+        width: usize,
+        height: usize,
+    ) -> Result<Self, GpuError> {
+        let bytes = (6 * width * height * 4) as u64;
+        let view_loss = GpuViewLoss::new(ctx, width, height)?;
+        let consistency = match GpuConsistency::new(ctx, variant, width, height) {
+            Ok(c) => c,
+            Err(e) => {
+                view_loss.destroy(ctx);
+                return Err(e);
+            }
+        };
+        let up = ctx
+            .create_buffer("device_step.up_i", bytes, MemoryLocation::DeviceOnly)
+            .and_then(|a| {
+                match ctx.create_buffer("device_step.up_j", bytes, MemoryLocation::DeviceOnly) {
+                    Ok(b) => Ok((a, b)),
+                    Err(e) => {
+                        ctx.destroy_buffer(a);
+                        Err(e)
+                    }
+                }
+            });
+        let (up_i, up_j) = match up {
+            Ok(pair) => pair,
+            Err(e) => {
+                view_loss.destroy(ctx);
+                consistency.destroy(ctx);
+                return Err(e);
+            }
+        };
+        Ok(Self {
+            width,
+            height,
+            view_loss,
+            consistency,
+            targets: HashMap::new(),
+            up_i,
+            up_j,
+        })
+    }
+
+    fn destroy(self, ctx: &GpuContext) {
+        self.view_loss.destroy(ctx);
+        self.consistency.destroy(ctx);
+        for b in self.targets.into_values() {
+            ctx.destroy_buffer(b);
+        }
+        ctx.destroy_buffer(self.up_i);
+        ctx.destroy_buffer(self.up_j);
+    }
+}
 
 /// Renders and back-propagates on a Vulkan device.
 #[derive(Debug)]
 pub struct VulkanBackend {
     // Field order: the rasteriser's kernels are released (Drop) before the context.
     raster: Option<GpuRasterizer>,
+    losses: Option<DeviceLosses>,
+    /// Whether thermal steps take the device path (default); off: host losses, as the CPU.
+    device_losses: bool,
     ctx: GpuContext,
     pub settings: RenderSettings,
 }
@@ -33,9 +114,129 @@ impl VulkanBackend {
         tracing::info!(device = %ctx.report().name, accumulate = ?raster.variant(), "Vulkan backend ready");
         Ok(Self {
             raster: Some(raster),
+            losses: None,
+            device_losses: true,
             ctx,
             settings,
         })
+    }
+
+    /// Chooses whether thermal steps evaluate their losses on the GPU (the default) or on the
+    /// host like the CPU backend (for comparisons and tests).
+    pub fn set_device_losses(&mut self, on: bool) {
+        self.device_losses = on;
+    }
+
+    /// The device path of [`Backend::device_step`].
+    fn device_step_inner(
+        &mut self,
+        prims: &Primitives<f32>,
+        step: &DeviceStep<'_>,
+    ) -> Result<DeviceStepResult, GpuError> {
+        let (w, h) = (step.cam.width, step.cam.height);
+        let npix = w * h;
+        if step.target.len() != npix {
+            return Err(GpuError::InvalidInput {
+                reason: format!(
+                    "thermal target of view {} has {} values, its {w}x{h} camera needs {npix}",
+                    step.view,
+                    step.target.len()
+                ),
+            });
+        }
+        let raster = self.raster.as_ref().ok_or_else(|| GpuError::InvalidInput {
+            reason: "the Vulkan backend was already shut down".to_owned(),
+        })?;
+        let ctx = &self.ctx;
+        if self
+            .losses
+            .as_ref()
+            .is_some_and(|l| (l.width, l.height) != (w, h))
+            && let Some(old) = self.losses.take()
+        {
+            old.destroy(ctx);
+        }
+        if self.losses.is_none() {
+            self.losses = Some(DeviceLosses::new(ctx, raster.variant(), w, h)?);
+        }
+        let losses = self.losses.as_mut().ok_or_else(|| GpuError::InvalidInput {
+            reason: "device losses unavailable".to_owned(),
+        })?;
+        if let std::collections::hash_map::Entry::Vacant(slot) = losses.targets.entry(step.view) {
+            slot.insert(ctx.upload("device_step.target", step.target)?);
+        }
+        let losses = &*losses;
+        let target = losses
+            .targets
+            .get(&step.view)
+            .ok_or_else(|| GpuError::InvalidInput {
+                reason: "thermal target not uploaded".to_owned(),
+            })?;
+        // Views rendered now stay on the GPU for the losses and the backward passes.
+        raster.render_kept(ctx, prims, step.cam, &self.settings)?;
+        let pair = step.pair.filter(|c| (c.width, c.height) == (w, h));
+        if let Some(cam_j) = pair {
+            raster.render_kept(ctx, prims, cam_j, &self.settings)?;
+        }
+        // Planes of a view no primitive covers (the rasteriser keeps none): all zero.
+        let zeros = ctx.create_buffer(
+            "device_step.zeros",
+            (7 * npix * 4) as u64,
+            MemoryLocation::DeviceOnly,
+        )?;
+        let mut cams: Vec<&PinholeCamera> = vec![step.cam];
+        cams.extend(pair);
+        let recorded = raster.submit_with_views(ctx, prims, &cams, &self.settings, |rec, views| {
+            fn planes_of<'a>(v: &KeptView<'a>, zeros: &'a GpuBuffer) -> &'a GpuBuffer {
+                v.planes.unwrap_or(zeros)
+            }
+            let view_i = &views[0];
+            rec.fill_zero(&zeros);
+            rec.fill_zero(&losses.up_j);
+            losses.view_loss.record(
+                rec,
+                planes_of(view_i, &zeros),
+                target,
+                &losses.up_i,
+                &step.weights,
+            )?;
+            if let Some(view_j) = views.get(1) {
+                rec.compute_barrier();
+                losses.consistency.record(
+                    rec,
+                    &ConsistencyViews {
+                        cam_i: view_i.camera,
+                        cam_j: view_j.camera,
+                        planes_i: planes_of(view_i, &zeros),
+                        planes_j: planes_of(view_j, &zeros),
+                        up_i: &losses.up_i,
+                        up_j: &losses.up_j,
+                        width_j: view_j.width,
+                        height_j: view_j.height,
+                    },
+                    &step.consistency,
+                    step.weights.lambda_consist as f32,
+                )?;
+            }
+            Ok(())
+        });
+        ctx.destroy_buffer(zeros);
+        recorded?;
+        let values = losses.view_loss.values(ctx)?;
+        let mut loss = values.total(&step.weights);
+        let mut grads =
+            raster.render_backward_device(ctx, prims, step.cam, &self.settings, &losses.up_i)?;
+        if let Some(cam_j) = pair {
+            loss += step.weights.lambda_consist * losses.consistency.values(ctx)?.loss;
+            let g_j =
+                raster.render_backward_device(ctx, prims, cam_j, &self.settings, &losses.up_j)?;
+            for ((_, a), (_, b)) in grads.groups_mut().into_iter().zip(g_j.groups()) {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x += *y;
+                }
+            }
+        }
+        Ok(DeviceStepResult { loss, grads })
     }
 
     pub fn context(&self) -> &GpuContext {
@@ -109,12 +310,30 @@ impl Backend for VulkanBackend {
             .render_backward(&self.ctx, prims, cam, &self.settings, upstream)
             .map_err(|source| TrainerError::Gpu { source })
     }
+
+    fn device_step(
+        &mut self,
+        prims: &Primitives<f32>,
+        step: &DeviceStep<'_>,
+    ) -> Option<Result<DeviceStepResult, TrainerError>> {
+        if !self.device_losses || prims.sh_degree.is_some() {
+            return None;
+        }
+        let _span = tracing::trace_span!("vulkan_device_step").entered();
+        Some(
+            self.device_step_inner(prims, step)
+                .map_err(|source| TrainerError::Gpu { source }),
+        )
+    }
 }
 
 impl Drop for VulkanBackend {
     fn drop(&mut self) {
         if let Some(r) = self.raster.take() {
             r.destroy(&self.ctx);
+        }
+        if let Some(l) = self.losses.take() {
+            l.destroy(&self.ctx);
         }
     }
 }

@@ -864,6 +864,30 @@ impl Recorder<'_> {
         Ok(())
     }
 
+    /// Sets every byte of `buffer` to zero (a transfer command), then makes that visible to
+    /// the shaders recorded after it.
+    pub fn fill_zero(&mut self, buffer: &GpuBuffer) {
+        let barrier = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE)];
+        // SAFETY: recording into a command buffer in the recording state; the buffer belongs to
+        // this device and was created with TRANSFER_DST usage (every GpuBuffer is).
+        unsafe {
+            self.ctx
+                .device
+                .cmd_fill_buffer(self.cmd, buffer.raw, 0, vk::WHOLE_SIZE, 0);
+            self.ctx.device.cmd_pipeline_barrier(
+                self.cmd,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::DependencyFlags::empty(),
+                &barrier,
+                &[],
+                &[],
+            );
+        }
+    }
+
     /// Makes every shader write before it visible to every shader read/write after it.
     pub fn compute_barrier(&mut self) {
         let barrier = [vk::MemoryBarrier::default()

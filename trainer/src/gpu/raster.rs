@@ -126,6 +126,18 @@ impl BinnedView {
     }
 }
 
+/// The GPU buffers of a kept rendered view (see [`GpuRasterizer::submit_with_views`]).
+#[derive(Debug, Clone, Copy)]
+pub struct KeptView<'a> {
+    /// The camera block ([`camera_block`]).
+    pub camera: &'a GpuBuffer,
+    /// `raster_forward`'s planes (the six of [`PLANES`], then the end plane); `None` when no
+    /// primitive covers the view (every plane is then zero).
+    pub planes: Option<&'a GpuBuffer>,
+    pub width: usize,
+    pub height: usize,
+}
+
 /// A view's buffers on the way to the cache or to release: freed if the render fails.
 struct Transient<'a> {
     ctx: &'a GpuContext,
@@ -549,6 +561,59 @@ impl GpuRasterizer {
         Ok(out)
     }
 
+    /// Renders `prims` seen by `cam` and keeps the planes on the GPU for
+    /// [`GpuRasterizer::submit_with_views`] and the backward pass: nothing is read back but the
+    /// key count.
+    pub fn render_kept(
+        &self,
+        ctx: &GpuContext,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+        settings: &RenderSettings,
+    ) -> Result<(), GpuError> {
+        let rendered = self.bin_and_render(ctx, prims, cam, settings)?;
+        if let Some(view) = rendered.take() {
+            self.keep_view(ctx, view)?;
+        }
+        Ok(())
+    }
+
+    /// Submits `record` with the GPU buffers of kept rendered views (one per camera of `cams`,
+    /// rendered from `prims` by [`GpuRasterizer::render`] or [`GpuRasterizer::render_kept`]);
+    /// a view that is not kept is an error.
+    pub fn submit_with_views<F>(
+        &self,
+        ctx: &GpuContext,
+        prims: &Primitives<f32>,
+        cams: &[&PinholeCamera],
+        settings: &RenderSettings,
+        record: F,
+    ) -> Result<(), GpuError>
+    where
+        F: FnOnce(&mut Recorder<'_>, &[KeptView<'_>]) -> Result<(), GpuError>,
+    {
+        let key_params = parameter_block(prims);
+        let kept = lock(&self.kept)?;
+        let mut views = Vec::with_capacity(cams.len());
+        for cam in cams {
+            let key_cam = camera_block(cam, settings);
+            let v = kept
+                .iter()
+                .find(|v| v.camera_block == key_cam && v.parameter_block == key_params)
+                .ok_or_else(|| GpuError::InvalidInput {
+                    reason: "submit_with_views: a view was not rendered from these parameters"
+                        .to_owned(),
+                })?;
+            views.push(KeptView {
+                camera: v.get(v.cam),
+                planes: v.planes.map(|h| v.get(h)),
+                width: cam.width,
+                height: cam.height,
+            });
+        }
+        self.submit(ctx, |rec| record(rec, &views))
+    }
+
     /// Gradient of `Σ upstream · buffers` w.r.t. every parameter of `prims` (same layout as
     /// `prims`; the SH colour group stays zero: no RGB branch on the GPU yet). `upstream` gives
     /// dL/d(thermal, psi_low, psi_high, psi_beta, depth, alpha); an empty plane counts as zero.
@@ -587,6 +652,33 @@ impl GpuRasterizer {
             }
             dst.copy_from_slice(src);
         }
+        let up_buf = ctx.upload("raster.upstream", &up)?;
+        let result = self.render_backward_device(ctx, prims, cam, settings, &up_buf);
+        ctx.destroy_buffer(up_buf);
+        result
+    }
+
+    /// [`GpuRasterizer::render_backward`] with the upstream gradient planes already on the GPU
+    /// (6 planes of `cam.width × cam.height` floats, the order of [`PLANES`]).
+    pub fn render_backward_device(
+        &self,
+        ctx: &GpuContext,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+        settings: &RenderSettings,
+        up_buf: &GpuBuffer,
+    ) -> Result<Primitives<f32>, GpuError> {
+        let (width, height) = (cam.width, cam.height);
+        let npix = width * height;
+        if up_buf.size_bytes() < (6 * npix * 4) as u64 {
+            return Err(GpuError::InvalidInput {
+                reason: format!(
+                    "upstream buffer of {} bytes, the {width}x{height} view needs {}",
+                    up_buf.size_bytes(),
+                    6 * npix * 4
+                ),
+            });
+        }
         let mut grads = prims.zeros_like();
         let key_cam = camera_block(cam, settings);
         let key_params = parameter_block(prims);
@@ -617,7 +709,6 @@ impl GpuRasterizer {
         // Per-step buffers, released at the end of this call (after the readback).
         let mut scratch = Transient::new(ctx, view.tiles, [0.0; 32], Vec::new());
         let s = scratch.view_mut()?;
-        let up_buf = s.keep(ctx.upload("raster.upstream", &up)?);
         let acc = s.keep(ctx.upload("raster.grad_acc", &vec![0f32; fields * n])?);
         let out = s.keep(ctx.create_buffer(
             "raster.grads",
@@ -636,7 +727,7 @@ impl GpuRasterizer {
                     v.get(v.bands),
                     v.get(values),
                     v.get(ranges),
-                    s.get(up_buf),
+                    up_buf,
                     v.get(planes),
                     s.get(acc),
                 ],

@@ -5,8 +5,35 @@
 
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
+use crate::loss::LossWeights;
+use crate::loss::consistency::ConsistencyOptions;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings, render, render_backward};
+
+/// One training step's thermal losses, for a backend that evaluates them on its own device
+/// ([`Backend::device_step`]): the view's `(1 − λ)·L1 + λ·(1 − SSIM)`, sparsity and TV against
+/// `target`, plus, with `pair`, the consistency term against the paired view.
+#[derive(Debug, Clone, Copy)]
+pub struct DeviceStep<'a> {
+    /// Index of the view in the dataset (a backend may keep its target on the device by index).
+    pub view: usize,
+    pub cam: &'a PinholeCamera,
+    /// The view's normalised thermal image.
+    pub target: &'a [f32],
+    /// The consistency partner's camera (only its renders are needed, not its image).
+    pub pair: Option<&'a PinholeCamera>,
+    pub weights: LossWeights,
+    pub consistency: ConsistencyOptions,
+}
+
+/// What [`Backend::device_step`] computed.
+#[derive(Debug, Clone)]
+pub struct DeviceStepResult {
+    /// Weighted loss (as the host path's: view terms plus λc times the consistency term).
+    pub loss: f64,
+    /// `dL/dprims`, both views' contributions summed.
+    pub grads: Primitives<f32>,
+}
 
 /// A renderer with gradients.
 pub trait Backend {
@@ -25,6 +52,18 @@ pub trait Backend {
         cam: &PinholeCamera,
         upstream: &GBuffers<f32>,
     ) -> Result<Primitives<f32>, TrainerError>;
+    /// Renders, evaluates the thermal losses of `step` and back-propagates them on the
+    /// backend's own device, so that images and their gradients never travel to the host.
+    /// `None`: this backend (or this step) has no device path, and the loop renders, evaluates
+    /// the losses on the host and calls [`Backend::backward`]. Both paths compute the same
+    /// quantities (held together by tests).
+    fn device_step(
+        &mut self,
+        _prims: &Primitives<f32>,
+        _step: &DeviceStep<'_>,
+    ) -> Option<Result<DeviceStepResult, TrainerError>> {
+        None
+    }
 }
 
 /// The CPU reference renderer in f32.

@@ -45,7 +45,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use adam::{AdamParams, AdamState, GroupLrs};
-pub use backend::{Backend, CpuBackend};
+pub use backend::{Backend, CpuBackend, DeviceStep, DeviceStepResult};
 pub use config::{Capacity, Densify, Mode, TrainConfig, Weights};
 
 use crate::camera::PinholeCamera;
@@ -499,40 +499,65 @@ impl<B: Backend> Trainer<B> {
         let weights = self.loss_weights();
         let cam_i = self.data.views[vi].camera;
         let has_rgb = !self.prims.sh.is_empty();
-        let gb_i = self.backend.render(&self.prims, &cam_i)?;
-        let mut up_i = GBuffers::zeros(gb_i.width, gb_i.height, has_rgb);
-        let mut loss = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
+        let pair = if self.consist_active() {
+            self.pairs[vi]
+        } else {
+            None
+        };
+        // The backend's device path when it has one (images stay on the device), else the
+        // host path below: render, losses on the host, backward.
+        let device = match (&self.data.views[vi].thermal, has_rgb) {
+            (Some(target), false) => {
+                let step = DeviceStep {
+                    view: vi,
+                    cam: &cam_i,
+                    target,
+                    pair: pair.map(|vj| &self.data.views[vj].camera),
+                    weights,
+                    consistency: ConsistencyOptions::default(),
+                };
+                self.backend.device_step(&self.prims, &step).transpose()?
+            }
+            _ => None,
+        };
+        let (loss, grads) = match device {
+            Some(r) => (r.loss, r.grads),
+            None => {
+                let gb_i = self.backend.render(&self.prims, &cam_i)?;
+                let mut up_i = GBuffers::zeros(gb_i.width, gb_i.height, has_rgb);
+                let mut loss = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
 
-        let mut grads = None;
-        if self.consist_active()
-            && let Some(vj) = self.pairs[vi]
-        {
-            let cam_j = self.data.views[vj].camera;
-            let gb_j = self.backend.render(&self.prims, &cam_j)?;
-            let mut up_j = GBuffers::zeros(gb_j.width, gb_j.height, has_rgb);
-            let c = consistency_loss(
-                &gb_i,
-                &cam_i,
-                &gb_j,
-                &cam_j,
-                &ConsistencyOptions::default(),
-                weights.lambda_consist as f32,
-                &mut up_i,
-                &mut up_j,
-            )?;
-            loss += weights.lambda_consist * c.loss;
-            grads = Some(self.backend.backward(&self.prims, &cam_j, &up_j)?);
-        }
-        let g_i = self.backend.backward(&self.prims, &cam_i, &up_i)?;
-        let grads = match grads {
-            None => g_i,
-            Some(mut g) => {
-                for ((_, a), (_, b)) in g.groups_mut().into_iter().zip(g_i.groups()) {
-                    for (x, y) in a.iter_mut().zip(b) {
-                        *x += *y;
-                    }
+                let mut grads = None;
+                if let Some(vj) = pair {
+                    let cam_j = self.data.views[vj].camera;
+                    let gb_j = self.backend.render(&self.prims, &cam_j)?;
+                    let mut up_j = GBuffers::zeros(gb_j.width, gb_j.height, has_rgb);
+                    let c = consistency_loss(
+                        &gb_i,
+                        &cam_i,
+                        &gb_j,
+                        &cam_j,
+                        &ConsistencyOptions::default(),
+                        weights.lambda_consist as f32,
+                        &mut up_i,
+                        &mut up_j,
+                    )?;
+                    loss += weights.lambda_consist * c.loss;
+                    grads = Some(self.backend.backward(&self.prims, &cam_j, &up_j)?);
                 }
-                g
+                let g_i = self.backend.backward(&self.prims, &cam_i, &up_i)?;
+                let grads = match grads {
+                    None => g_i,
+                    Some(mut g) => {
+                        for ((_, a), (_, b)) in g.groups_mut().into_iter().zip(g_i.groups()) {
+                            for (x, y) in a.iter_mut().zip(b) {
+                                *x += *y;
+                            }
+                        }
+                        g
+                    }
+                };
+                (loss, grads)
             }
         };
 
