@@ -45,6 +45,7 @@ lint:
 # Builds that leave parts out must keep compiling, and dependency directions must hold.
 check-features:
 	$(CARGO) check -p s3tir-capture --no-default-features
+	$(CARGO) check -p s3tir-capture --features nokhwa
 	$(CARGO) check -p s3tir-calib --no-default-features
 	$(CARGO) check -p s3tir-trainer --no-default-features
 	./scripts/check-deps.sh

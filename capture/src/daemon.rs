@@ -17,12 +17,14 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 
+use crate::clock_sync::ClockMap;
 use crate::device::FrameSource;
 use crate::error::CaptureError;
 use crate::frame::{FfcState, RawFrame, StreamKind};
 use crate::pairing::PairingMode;
 use crate::pipeline::{Pipeline, StreamCounts};
-use crate::session::{SessionInfo, SessionRecord, SessionWriter, StatusRecord};
+use crate::rig_protocol::{MAX_TRIGGER_EVENTS, TriggerEvent};
+use crate::session::{SessionInfo, SessionRecord, SessionWriter, StatusRecord, TriggerRecord};
 use crate::synth::wall_now_ns;
 
 /// Opens (and reopens) a device.
@@ -63,7 +65,18 @@ pub struct DaemonConfig {
     /// Thermal frames whose device says nothing about FFC (V4L2 Y16 from a Boson carries no
     /// telemetry) take the last polled state, so frozen frames are flagged.
     pub ffc_poll: Option<FfcPoller>,
+    /// Polls the rig controller for trigger pulses after the given count (every 100 ms, in
+    /// its own thread); with `rough_clock`, frames are paired by pulse
+    /// ([`crate::clock_sync`]).
+    pub trigger_poll: Option<TriggerPoller>,
+    /// Controller → camera clock map from a status exchange before the trigger started, and
+    /// the controller's pulse count then.
+    pub rough_clock: Option<(ClockMap, u32)>,
 }
+
+/// See [`DaemonConfig::trigger_poll`]: `since_count` → pulses after it (at most 32 a call).
+pub type TriggerPoller =
+    Box<dyn FnMut(u32) -> Result<Vec<TriggerEvent>, CaptureError> + Send + 'static>;
 
 impl std::fmt::Debug for DaemonConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -74,6 +87,8 @@ impl std::fmt::Debug for DaemonConfig {
             .field("duration", &self.duration)
             .field("queue_frames", &self.queue_frames)
             .field("ffc_poll", &self.ffc_poll.is_some())
+            .field("trigger_poll", &self.trigger_poll.is_some())
+            .field("rough_clock", &self.rough_clock)
             .finish_non_exhaustive()
     }
 }
@@ -143,6 +158,8 @@ pub struct DaemonReport {
     pub status: StatusRecord,
     pub bytes_written: u64,
     pub elapsed_s: f64,
+    /// The last controller → camera clock map (when triggering).
+    pub clock: Option<ClockMap>,
 }
 
 enum Msg {
@@ -151,6 +168,7 @@ enum Msg {
         raw: RawFrame,
         wall_unix_ns: u64,
     },
+    Triggers(Vec<TriggerEvent>),
     Tick,
 }
 
@@ -211,6 +229,36 @@ async fn run_async(
             }
         }));
     }
+    // Trigger pulses (rig controller), when configured. Pulses are never dropped: the poller
+    // waits for room in the queue (they are few and pairing needs every one).
+    let since0 = cfg.rough_clock.map_or(0, |(_, c)| c);
+    if let Some(mut poll) = cfg.trigger_poll {
+        let (tx, stop, counters) = (tx.clone(), stop.clone(), counters.clone());
+        readers.push(tokio::task::spawn_blocking(move || {
+            let mut since = since0;
+            while !stop.load(Ordering::Relaxed) {
+                match poll(since) {
+                    Ok(events) => {
+                        let full = events.len() >= MAX_TRIGGER_EVENTS;
+                        if let Some(last) = events.last() {
+                            since = last.count;
+                            if tx.blocking_send(Msg::Triggers(events)).is_err() {
+                                return;
+                            }
+                        }
+                        if full {
+                            continue;
+                        }
+                    }
+                    Err(e) => {
+                        counters.serial_errors.fetch_add(1, Ordering::Relaxed);
+                        tracing::warn!("trigger poll failed: {e}");
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }));
+    }
     // Readers: one blocking thread per device.
     for spec in cfg.sources {
         let tx = tx.clone();
@@ -226,9 +274,15 @@ async fn run_async(
     let wcounters = counters.clone();
     let pairing = cfg.pairing;
     let slow = cfg.slow_disk;
+    let rough_clock = cfg.rough_clock;
     let writer_task =
         tokio::task::spawn_blocking(move || -> Result<(Pipeline, u64), CaptureError> {
             let mut pipe = Pipeline::new(pairing);
+            if let Some((rough, _)) = rough_clock {
+                for r in pipe.set_rough_clock(rough) {
+                    writer.write(&r)?;
+                }
+            }
             let mut last_status = Instant::now();
             let mut warned = 0u32;
             while let Some(msg) = rx.blocking_recv() {
@@ -259,6 +313,17 @@ async fn run_async(
                         }
                         if let Some(d) = slow {
                             std::thread::sleep(d);
+                        }
+                    }
+                    Msg::Triggers(events) => {
+                        for e in events {
+                            let t = TriggerRecord {
+                                count: e.count,
+                                controller_ns: e.time_ns,
+                            };
+                            for r in pipe.push_trigger(t) {
+                                writer.write(&r)?;
+                            }
                         }
                     }
                     Msg::Tick => writer.tick()?,
@@ -355,6 +420,7 @@ async fn run_async(
         b.finish_and_clear();
     }
     Ok(DaemonReport {
+        clock: pipe.clock(),
         thermal: pipe.thermal,
         rgb: pipe.rgb,
         pairs: pipe.pairs,

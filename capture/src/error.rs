@@ -81,4 +81,7 @@ pub enum CaptureError {
     /// Writing an exported image failed.
     #[error("export {path}: {reason}")]
     Export { path: PathBuf, reason: String },
+    /// The rig controller's clock could not be mapped to the camera clock.
+    #[error("rig controller clock → camera clock fit: {reason}")]
+    ClockFit { reason: String },
 }

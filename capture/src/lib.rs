@@ -23,8 +23,12 @@ pub mod v4l2;
 pub use error::CaptureError;
 /// Recorder throughput benchmark (`s3tir-capture bench`).
 pub mod bench;
+/// Rig-controller clock → camera clock: robust linear fit over matched trigger pulses.
+pub mod clock_sync;
 /// The capture daemon (tokio, bounded queue, reconnect, clean shutdown).
 pub mod daemon;
+/// RGB cameras through nokhwa (feature `nokhwa`; format mapping always built and tested).
+pub mod nokhwa_backend;
 /// Thermal↔RGB pairing, drop detection, sync statistics.
 pub mod pairing;
 /// Parse → drop detection → pairing: the path of every frame, live or replayed.

@@ -41,15 +41,18 @@ struct RecordArgs {
     /// (`sim`, `sim:boson640`, `sim:lepton35`; started from beside this program when none runs).
     #[arg(long)]
     device: Option<String>,
-    /// RGB camera: a V4L2 node, or `sim` for the simulated rig's RGB camera.
+    /// RGB camera: a V4L2 node, `sim` for the simulated rig's RGB camera, or `nokhwa:N` for
+    /// camera N through nokhwa (builds with the `nokhwa` feature; frames stamped on arrival).
     #[arg(long)]
     rgb: Option<String>,
     /// Boson FSLP serial port (CDC-ACM, e.g. /dev/s3tir/boson-serial): serial number and FPA
     /// temperature are recorded in the session metadata.
     #[arg(long)]
     serial: Option<String>,
-    /// Rig controller serial port: with --trigger-rate, triggers both cameras and pairs frames
-    /// by trigger counter.
+    /// Rig controller serial port (`sim`: the simulated rig's controller): with
+    /// --trigger-rate, it triggers both cameras; its pulse timestamps are mapped to the camera
+    /// clock (offset + drift, fitted over matched pulses, recorded on /rig/clock) and frames
+    /// are paired by trigger pulse.
     #[arg(long)]
     rig_serial: Option<String>,
     /// Hardware trigger rate in Hz (needs --rig-serial).
@@ -181,8 +184,12 @@ fn info(file: &std::path::Path, json: bool) -> Result<()> {
     );
     for (name, st) in &s.streams {
         println!(
-            "  {name:8} frames {:6}  drops {:4} (queue {})  ffc {:4}  rejected {}",
-            st.frames, st.drops, st.queue_drops, st.ffc_frames, st.rejected
+            "  {name:8} frames {:6}  drops {:4} (recorder queue {}, source {})  ffc {:4}  rejected {}",
+            st.frames, st.drops, st.queue_drops, st.source_drops, st.ffc_frames, st.rejected
+        );
+        println!(
+            "           {:.3} Hz over {:.2} s (device stamps), delivery lag up to {:.1} ms",
+            st.rate_hz, st.span_s, st.max_delivery_lag_ms
         );
     }
     println!(
@@ -192,6 +199,17 @@ fn info(file: &std::path::Path, json: bool) -> Result<()> {
         s.sync.rms_ns / 1e6,
         s.sync.max_abs_ns as f64 / 1e6
     );
+    if let Some(m) = &s.clock {
+        println!(
+            "  rig controller clock: {} triggers, drift {:+.2} ppm, sync residual rms {:.1} us, max {:.1} us ({} pulses matched, {} outliers)",
+            s.triggers,
+            m.drift_ppm,
+            m.residual_rms_ns / 1e3,
+            m.residual_max_ns / 1e3,
+            m.matched,
+            m.outliers
+        );
+    }
     println!(
         "  reconnects {}  frame digest {}",
         s.reconnects, s.frame_digest
@@ -246,6 +264,12 @@ fn bench(seconds: f64, out: Option<PathBuf>, json: bool) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Locks a mutex, taking the data of a poisoned one (the rig client holds no invariant a
+/// panic could break).
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 fn tempfile_dir() -> Result<PathBuf> {
@@ -310,7 +334,10 @@ fn record(a: RecordArgs) -> Result<()> {
         sources.push(v4l2_source(&device, Role::Thermal, None, units)?);
         if let Some(r) = &a.rgb {
             let max = parse_size(&a.rgb_max_size)?;
-            sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?);
+            match s3tir_capture::nokhwa_backend::parse_spec(r) {
+                Some(index) => sources.push(nokhwa_source(index, max)?),
+                None => sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?),
+            }
         }
     }
     // A simulated rig started here serves the Boson FSLP firmware on a pty: use it.
@@ -350,12 +377,42 @@ fn record(a: RecordArgs) -> Result<()> {
         }
     }
     let mut rig = None;
+    let mut trigger_poll: Option<daemon::TriggerPoller> = None;
+    let mut rough_clock = None;
     if let Some(port) = &a.rig_serial {
-        let p = serial::open_port(port)?;
-        let mut c = serial::RigClient::new(p, port);
+        let port = if port == "sim" {
+            _sim_process
+                .as_ref()
+                .and_then(|p| p.announced("rig_pty"))
+                .context(
+                    "--rig-serial sim needs a simulated rig started by this program (--device sim)",
+                )?
+        } else {
+            port.clone()
+        };
+        let p = serial::open_port(&port)?;
+        let c = Arc::new(std::sync::Mutex::new(serial::RigClient::new(p, &port)));
         if let Some(hz) = a.trigger_rate {
-            c.start_trigger((hz * 1000.0).round() as u32)?;
+            // Rough controller → camera clock map: the controller's clock at the midpoint of
+            // one status exchange (error ≤ half the round trip).
+            let t0 = s3tir_capture::synth::monotonic_now_ns();
+            let st = lock(&c).status()?;
+            let t1 = s3tir_capture::synth::monotonic_now_ns();
+            let rough =
+                s3tir_capture::clock_sync::ClockMap::rough(st.uptime_ns, t0 + (t1 - t0) / 2);
+            tracing::info!(
+                "rig controller clock {} ns at camera clock {} ns (status round trip {:.2} ms)",
+                st.uptime_ns,
+                rough.mono_anchor_ns,
+                (t1 - t0) as f64 / 1e6
+            );
+            rough_clock = Some((rough, st.trigger_count));
+            lock(&c).start_trigger((hz * 1000.0).round() as u32)?;
             pairing = PairingMode::TriggerCounter;
+            let poller = c.clone();
+            trigger_poll = Some(Box::new(move |since| {
+                lock(&poller).triggers(since).map(|(_, events)| events)
+            }));
         }
         rig = Some(c);
     }
@@ -378,11 +435,13 @@ fn record(a: RecordArgs) -> Result<()> {
         calibration,
         slow_disk: None,
         ffc_poll,
+        trigger_poll,
+        rough_clock,
     };
     let report = daemon::run(cfg, Arc::new(AtomicBool::new(false)), counters)?;
-    if let Some(mut c) = rig
+    if let Some(c) = rig
         && a.trigger_rate.is_some()
-        && let Err(e) = c.stop_trigger()
+        && let Err(e) = lock(&c).stop_trigger()
     {
         tracing::warn!("could not stop the trigger: {e}");
     }
@@ -402,6 +461,16 @@ fn record(a: RecordArgs) -> Result<()> {
         report.bytes_written as f64 / 1e6,
         report.elapsed_s
     );
+    if let Some(m) = report.clock {
+        eprintln!(
+            "rig controller clock: drift {:+.2} ppm, sync residual rms {:.1} us, max {:.1} us over {} pulses ({} outliers)",
+            m.drift_ppm,
+            m.residual_rms_ns / 1e3,
+            m.residual_max_ns / 1e3,
+            m.matched,
+            m.outliers
+        );
+    }
     Ok(())
 }
 
@@ -430,6 +499,25 @@ fn v4l2_source(
     _units: ThermalUnits,
 ) -> Result<SourceSpec> {
     bail!("{path}: this s3tir-capture was built without the `v4l` feature (use --device sim)")
+}
+
+#[cfg(feature = "nokhwa")]
+fn nokhwa_source(index: u32, max: (u32, u32)) -> Result<SourceSpec> {
+    Ok(SourceSpec {
+        name: format!("nokhwa:{index}"),
+        open: Box::new(move || {
+            s3tir_capture::nokhwa_backend::NokhwaSource::open(index, Some(max))
+                .map(|s| Box::new(s) as Box<dyn FrameSource>)
+        }),
+    })
+}
+
+#[cfg(not(feature = "nokhwa"))]
+fn nokhwa_source(index: u32, _max: (u32, u32)) -> Result<SourceSpec> {
+    bail!(
+        "nokhwa:{index}: this s3tir-capture was built without the `nokhwa` feature \
+         (cargo build -p s3tir-capture --features nokhwa)"
+    )
 }
 
 #[cfg(feature = "v4l")]

@@ -4,10 +4,11 @@
 //! It is deterministic in its inputs (device buffers and their wall-clock stamps, in order),
 //! which is what makes `s3tir-capture replay` reproduce a recording byte for byte.
 
+use crate::clock_sync::{ClockMap, TriggerOutput, TriggerPairer};
 use crate::error::CaptureError;
 use crate::frame::{CapturedFrame, RawFrame, StreamKind};
 use crate::pairing::{Pairer, PairingMode, SeqTracker, SyncAccumulator};
-use crate::session::SessionRecord;
+use crate::session::{SessionRecord, TriggerRecord};
 
 /// Counters of one pipeline run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -27,6 +28,9 @@ pub struct Pipeline {
     pub rgb: StreamCounts,
     pub pairs: u64,
     pub sync: SyncAccumulator,
+    /// Pairing by trigger pulse through the controller-clock map, once a rough map is given
+    /// ([`Pipeline::set_rough_clock`]); until then (and without a rig controller) `pairer`.
+    trigger: Option<TriggerPairer>,
 }
 
 impl Pipeline {
@@ -41,6 +45,44 @@ impl Pipeline {
             rgb: StreamCounts::default(),
             pairs: 0,
             sync: SyncAccumulator::default(),
+            trigger: None,
+        }
+    }
+
+    /// The rig controller triggers the cameras: pair frames by trigger pulse from now on,
+    /// starting from this rough controller → camera clock map. Returns the record to write
+    /// (replay feeds the recorded one back here).
+    pub fn set_rough_clock(&mut self, rough: ClockMap) -> Vec<SessionRecord> {
+        self.trigger = Some(TriggerPairer::new(rough));
+        vec![SessionRecord::Clock(rough)]
+    }
+
+    /// The current controller → camera clock map, when triggering.
+    pub fn clock(&self) -> Option<ClockMap> {
+        self.trigger.as_ref().and_then(TriggerPairer::map)
+    }
+
+    /// Pushes one rig-controller trigger pulse (ignored without a rough clock: nothing to
+    /// map it with, but it is still recorded).
+    pub fn push_trigger(&mut self, t: TriggerRecord) -> Vec<SessionRecord> {
+        let mut out = vec![SessionRecord::Trigger(t)];
+        if let Some(tp) = self.trigger.as_mut() {
+            let o = tp.push_pulse(t.count, t.controller_ns);
+            self.take_trigger_outputs(o, &mut out);
+        }
+        out
+    }
+
+    fn take_trigger_outputs(&mut self, o: Vec<TriggerOutput>, out: &mut Vec<SessionRecord>) {
+        for x in o {
+            match x {
+                TriggerOutput::Pair(p) => {
+                    self.pairs += 1;
+                    self.sync.add(p.sync_error_ns);
+                    out.push(SessionRecord::Pair(p));
+                }
+                TriggerOutput::Clock(c) => out.push(SessionRecord::Clock(c)),
+            }
         }
     }
 
@@ -74,13 +116,18 @@ impl Pipeline {
         if frozen {
             counts.ffc_frames += 1;
         }
-        let pairs = self
-            .pairer
-            .push(raw.stream, raw.sequence, raw.monotonic_ns, frozen);
         out.push(SessionRecord::Frame {
             frame,
             ffc_hint: raw.ffc_hint,
         });
+        if let Some(tp) = self.trigger.as_mut() {
+            let o = tp.push_frame(raw.stream, raw.sequence, raw.monotonic_ns, frozen);
+            self.take_trigger_outputs(o, &mut out);
+            return Ok(out);
+        }
+        let pairs = self
+            .pairer
+            .push(raw.stream, raw.sequence, raw.monotonic_ns, frozen);
         for p in pairs {
             self.pairs += 1;
             self.sync.add(p.sync_error_ns);
@@ -91,6 +138,12 @@ impl Pipeline {
 
     /// Decides the frames still waiting for a partner (end of recording).
     pub fn finish(&mut self) -> Vec<SessionRecord> {
+        if let Some(tp) = self.trigger.as_mut() {
+            let o = tp.finish();
+            let mut out = Vec::new();
+            self.take_trigger_outputs(o, &mut out);
+            return out;
+        }
         self.pairer
             .finish()
             .into_iter()

@@ -12,6 +12,8 @@
 //! | `/pairs` | `s3tir.Pair` (JSON) | thermal↔RGB pair |
 //! | `/drops` | `s3tir.Drop` (JSON) | sequence gap |
 //! | `/capture/status` | `s3tir.Status` (JSON) | second of recording (rejected buffers, queue drops, reconnects) |
+//! | `/rig/triggers` | `s3tir.Trigger` (JSON) | rig-controller trigger pulse: count, controller-clock time |
+//! | `/rig/clock` | `s3tir.ClockMap` (JSON) | controller → camera clock map: the rough one from a status exchange (`matched` 0, first), then each refit over matched pulses |
 //!
 //! Images use the ROS 1 message encoding because Foxglove/Lichtblick display `sensor_msgs/Image`
 //! `mono16` and `sensor_msgs/CompressedImage` natively, the schema is plain text (no protobuf
@@ -67,6 +69,8 @@ pub mod topic {
     pub const PAIRS: &str = "/pairs";
     pub const DROPS: &str = "/drops";
     pub const STATUS: &str = "/capture/status";
+    pub const TRIGGERS: &str = "/rig/triggers";
+    pub const CLOCK: &str = "/rig/clock";
 }
 
 const HEADER_DEF: &str = "================================================================================\nMSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n";
@@ -144,6 +148,14 @@ pub struct StatusRecord {
     pub serial_errors: u64,
 }
 
+/// A rig-controller trigger pulse (`/rig/triggers`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TriggerRecord {
+    pub count: u32,
+    /// The controller's clock at the pulse edge, nanoseconds.
+    pub controller_ns: u64,
+}
+
 /// What the pipeline hands to the writer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SessionRecord {
@@ -154,6 +166,8 @@ pub enum SessionRecord {
     Pair(PairRecord),
     Drop(DropRecord),
     Status(StatusRecord),
+    Trigger(TriggerRecord),
+    Clock(crate::clock_sync::ClockMap),
 }
 
 /// Session-level description written as the `s3tir.session` metadata record.
@@ -317,6 +331,8 @@ struct Channels {
     pairs: u16,
     drops: u16,
     status: u16,
+    triggers: u16,
+    clock: u16,
 }
 
 /// Writes a session. Call [`SessionWriter::tick`] regularly (the daemon does after every
@@ -377,6 +393,8 @@ impl SessionWriter {
         let pr = json_schema(&mut w, "s3tir.Pair").map_err(mcap_err("add schema"))?;
         let dr = json_schema(&mut w, "s3tir.Drop").map_err(mcap_err("add schema"))?;
         let st = json_schema(&mut w, "s3tir.Status").map_err(mcap_err("add schema"))?;
+        let tr = json_schema(&mut w, "s3tir.Trigger").map_err(mcap_err("add schema"))?;
+        let cl = json_schema(&mut w, "s3tir.ClockMap").map_err(mcap_err("add schema"))?;
         let none = BTreeMap::new();
         let mut add = |schema, t: &str, enc: &str| w.add_channel(schema, t, enc, &none);
         let ch = Channels {
@@ -390,6 +408,8 @@ impl SessionWriter {
             pairs: add(pr, topic::PAIRS, "json").map_err(mcap_err("add channel"))?,
             drops: add(dr, topic::DROPS, "json").map_err(mcap_err("add channel"))?,
             status: add(st, topic::STATUS, "json").map_err(mcap_err("add channel"))?,
+            triggers: add(tr, topic::TRIGGERS, "json").map_err(mcap_err("add channel"))?,
+            clock: add(cl, topic::CLOCK, "json").map_err(mcap_err("add channel"))?,
         };
         w.write_metadata(&mcap::records::Metadata {
             name: "s3tir.session".into(),
@@ -595,6 +615,14 @@ impl SessionWriter {
                 let m = self.json(s)?;
                 self.put(ch.status, 0, s.wall_unix_ns, s.wall_unix_ns, &m)?;
             }
+            SessionRecord::Trigger(t) => {
+                let m = self.json(t)?;
+                self.put(ch.triggers, t.count, t.controller_ns, t.controller_ns, &m)?;
+            }
+            SessionRecord::Clock(c) => {
+                let m = self.json(c)?;
+                self.put(ch.clock, c.matched as u32, 0, c.mono_anchor_ns, &m)?;
+            }
         }
         self.tick()
     }
@@ -666,6 +694,8 @@ pub enum SessionItem {
     Pair(PairRecord),
     Drop(DropRecord),
     Status(StatusRecord),
+    Trigger(TriggerRecord),
+    Clock(crate::clock_sync::ClockMap),
 }
 
 /// What a read found besides the items.
@@ -900,6 +930,8 @@ fn decode_message(
         topic::PAIRS => Some(SessionItem::Pair(json(data).map_err(bad)?)),
         topic::DROPS => Some(SessionItem::Drop(json(data).map_err(bad)?)),
         topic::STATUS => Some(SessionItem::Status(json(data).map_err(bad)?)),
+        topic::TRIGGERS => Some(SessionItem::Trigger(json(data).map_err(bad)?)),
+        topic::CLOCK => Some(SessionItem::Clock(json(data).map_err(bad)?)),
         _ => None,
     })
 }

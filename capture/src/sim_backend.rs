@@ -272,12 +272,9 @@ pub fn ensure_sim_rig(
     };
     let deadline = Instant::now() + Duration::from_secs(10);
     while Instant::now() < deadline {
-        if UnixStream::connect(socket).is_ok() {
-            // Give the announcement reader a moment to see the pty lines.
-            let ready_by = Instant::now() + Duration::from_secs(1);
-            while proc.announced("ready").is_none() && Instant::now() < ready_by {
-                std::thread::sleep(Duration::from_millis(10));
-            }
+        // `ready` comes after the socket is bound and the ptys are announced. No probe
+        // connection: the rig starts streaming to its first client, which must be ours.
+        if proc.announced("ready").is_some() && socket.exists() {
             tracing::info!(socket = %socket.display(), "started simulated rig {}", bin.display());
             return Ok(Some(proc));
         }
@@ -288,7 +285,7 @@ pub fn ensure_sim_rig(
                 socket.display()
             )));
         }
-        std::thread::sleep(Duration::from_millis(50));
+        std::thread::sleep(Duration::from_millis(10));
     }
     Err(unavailable(format!(
         "{} did not open {} within 10 s",

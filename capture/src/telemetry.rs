@@ -6,8 +6,9 @@
 //!   words 1–2 time counter (ms), words 3–4 status bits (32-bit, least significant word first:
 //!   bits 4–5 of word 3 are the FFC state), words 20–21 frame counter, word 24 FPA temperature
 //!   in kelvin × 100 (centikelvin), words 30–31 time counter at the last FFC.
-//! - **s3tir simulated rig** (revision word `0x5333`, "S3"; layout of `firmware-sim`'s
-//!   `ThermalSensor::write_telemetry`): words 1–2 uptime ms (most significant word first),
+//! - **s3tir synthetic layout** (revision word `0x5333`, "S3"; what `firmware-sim` wrote before
+//!   it switched to FLIR's layout, and what [`crate::synth`] still writes, e.g. in the
+//!   committed test session): words 1–2 uptime ms (most significant word first),
 //!   word 3 status (bits 4–5 FFC state), words 4–5 frame counter, word 6 FPA centikelvin,
 //!   word 7 TLinear flag, words 8–9 ms since the last FFC.
 //!

@@ -15,7 +15,7 @@ use crate::session::{
 };
 
 /// Per-stream counts `info` reports.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct StreamInfo {
     pub frames: u64,
     /// Frames missing from sequence gaps.
@@ -25,6 +25,55 @@ pub struct StreamInfo {
     pub rejected: u64,
     /// Frames dropped by the recorder's full queue (a subset of `drops`).
     pub queue_drops: u64,
+    /// `drops − queue_drops`: sequence gaps the recorder does not account for, i.e. frames
+    /// lost at the device (sensor, driver, cable) or while it was disconnected.
+    pub source_drops: u64,
+    /// Sequence numbers from the first to the last recorded frame, inclusive: equals
+    /// `frames + drops` when every missing frame is accounted for.
+    pub sequence_span: u64,
+    /// Device time from the first to the last recorded frame, seconds.
+    pub span_s: f64,
+    /// Frame rate from the device's own stamps: `(sequence_span − 1) / span_s`.
+    pub rate_hz: f64,
+    /// Latest arrival relative to the device stamp, milliseconds, measured from the most
+    /// prompt frame (the wall and monotonic clocks' offset cancels): how far delivery fell
+    /// behind capture at worst (a device or simulator running late, a reader descheduled).
+    pub max_delivery_lag_ms: f64,
+}
+
+/// First/last sequence and stamps of one stream, and its delivery lag.
+#[derive(Debug, Clone, Copy, Default)]
+struct SpanAcc {
+    first: Option<(u32, u64)>,
+    last: Option<(u32, u64)>,
+    /// min and max of `wall − monotonic` (arrival minus stamp, plus a constant clock offset).
+    lag_ns: Option<(i128, i128)>,
+}
+
+impl SpanAcc {
+    fn add(&mut self, sequence: u32, monotonic_ns: u64, wall_unix_ns: u64) {
+        self.first.get_or_insert((sequence, monotonic_ns));
+        self.last = Some((sequence, monotonic_ns));
+        let d = i128::from(wall_unix_ns) - i128::from(monotonic_ns);
+        self.lag_ns = Some(
+            self.lag_ns
+                .map_or((d, d), |(lo, hi)| (lo.min(d), hi.max(d))),
+        );
+    }
+
+    fn finish(&self, st: &mut StreamInfo) {
+        st.source_drops = st.drops.saturating_sub(st.queue_drops);
+        if let (Some((s0, t0)), Some((s1, t1))) = (self.first, self.last) {
+            st.sequence_span = u64::from(s1.wrapping_sub(s0)) + 1;
+            st.span_s = t1.saturating_sub(t0) as f64 * 1e-9;
+            if st.span_s > 0.0 {
+                st.rate_hz = (st.sequence_span - 1) as f64 / st.span_s;
+            }
+        }
+        if let Some((lo, hi)) = self.lag_ns {
+            st.max_delivery_lag_ms = (hi - lo) as f64 * 1e-6;
+        }
+    }
 }
 
 /// What `s3tir-capture info` prints.
@@ -44,6 +93,11 @@ pub struct SessionSummary {
     pub frame_digest: String,
     pub thermal_device: String,
     pub attachments: Vec<String>,
+    /// Rig-controller trigger pulses recorded.
+    pub triggers: u64,
+    /// The last controller → camera clock map fitted over matched pulses (`null` when the
+    /// rig controller did not trigger): drift, and the sync residual of the pulses.
+    pub clock: Option<crate::clock_sync::ClockMap>,
 }
 
 /// 64-bit FNV-1a.
@@ -101,6 +155,7 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
     let mut t_max = 0u64;
     let mut last_status = StatusRecord::default();
     let mut digest = Digest::default();
+    let mut spans = [SpanAcc::default(); 2];
     let out = read_session(path, |item| {
         match item {
             SessionItem::Frame(f) => {
@@ -108,6 +163,11 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
                 digest.frame(&frame);
                 t_min = t_min.min(f.raw.monotonic_ns);
                 t_max = t_max.max(f.raw.monotonic_ns);
+                spans[usize::from(f.raw.stream == StreamKind::Rgb)].add(
+                    f.raw.sequence,
+                    f.raw.monotonic_ns,
+                    f.wall_unix_ns,
+                );
                 match &frame {
                     CapturedFrame::Thermal(t) => {
                         th.frames += 1;
@@ -125,6 +185,12 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
                 StreamKind::Rgb => rgb.drops += u64::from(d.missing),
             },
             SessionItem::Status(st) => last_status = st,
+            SessionItem::Trigger(_) => s.triggers += 1,
+            SessionItem::Clock(c) => {
+                if c.matched > 0 {
+                    s.clock = Some(c);
+                }
+            }
         }
         Ok(())
     })?;
@@ -133,6 +199,8 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
     th.queue_drops = last_status.queue_drops_thermal;
     rgb.queue_drops = last_status.queue_drops_rgb;
     s.reconnects = last_status.reconnects;
+    spans[0].finish(&mut th);
+    spans[1].finish(&mut rgb);
     s.streams.insert("thermal".into(), th);
     s.streams.insert("rgb".into(), rgb);
     s.duration_s = if t_max > t_min {
@@ -237,6 +305,18 @@ pub fn replay(
                 }
             }
             SessionItem::Drop(_) => {}
+            // Inputs of the pipeline, in their recorded order: the rough clock map and the
+            // pulses. Fitted maps are outputs: re-derived, not read.
+            SessionItem::Trigger(t) => {
+                let recs = pipe.push_trigger(t);
+                handle(recs, &mut digest, &mut produced_pairs, &mut writer)?;
+            }
+            SessionItem::Clock(c) => {
+                if c.matched == 0 {
+                    let recs = pipe.set_rough_clock(c);
+                    handle(recs, &mut digest, &mut produced_pairs, &mut writer)?;
+                }
+            }
         }
         Ok(())
     })?;

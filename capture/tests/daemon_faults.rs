@@ -47,6 +47,8 @@ fn config(socket: &std::path::Path, out: &std::path::Path, secs: f64) -> DaemonC
         calibration: None,
         slow_disk: None,
         ffc_poll: None,
+        trigger_poll: None,
+        rough_clock: None,
     }
 }
 

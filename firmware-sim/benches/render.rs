@@ -4,12 +4,15 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::{DQuat, DVec3};
+use rand::SeedableRng;
 use s3tir_calib::Rigid3;
 use s3tir_firmware_sim::board::{BoardSpec, BoardThermal};
 use s3tir_firmware_sim::physics::Radiometry;
 use s3tir_firmware_sim::render::{PlaneTexture, RayGrid, render_plane};
 use s3tir_firmware_sim::rig::{ThermalBoardTexture, VisibleBoardTexture};
-use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile, ThermalSensor};
+use s3tir_firmware_sim::sensor::{
+    LinearizedRadiance, RgbProfile, StaticRgbExposer, ThermalProfile, ThermalSensor, rgb_to_jpeg,
+};
 
 fn pose(board: &BoardSpec) -> Rigid3 {
     let (x0, y0, x1, y1) = board.extent_m();
@@ -83,6 +86,19 @@ fn bench(c: &mut Criterion) {
     let flat = vec![radiometry.radiance(300.0); 640 * 512];
     c.bench_function("boson640_sensor_frame", |b| {
         b.iter(|| sensor.next_frame(&flat))
+    });
+    // The live rig's per-frame work (`run`): the fast thermal path and one RGB frame.
+    let lin = LinearizedRadiance::new(&radiometry, &boson, &flat);
+    c.bench_function("boson640_sensor_frame_fast", |b| {
+        b.iter(|| sensor.next_frame_fast(&lin))
+    });
+    let rgb360 = RgbProfile::hd720().binned2();
+    let (rw, rh) = (rgb360.camera.width_px, rgb360.camera.height_px);
+    let refl = vec![0.5; (rw * rh) as usize];
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let exposer = StaticRgbExposer::new(&rgb360, &refl, [1.0, 0.97, 0.92], rw as usize, &mut rng);
+    c.bench_function("rgb360_live_frame_expose_and_jpeg", |b| {
+        b.iter(|| rgb_to_jpeg(&exposer.expose(&mut rng), rw, rh).unwrap())
     });
     c.bench_function("board_heat_model_60s", |b| {
         b.iter(|| thermal.clone().advance(60.0))

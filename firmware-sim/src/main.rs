@@ -50,6 +50,16 @@ enum RgbFormatArg {
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
+enum RgbSizeArg {
+    /// 640×360 (the 1280×720 camera binned 2×2): a quarter of the per-frame work.
+    #[value(name = "640x360")]
+    Binned,
+    /// 1280×720, the camera's full resolution (what `board` renders).
+    #[value(name = "1280x720")]
+    Full,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
 enum PolarityArg {
     /// Board at 25 °C moved into −20 °C surroundings (TGA-GS): coated squares look colder.
     Cooled,
@@ -108,9 +118,13 @@ enum Command {
         /// Thermal core.
         #[arg(long, value_enum, default_value = "lepton35")]
         profile: ProfileArg,
-        /// Also serve the RGB camera (1280×720 MJPEG at 30 Hz) on the same socket.
+        /// Also serve the RGB camera (MJPEG at 30 Hz, --rgb-size) on the same socket.
         #[arg(long)]
         rgb: bool,
+        /// RGB image size. 640×360 by default: the dev build keeps 30 Hz at that size on a
+        /// loaded machine (see firmware-sim/README.md, `run`).
+        #[arg(long, value_enum, default_value = "640x360")]
+        rgb_size: RgbSizeArg,
         /// Unix socket path to listen on (replaced if it exists).
         #[arg(long)]
         socket: PathBuf,
@@ -212,6 +226,7 @@ fn main() -> Result<()> {
         Command::Run {
             profile,
             rgb,
+            rgb_size,
             socket,
             duration,
             rgb_format,
@@ -226,10 +241,14 @@ fn main() -> Result<()> {
             let cfg = ServeConfig {
                 thermal,
                 rgb: rgb.then(|| {
-                    if low_light {
+                    let full = if low_light {
                         RgbProfile::hd720_low_light()
                     } else {
                         RgbProfile::hd720()
+                    };
+                    match rgb_size {
+                        RgbSizeArg::Full => full,
+                        RgbSizeArg::Binned => full.binned2(),
                     }
                 }),
                 rgb_format: match rgb_format {

@@ -50,10 +50,20 @@ pub fn in_band_radiance_exact(temp_k: f64, intervals: usize) -> f64 {
     sum * h / 3.0
 }
 
+/// Cells of the uniform-radiance index that speeds up [`Radiometry::temperature_k`].
+const HINT_CELLS: usize = 1 << 16;
+
 /// Tabulated in-band radiance and its inverse.
 #[derive(Debug, Clone)]
 pub struct Radiometry {
     table: Vec<f64>,
+    /// `hint[j]` = the table index `i` with `table[i] <= r < table[i + 1]` for the radiance
+    /// `r` at the start of uniform radiance cell `j`: the inverse starts its search there and
+    /// walks a few entries forward instead of a binary search over the whole table (the live
+    /// rig inverts every pixel of every frame). It finds the same `i`, so results are
+    /// bit-identical to the binary search.
+    hint: Vec<u32>,
+    hint_scale: f64,
 }
 
 impl Default for Radiometry {
@@ -68,8 +78,38 @@ impl Radiometry {
         let n = ((TABLE_MAX_K - TABLE_MIN_K) / TABLE_STEP_K).round() as usize + 1;
         let table = (0..n)
             .map(|i| in_band_radiance_exact(TABLE_MIN_K + TABLE_STEP_K * i as f64, 600))
+            .collect::<Vec<f64>>();
+        let (lo, hi) = (table[0], table[table.len() - 1]);
+        let hint_scale = HINT_CELLS as f64 / (hi - lo);
+        let hint = (0..=HINT_CELLS)
+            .map(|j| {
+                let r = lo + j as f64 / hint_scale;
+                (table.partition_point(|&v| v <= r).saturating_sub(1)) as u32
+            })
             .collect();
-        Self { table }
+        Self {
+            table,
+            hint,
+            hint_scale,
+        }
+    }
+
+    /// The table index `i` with `table[i] <= radiance < table[i + 1]` (`radiance` strictly
+    /// inside the table range), found from the uniform-radiance hint.
+    fn bracket(&self, radiance: f64) -> usize {
+        let t = &self.table;
+        let last = t.len() - 1;
+        let j = (((radiance - t[0]) * self.hint_scale) as usize).min(self.hint.len() - 1);
+        // The hint is exact at the cell start; radiance at or after it can only move forward.
+        // Rounding of the cell index may land one cell late: step back while needed.
+        let mut i = self.hint[j] as usize;
+        while i > 0 && t[i] > radiance {
+            i -= 1;
+        }
+        while i + 1 < last && t[i + 1] <= radiance {
+            i += 1;
+        }
+        i.min(last - 1)
     }
 
     /// Black-body in-band radiance at `temp_k`, W/(m²·sr). Clamped to the table range
@@ -97,11 +137,7 @@ impl Radiometry {
         if radiance >= t[last] {
             return TABLE_MAX_K;
         }
-        // Binary search for t[i] <= radiance < t[i+1].
-        let i = t
-            .partition_point(|&v| v <= radiance)
-            .saturating_sub(1)
-            .min(last - 1);
+        let i = self.bracket(radiance);
         let f = (radiance - t[i]) / (t[i + 1] - t[i]);
         TABLE_MIN_K + TABLE_STEP_K * (i as f64 + f)
     }
@@ -149,6 +185,33 @@ mod tests {
             );
             let back = r.temperature_k(got);
             assert!((back - t).abs() < 1e-3, "T(L({t})) = {back}");
+        }
+    }
+
+    #[test]
+    fn hinted_inverse_finds_the_same_bracket_as_a_binary_search() {
+        use rand::{Rng, SeedableRng};
+        let r = Radiometry::new();
+        let (lo, hi) = (r.table[0], r.table[r.table.len() - 1]);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut probes: Vec<f64> = (0..200_000).map(|_| rng.random_range(lo..hi)).collect();
+        // Exactly on table entries and on hint-cell starts too.
+        probes.extend(r.table[1..r.table.len() - 1].iter().copied());
+        probes.extend(
+            (1..HINT_CELLS)
+                .step_by(97)
+                .map(|j| lo + j as f64 / r.hint_scale),
+        );
+        for l in probes {
+            if l <= lo || l >= hi {
+                continue;
+            }
+            let want = r
+                .table
+                .partition_point(|&v| v <= l)
+                .saturating_sub(1)
+                .min(r.table.len() - 2);
+            assert_eq!(r.bracket(l), want, "radiance {l}: hinted vs binary search");
         }
     }
 

@@ -182,6 +182,8 @@ pub struct ThermalSensor {
     ffc_remaining: u32,
     ffc_ever: bool,
     last_words: Option<Vec<u16>>,
+    /// Standard normals for [`ThermalSensor::expose_fast`] (filled on first use).
+    noise_table: Vec<f32>,
     /// Focal-plane temperature, kelvin (reported over FSLP and telemetry).
     pub fpa_temp_k: f64,
 }
@@ -202,6 +204,7 @@ impl ThermalSensor {
             ffc_remaining: 0,
             ffc_ever: false,
             last_words: None,
+            noise_table: Vec::new(),
             fpa_temp_k: 306.15,
         }
     }
@@ -234,6 +237,17 @@ impl ThermalSensor {
 
     /// Produces the next frame from a `width × height` radiance image (already blurred).
     pub fn next_frame(&mut self, radiance: &[f64]) -> ThermalOutput {
+        self.next_frame_with(|s| s.expose(radiance))
+    }
+
+    /// [`ThermalSensor::next_frame`] for the live rig: the same FFC, drop, fixed-pattern and
+    /// telemetry behaviour, but noise from a table and a linearised radiance → output map
+    /// ([`LinearizedRadiance`], [`ThermalSensor::expose_fast`]), ~10× cheaper per pixel.
+    pub fn next_frame_fast(&mut self, lin: &LinearizedRadiance) -> ThermalOutput {
+        self.next_frame_with(|s| s.expose_fast(lin))
+    }
+
+    fn next_frame_with(&mut self, expose: impl FnOnce(&mut Self) -> Vec<u16>) -> ThermalOutput {
         let p = self.profile;
         let dt = 1.0 / p.rate_hz;
         self.time_s += dt;
@@ -267,7 +281,7 @@ impl ThermalSensor {
                 });
             }
         }
-        let words = self.expose(radiance);
+        let words = expose(self);
         self.last_words = Some(words.clone());
         if dropped {
             return ThermalOutput::Dropped { sequence };
@@ -306,7 +320,47 @@ impl ThermalSensor {
         words
     }
 
-    /// Fills the telemetry rows (layout in firmware-sim/README.md).
+    /// Noise and fixed pattern on a linearised radiance map: output = base + gain·(radiance
+    /// noise + fixed-pattern offset). Temporal noise comes from a table of 2²⁰ standard normals
+    /// (drawn once from the sensor's generator) read from a random offset per row, as
+    /// [`StaticRgbExposer`] does. Telemetry rows are zero.
+    pub fn expose_fast(&mut self, lin: &LinearizedRadiance) -> Vec<u16> {
+        let p = self.profile;
+        let (w, h) = (p.camera.width_px as usize, p.camera.height_px as usize);
+        if self.noise_table.is_empty() {
+            self.noise_table = (0..NOISE_TABLE_LEN)
+                .map(|_| {
+                    let n: f64 = StandardNormal.sample(&mut self.rng);
+                    n as f32
+                })
+                .collect();
+        }
+        let slope = lin.slope_at_reference;
+        let noise_l = (p.netd_k * slope) as f32;
+        let fpn_l = (self.fpn_sigma_k() * slope) as f32;
+        let mut words = vec![0u16; w * p.output_height() as usize];
+        let mask = NOISE_TABLE_LEN - 1;
+        for y in 0..h.min(lin.base.len() / w.max(1)) {
+            let start = self.rng.random::<u32>() as usize & mask;
+            let row = y * w..(y + 1) * w;
+            for (x, ((out, (b, g)), f)) in words[row.clone()]
+                .iter_mut()
+                .zip(lin.base[row.clone()].iter().zip(&lin.gain[row.clone()]))
+                .zip(&self.fpn_pattern[row])
+                .enumerate()
+            {
+                let n = self.noise_table[(start + x) & mask];
+                let v = b + g * (noise_l * n + fpn_l * *f as f32);
+                // v ≥ 0 after the clamp: +0.5 and truncation round half away from zero.
+                *out = (v.clamp(0.0, 65535.0) + 0.5) as u16;
+            }
+        }
+        words
+    }
+
+    /// Fills the telemetry rows in FLIR's Lepton 3.5 "telemetry row A" layout (Lepton
+    /// Engineering Datasheet; table in firmware-sim/README.md): 32-bit values least
+    /// significant word first, other words zero.
     fn write_telemetry(&self, words: &mut [u16], frozen: bool) {
         let p = self.profile;
         if p.telemetry_rows == 0 {
@@ -315,22 +369,81 @@ impl ThermalSensor {
         let base = (p.camera.width_px * p.camera.height_px) as usize;
         let uptime_ms = (self.time_s * 1000.0) as u32;
         let since_ffc_ms = (self.time_since_ffc_s * 1000.0) as u32;
-        let row = [
-            0x5333u16,
-            (uptime_ms >> 16) as u16,
-            uptime_ms as u16,
-            ffc_bits(frozen, self.ffc_ever),
-            (self.frames_out >> 16) as u16,
-            self.frames_out as u16,
-            (self.fpa_temp_k * 100.0).round() as u16,
-            u16::from(p.units == ThermalUnits::CentiKelvin),
-            (since_ffc_ms >> 16) as u16,
-            since_ffc_ms as u16,
+        let fpa_ck = (self.fpa_temp_k * 100.0).round() as u16;
+        let image = &words[..base.min(words.len())];
+        let mean = if image.is_empty() {
+            0
+        } else {
+            (image.iter().map(|&v| u64::from(v)).sum::<u64>() / image.len() as u64) as u16
+        };
+        let lsw = |v: u32| v as u16;
+        let msw = |v: u32| (v >> 16) as u16;
+        let at_ffc_ms = uptime_ms.saturating_sub(since_ffc_ms);
+        let row: [(usize, u16); 14] = [
+            (0, LEPTON_TELEMETRY_REVISION),
+            (1, lsw(uptime_ms)),
+            (2, msw(uptime_ms)),
+            (3, ffc_bits(frozen, self.ffc_ever)),
+            (20, lsw(self.frames_out)),
+            (21, msw(self.frames_out)),
+            (22, mean),
+            (24, fpa_ck),
+            // Housing temperature: the simulator has one temperature for the core.
+            (26, fpa_ck),
+            (29, fpa_ck),
+            (30, lsw(at_ffc_ms)),
+            (31, msw(at_ffc_ms)),
+            (32, fpa_ck),
+            (4, 0),
         ];
-        for (k, v) in row.iter().enumerate() {
+        for (k, v) in row {
             if let Some(slot) = words.get_mut(base + k) {
-                *slot = *v;
+                *slot = v;
             }
+        }
+    }
+}
+
+/// Telemetry revision word the simulated Lepton writes (row A word 0).
+pub const LEPTON_TELEMETRY_REVISION: u16 = 0x000E;
+
+/// A blurred radiance image linearised for [`ThermalSensor::next_frame_fast`]: per pixel, the
+/// output value (TLinear centikelvin or raw counts) of its noise-free radiance and the output's
+/// derivative with respect to radiance there. Noise of NETD size (and fixed pattern up to
+/// 0.6 K) moves the radiance so little that the first-order map errs by < 0.001 K against the
+/// exact table inversion [`ThermalSensor::next_frame`] does.
+#[derive(Debug, Clone)]
+pub struct LinearizedRadiance {
+    base: Vec<f32>,
+    gain: Vec<f32>,
+    slope_at_reference: f64,
+}
+
+impl LinearizedRadiance {
+    pub fn new(radiometry: &Radiometry, profile: &ThermalProfile, radiance: &[f64]) -> Self {
+        let slope_ref = radiometry.radiance_slope(NETD_REFERENCE_K);
+        let (base, gain) = radiance
+            .iter()
+            .map(|&l| match profile.units {
+                ThermalUnits::CentiKelvin => {
+                    let t = radiometry.temperature_k(l);
+                    let s = radiometry.radiance_slope(t);
+                    ((t * 100.0) as f32, (100.0 / s) as f32)
+                }
+                ThermalUnits::RawCounts => {
+                    let l_ref = radiometry.radiance(NETD_REFERENCE_K);
+                    let g = profile.raw_counts_per_k / slope_ref;
+                    (
+                        (profile.raw_counts_at_reference + (l - l_ref) * g) as f32,
+                        g as f32,
+                    )
+                }
+            })
+            .unzip();
+        Self {
+            base,
+            gain,
+            slope_at_reference: slope_ref,
         }
     }
 }
@@ -398,6 +511,30 @@ impl RgbProfile {
             ..Self::hd720()
         }
     }
+
+    /// The same camera read out at 640×360 (2×2 binning): intrinsics halved about the
+    /// pixel-centre origin (`c' = (c + ½)/2 − ½`), distortion unchanged (it acts on normalised
+    /// coordinates). The live rig's default RGB size: a quarter of the pixels to expose and
+    /// JPEG-encode every frame.
+    pub fn binned2(self) -> Self {
+        let i = self.camera.intrinsics;
+        let half = |c: f64| (c + 0.5) / 2.0 - 0.5;
+        Self {
+            camera: CameraModel {
+                width_px: self.camera.width_px / 2,
+                height_px: self.camera.height_px / 2,
+                intrinsics: Intrinsics {
+                    fx: i.fx / 2.0,
+                    fy: i.fy / 2.0,
+                    cx: half(i.cx),
+                    cy: half(i.cy),
+                },
+                distortion: self.camera.distortion,
+            },
+            psf_sigma_px: self.psf_sigma_px / 2.0,
+            ..self
+        }
+    }
 }
 
 /// sRGB transfer function of a linear value in [0, 1].
@@ -449,6 +586,90 @@ pub fn expose_rgb_channels(
         }
     }
     out
+}
+
+/// Length of the standard-normal table of [`StaticRgbExposer`] (a power of two).
+const NOISE_TABLE_LEN: usize = 1 << 20;
+
+/// Per-frame exposure of a *static* scene for the live rig (`run`), an order of magnitude
+/// cheaper than [`expose_rgb`]: the mean signal and the noise σ of every sample are computed
+/// once, and the per-frame noise is read from a table of 2²⁰ standard normals starting at a
+/// random offset per image row (one draw per row instead of one per sample). Every sample's
+/// noise is still N(0, σ²) and frames differ, but rows are not independent draws: samples a
+/// row apart may reuse a stretch of the table. Used only for the live stream, never for
+/// datasets with ground truth (`board`, `scene` use [`expose_rgb`]).
+#[derive(Debug, Clone)]
+pub struct StaticRgbExposer {
+    mean_e: Vec<f32>,
+    sigma_e: Vec<f32>,
+    noise: Vec<f32>,
+    /// Linear signal (fraction of full well) in 1/`LUT_STEPS` steps → 8-bit sRGB.
+    lut: Vec<u8>,
+    /// Samples per row (width × 3).
+    row_len: usize,
+    inv_full_well: f32,
+}
+
+impl StaticRgbExposer {
+    const LUT_STEPS: usize = 1 << 16;
+
+    /// Precomputes the exposure of `reflectance` (one value per pixel) tinted per channel.
+    pub fn new(
+        profile: &RgbProfile,
+        reflectance: &[f64],
+        tint: [f64; 3],
+        width: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Self {
+        let read_var = profile.read_noise_e * profile.read_noise_e;
+        let mut mean_e = Vec::with_capacity(reflectance.len() * 3);
+        let mut sigma_e = Vec::with_capacity(reflectance.len() * 3);
+        for v in reflectance {
+            for t in tint {
+                let e = v * t * profile.exposure * profile.full_well_e;
+                mean_e.push(e as f32);
+                sigma_e.push((e.max(0.0) + read_var).sqrt() as f32);
+            }
+        }
+        let noise = (0..NOISE_TABLE_LEN)
+            .map(|_| {
+                let n: f64 = StandardNormal.sample(rng);
+                n as f32
+            })
+            .collect();
+        let lut = (0..=Self::LUT_STEPS)
+            .map(|k| (srgb_encode(k as f64 / Self::LUT_STEPS as f64) * 255.0).round() as u8)
+            .collect();
+        Self {
+            mean_e,
+            sigma_e,
+            noise,
+            lut,
+            row_len: width * 3,
+            inv_full_well: (1.0 / profile.full_well_e) as f32,
+        }
+    }
+
+    /// One noisy frame, packed 8-bit sRGB.
+    pub fn expose(&self, rng: &mut ChaCha8Rng) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.mean_e.len());
+        let mask = NOISE_TABLE_LEN - 1;
+        let steps = Self::LUT_STEPS as f32;
+        for (m_row, s_row) in self
+            .mean_e
+            .chunks(self.row_len.max(1))
+            .zip(self.sigma_e.chunks(self.row_len.max(1)))
+        {
+            let start = rng.random::<u32>() as usize & mask;
+            for (k, (m, s)) in m_row.iter().zip(s_row).enumerate() {
+                let n = self.noise[(start + k) & mask];
+                let signal = ((m + s * n) * self.inv_full_well).clamp(0.0, 1.0);
+                // signal ≥ 0: +0.5 and truncation round half away from zero, as `round`.
+                out.push(self.lut[(signal * steps + 0.5) as usize]);
+            }
+        }
+        out
+    }
 }
 
 /// Packed RGB → YUYV 4:2:2 (BT.601, limited range). `width` must be even.

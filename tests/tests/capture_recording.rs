@@ -8,9 +8,10 @@
 //! chunk (≤ ~1 s lost) and `info` says it was truncated; `--device sim` with no rig running
 //! tries the `s3tir-firmware-sim` installed beside it and stops it at exit.
 //!
-//! The rig is the in-process `FakeRig` (synthetic buffers over the real simwire socket):
-//! `s3tir-firmware-sim run` was not available when these were written. It does NOT test
-//! physical plausibility of frames, nor real V4L2 devices.
+//! The rig is the in-process `FakeRig` (synthetic buffers over the real simwire socket, a
+//! source fully under the test's control); `capture_sim_rig.rs` records the same 10 s from the
+//! real `s3tir-firmware-sim run`. It does NOT test physical plausibility of frames, nor real
+//! V4L2 devices.
 #![allow(clippy::unwrap_used)]
 
 use std::process::{Command, Stdio};
