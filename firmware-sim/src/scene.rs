@@ -2,18 +2,25 @@
 //!
 //! World frame: x east, y north, z up, metres; the ground is the plane z = 0.
 //! Objects (all grey bodies reflecting surroundings at [`ENV_K`]):
-//! - ground plane, |x|, |y| ≤ 2 m, 291 K, ε 0.95 (RGB: two-tone 0.2 m tiles);
-//! - heated pipe: cylinder along x from −0.6 to 0.6 m, radius 5 cm, axis at y = 0.3 m,
-//!   z = 0.25 m, ε 0.9, temperature falling linearly from 333 K (x = −0.6) to 303 K (x = 0.6);
+//! - ground plane, |x|, |y| ≤ 2 m, 291 K, ε 0.95 (RGB: two-tone 0.2 m tiles), with an
+//!   underfloor heating pipe along y at x = 0.7 m whose heat reaches the floor surface by
+//!   conduction as a smooth warm stripe, 291 K + 9 K·exp(−((x − 0.7 m)/0.12 m)²) (no edge of any
+//!   kind: diffusion);
+//! - heated pipe: cylinder along x from −0.6 to 0.6 m, radius 15 cm (an insulated heating
+//!   main), axis at y = 0.3 m, z = 0.3 m (15 cm clear of the ground), ε 0.9, temperature falling
+//!   linearly from 333 K (x = −0.6) to 303 K (x = 0.6): apparent temperature smooth across its
+//!   surface (constant ε), so its interior, ~10 px wide at 64 px image width, is a smooth region
+//!   and only its outline is an edge;
 //! - box 0.3 m cube centred at (0, −0.35, 0.15), 313 K everywhere, painted (ε 0.95) for x < 0,
 //!   bare metal (ε 0.12) for x ≥ 0: a sharp apparent-temperature edge on a uniform temperature;
-//! - radiator panel: vertical rectangle y = 0.8 m, x ∈ [−0.45, 0.45], z ∈ [0.05, 0.65], fins
+//! - radiator panel: vertical rectangle x = −0.9 m, y ∈ [−0.45, 0.45], z ∈ [0.05, 0.65], fins
 //!   every 6 cm (318 ± 4 K), ε 0.93.
 //!
 //! Rays that hit nothing see a background at [`BACKGROUND_K`] (black body).
 //!
 //! Cameras: pinhole without distortion (COLMAP `PINHOLE`), on an orbit of radius 1.6 m at
-//! height 0.9 m around (0, 0, 0.15), all looking at that point; 57° horizontal field of view.
+//! height 0.9 m around (0, 0, 0.15), all looking at that point, the first at azimuth
+//! π/2 + 0.1 rad (near the +y axis: the pipe side-on); 57° horizontal field of view.
 
 use std::fs;
 use std::io::Write;
@@ -58,15 +65,48 @@ pub struct SurfaceHit {
     pub albedo: [f64; 3],
     /// Unit normal facing the ray origin (world frame).
     pub normal: DVec3,
+    /// The object hit.
+    pub object: SceneObject,
 }
 
-const PIPE_X: (f64, f64) = (-0.6, 0.6);
-const PIPE_R: f64 = 0.05;
-const PIPE_YZ: (f64, f64) = (0.3, 0.25);
-const BOX_C: DVec3 = DVec3::new(0.0, -0.35, 0.15);
-const BOX_H: f64 = 0.15;
-const RAD_Y: f64 = 0.8;
-const RAD_X: (f64, f64) = (-0.45, 0.45);
+/// Which object a ray hit (ground truth for masks in tests and tools).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneObject {
+    Ground,
+    /// The pipe's cylindrical side.
+    PipeSide,
+    /// One of the pipe's two end caps.
+    PipeCap,
+    /// The box: painted (x < [`BOX_C`].x) or bare metal.
+    Box,
+    Radiator,
+}
+
+/// Pipe extent along x, metres.
+pub const PIPE_X: (f64, f64) = (-0.6, 0.6);
+/// Pipe radius, metres.
+pub const PIPE_R: f64 = 0.15;
+/// Pipe axis (y, z), metres.
+pub const PIPE_YZ: (f64, f64) = (0.3, 0.3);
+/// Box centre, metres; the emissivity edge is the plane x = `BOX_C.x`.
+pub const BOX_C: DVec3 = DVec3::new(0.0, -0.35, 0.15);
+/// Box half-size, metres.
+pub const BOX_H: f64 = 0.15;
+/// Underfloor heating pipe: the floor's warm stripe is centred on x = `FLOOR_PIPE_X`, metres.
+pub const FLOOR_PIPE_X: f64 = 0.7;
+/// Width parameter σ of the warm stripe `exp(−((x − FLOOR_PIPE_X)/σ)²)`, metres.
+pub const FLOOR_PIPE_SIGMA: f64 = 0.12;
+/// Peak warming of the floor surface above the pipe, kelvin.
+pub const FLOOR_PIPE_PEAK_K: f64 = 9.0;
+
+/// Floor surface temperature at `x` (291 K plus the underfloor pipe's stripe).
+pub fn floor_temp_k(x: f64) -> f64 {
+    291.0 + FLOOR_PIPE_PEAK_K * (-((x - FLOOR_PIPE_X) / FLOOR_PIPE_SIGMA).powi(2)).exp()
+}
+// The radiator stands off the pipe's hot end (plane x = RAD_X, facing +x), clear of the lines
+// of sight of the views from ±y that see the pipe side-on.
+const RAD_X: f64 = -0.9;
+const RAD_Y: (f64, f64) = (-0.45, 0.45);
 const RAD_Z: (f64, f64) = (0.05, 0.65);
 
 fn pipe_temp_k(x: f64) -> f64 {
@@ -74,8 +114,8 @@ fn pipe_temp_k(x: f64) -> f64 {
     333.0 - 30.0 * f
 }
 
-fn radiator_temp_k(x: f64) -> f64 {
-    318.0 + 4.0 * (2.0 * std::f64::consts::PI * x / 0.06).cos()
+fn radiator_temp_k(y: f64) -> f64 {
+    318.0 + 4.0 * (2.0 * std::f64::consts::PI * y / 0.06).cos()
 }
 
 fn face(n: DVec3, d: DVec3) -> DVec3 {
@@ -99,10 +139,11 @@ pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
             let a = if tile { 0.30 } else { 0.38 };
             consider(SurfaceHit {
                 t,
-                temp_k: 291.0,
+                temp_k: floor_temp_k(p.x),
                 emissivity: 0.95,
                 albedo: [a, a * 0.95, a * 0.85],
                 normal: face(DVec3::Z, d),
+                object: SceneObject::Ground,
             });
         }
     }
@@ -127,6 +168,7 @@ pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
                         emissivity: 0.9,
                         albedo: [0.55, 0.25, 0.12],
                         normal: face(n, d),
+                        object: SceneObject::PipeSide,
                     });
                     break;
                 }
@@ -145,6 +187,7 @@ pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
                     emissivity: 0.9,
                     albedo: [0.45, 0.2, 0.1],
                     normal: face(DVec3::X, d),
+                    object: SceneObject::PipeCap,
                 });
             }
         }
@@ -187,20 +230,22 @@ pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
                 [0.6, 0.6, 0.62]
             },
             normal: face(n, d),
+            object: SceneObject::Box,
         });
     }
     // Radiator panel (double-sided).
-    if d.y.abs() > 1e-12 {
-        let t = (RAD_Y - o.y) / d.y;
+    if d.x.abs() > 1e-12 {
+        let t = (RAD_X - o.x) / d.x;
         let p = o + d * t;
-        if p.x >= RAD_X.0 && p.x <= RAD_X.1 && p.z >= RAD_Z.0 && p.z <= RAD_Z.1 {
-            let fin = 0.75 + 0.1 * (2.0 * std::f64::consts::PI * p.x / 0.06).cos();
+        if p.y >= RAD_Y.0 && p.y <= RAD_Y.1 && p.z >= RAD_Z.0 && p.z <= RAD_Z.1 {
+            let fin = 0.75 + 0.1 * (2.0 * std::f64::consts::PI * p.y / 0.06).cos();
             consider(SurfaceHit {
                 t,
-                temp_k: radiator_temp_k(p.x),
+                temp_k: radiator_temp_k(p.y),
                 emissivity: 0.93,
                 albedo: [fin, fin, fin * 0.97],
-                normal: face(DVec3::Y, d),
+                normal: face(DVec3::X, d),
+                object: SceneObject::Radiator,
             });
         }
     }
@@ -221,7 +266,12 @@ pub fn orbit(n: usize) -> Vec<Rigid3> {
     let target = DVec3::new(0.0, 0.0, 0.15);
     (0..n)
         .map(|k| {
-            let a = 2.0 * std::f64::consts::PI * k as f64 / n.max(1) as f64 + 0.3;
+            // View 0 sits near the +y axis (0.1 rad past it), so it and view n/2 (the trainer's
+            // default hold-out of every 8th view, for n = 16) see the pipe from the side, the
+            // box's emissivity edge face-on.
+            let a = 2.0 * std::f64::consts::PI * k as f64 / n.max(1) as f64
+                + std::f64::consts::FRAC_PI_2
+                + 0.1;
             let eye = DVec3::new(1.6 * a.cos(), 1.6 * a.sin(), 0.9);
             look_at(eye, target)
         })
@@ -377,8 +427,8 @@ pub fn sample_surface_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, 
             }
             _ => {
                 let p = DVec3::new(
-                    rng.random_range(RAD_X.0..RAD_X.1),
-                    RAD_Y,
+                    RAD_X,
+                    rng.random_range(RAD_Y.0..RAD_Y.1),
                     rng.random_range(RAD_Z.0..RAD_Z.1),
                 );
                 (p, [0.75; 3])
@@ -599,7 +649,86 @@ pub fn write_scene_set(
     Ok(())
 }
 
+/// What the centre ray of each pixel of a scene view hits (row-major, `None`: background), with
+/// the world point hit: the ground truth tests build object masks from.
+pub fn pixel_hits(cam: &CameraModel, cam_from_world: &Rigid3) -> Vec<Option<(SceneObject, DVec3)>> {
+    let grid = RayGrid::new(cam);
+    let world_from_cam = cam_from_world.inverse();
+    let eye = world_from_cam.translation_m;
+    let (w, h) = (grid.width(), grid.height());
+    let mut out = Vec::with_capacity(w * h);
+    for v in 0..h {
+        for u in 0..w {
+            let d = world_from_cam.transform_vector(grid.centre_ray(u, v));
+            out.push(trace(eye, d).map(|s| (s.object, eye + d * s.t)));
+        }
+    }
+    out
+}
+
 /// Projects a world point into a scene view (for tests and tools): pixel, OpenCV convention.
 pub fn project_world(cam: &CameraModel, cam_from_world: &Rigid3, p: DVec3) -> Option<DVec2> {
     cam.project(cam_from_world.transform_point(p))
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// Pipe-side pixels of a view whose 5×5 neighbourhood is all pipe side (the interior).
+    fn pipe_interior(hits: &[Option<(SceneObject, DVec3)>], w: usize, h: usize) -> usize {
+        let side = |x: i64, y: i64| {
+            x >= 0
+                && y >= 0
+                && (x as usize) < w
+                && (y as usize) < h
+                && matches!(
+                    hits[y as usize * w + x as usize],
+                    Some((SceneObject::PipeSide, _))
+                )
+        };
+        (0..h as i64)
+            .flat_map(|y| (0..w as i64).map(move |x| (x, y)))
+            .filter(|&(x, y)| (-2..=2).all(|dy| (-2..=2).all(|dx| side(x + dx, y + dy))))
+            .count()
+    }
+
+    /// Proves the geometry the trainer's end-to-end test relies on: at 64×48 with 16 views, the
+    /// held-out views 0 and 8 see a pipe interior (2 px clear of its outline) of many pixels,
+    /// view 8 sees the box's emissivity edge, and the pipe's interior is smooth in apparent
+    /// temperature (grey body of constant ε at a temperature linear in x).
+    #[test]
+    fn held_out_views_see_the_pipe_interior_and_the_box_edge() {
+        let cam = scene_camera(64, 48);
+        let poses = orbit(16);
+        let v0 = pixel_hits(&cam, &poses[0]);
+        let v8 = pixel_hits(&cam, &poses[8]);
+        let (n0, n8) = (pipe_interior(&v0, 64, 48), pipe_interior(&v8, 64, 48));
+        assert!(
+            n0 >= 150 && n8 >= 40,
+            "pipe interior px: view 0 {n0}, view 8 {n8}"
+        );
+        let edge = v8
+            .iter()
+            .filter(|h| matches!(h, Some((SceneObject::Box, p)) if (p.x - BOX_C.x).abs() < 0.03))
+            .count();
+        assert!(edge >= 10, "box edge px in view 8: {edge}");
+        // The pipe's surface temperature is the linear profile along x.
+        for (obj, p) in v0.iter().flatten() {
+            if *obj == SceneObject::PipeSide {
+                let r = ((p.y - PIPE_YZ.0).powi(2) + (p.z - PIPE_YZ.1).powi(2)).sqrt();
+                assert!(
+                    (r - PIPE_R).abs() < 1e-9,
+                    "hit point {p} off the pipe surface"
+                );
+                let t = pipe_temp_k(p.x);
+                assert!(
+                    (303.0..=333.0).contains(&t),
+                    "pipe temperature {t} K at x {}",
+                    p.x
+                );
+            }
+        }
+    }
 }

@@ -147,6 +147,8 @@ void main() {
         float beta = views[i].cmm_beta.w;
         float omega = views[i].b0.w;
         float half_beta = 0.5 * beta;
+        uint live = uint(views[i].b1.w);
+        bool frozen = views[i].b2.w != 0.0;
         vec4 bbox = views[i].bbox;
         bool in_cols = float(x) >= bbox.x && float(x) <= bbox.z;
 
@@ -203,7 +205,7 @@ void main() {
         // cos and sin of the first CACHED_BANDS bands' phases, reused by the gradients.
         float c_th[PIX * CACHED_BANDS];
         float s_th[PIX * CACHED_BANDS];
-        for (uint j = 0u; j < m; ++j) {
+        for (uint j = 0u; j < live; ++j) {
             BandView bv = bands[m * i + j];
             for (uint r = 0u; r < PIX; ++r) {
                 if (valid[r]) {
@@ -238,7 +240,7 @@ void main() {
 
         // Spectrum: omega_low, then per band amplitude, theta0 and sum g_theta t p.
         put(14u, sum_omega);
-        for (uint j = 0u; j < m; ++j) {
+        for (uint j = 0u; j < live; ++j) {
             BandView bv = bands[m * i + j];
             float amp = bv.amp.x;
             float g_amp = 0.0, g_th = 0.0;
@@ -283,7 +285,7 @@ void main() {
                 // d(q^(beta/2))/dq = (beta/2) q^(beta/2 - 1) = (beta/2) mb / q
                 float dmb_dq = q[r] > 0.0 ? half_beta * mb[r] / q[r] : (half_beta == 1.0 ? 1.0 : 0.0);
                 g_q = -g_s * sv[r] * dmb_dq;
-                if (q[r] > 0.0) {
+                if (q[r] > 0.0 && !frozen) {
                     g_beta += -g_s * sv[r] * mb[r] * 0.5 * log(q[r]);
                 }
             }

@@ -46,9 +46,9 @@ uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
 
 // One primitive as seen from the current view (128 bytes).
 struct PrimView {
-    vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p; b0.w = omega_low
-    vec4 b1;
-    vec4 b2;
+    vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p; b0.w = omega_low,
+    vec4 b1;        // b1.w = live bands (the band loops run over j < live),
+    vec4 b2;        // b2.w = 1 for a beta frozen on the Gaussian path (no beta gradient), else 0
     vec4 a_opacity; // a = N (c - mu), opacity
     vec4 cmm_beta;  // c - mu, beta
     vec4 misc;      // psi_high, camera depth of mu, visible (0/1), q_max (see QMAX_MARGIN)

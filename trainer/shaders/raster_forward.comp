@@ -122,8 +122,9 @@ void main() {
                     continue;
                 }
                 float omega = views[i].b0.w;
+                uint live = uint(views[i].b1.w);
                 float pre = omega;
-                for (uint j = 0u; j < m; ++j) {
+                for (uint j = 0u; j < live; ++j) {
                     BandView bv = bands[m * i + j];
                     pre += bv.amp.x * cos(bv.g_theta0.w + t * dot(bv.g_theta0.xyz, p[r]));
                 }

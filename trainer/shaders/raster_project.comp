@@ -18,6 +18,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Views { PrimView views[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer TileCounts { uint tile_counts[]; };
 layout(std430, set = 0, binding = 4) writeonly buffer Bands { BandView bands[]; };
+layout(std430, set = 0, binding = 5) readonly buffer BandCount { uint band_count[]; };
 
 layout(push_constant) uniform Push {
     uint n;
@@ -70,8 +71,13 @@ void main() {
     float opacity = 1.0 / (1.0 + exp(-logit));
     float raw = params[off_beta(n, m) + i];
     float beta = min(2.0 + max(raw, 0.0) + log(1.0 + exp(-abs(raw))), BETA_MAX);
+    // Live bands (capacity adaptation drops the others: they hold zeros and take no part).
+    uint live = min(band_count[i], m);
+    // beta_raw of a primitive frozen on the Gaussian path (primitive.rs BETA_RAW_FROZEN, -1e30):
+    // beta = 2 exactly and no beta gradient; the backward pass skips that term.
+    bool frozen = raw <= -5.0e29;
     float psi_high = 0.0;
-    for (uint j = 0u; j < m; ++j) {
+    for (uint j = 0u; j < live; ++j) {
         psi_high += abs(params[off_band_amp(n, m) + m * i + j]);
     }
 
@@ -134,8 +140,8 @@ void main() {
     PrimView v;
     // Rows of B for B p: store B's rows (B is column-major: row k = (B[0][k], B[1][k], B[2][k])).
     v.b0 = vec4(B[0][0], B[1][0], B[2][0], params[off_omega_low(n, m) + i]);
-    v.b1 = vec4(B[0][1], B[1][1], B[2][1], 0.0);
-    v.b2 = vec4(B[0][2], B[1][2], B[2][2], 0.0);
+    v.b1 = vec4(B[0][1], B[1][1], B[2][1], float(live));
+    v.b2 = vec4(B[0][2], B[1][2], B[2][2], frozen ? 1.0 : 0.0);
     v.a_opacity = vec4(a, opacity);
     v.cmm_beta = vec4(c - mu, beta);
     float cut = log(255.0 * opacity);

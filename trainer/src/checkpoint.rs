@@ -46,6 +46,10 @@ pub struct PrimitivesData {
     pub band_freq: Vec<f32>,
     pub band_phase: Vec<f32>,
     pub sh: Vec<f32>,
+    /// Live bands per primitive (missing in checkpoints written before the mask existed: then
+    /// every slot is live).
+    #[serde(default)]
+    pub band_count: Vec<u32>,
 }
 
 impl From<&Primitives<f32>> for PrimitivesData {
@@ -63,12 +67,18 @@ impl From<&Primitives<f32>> for PrimitivesData {
             band_freq: p.band_freq.clone(),
             band_phase: p.band_phase.clone(),
             sh: p.sh.clone(),
+            band_count: p.band_count.clone(),
         }
     }
 }
 
 impl From<PrimitivesData> for Primitives<f32> {
     fn from(d: PrimitivesData) -> Self {
+        let band_count = if d.band_count.is_empty() {
+            vec![u32::try_from(d.bands).unwrap_or(u32::MAX); d.opacity_logits.len()]
+        } else {
+            d.band_count
+        };
         Self {
             bands: d.bands,
             sh_degree: d.sh_degree,
@@ -82,6 +92,7 @@ impl From<PrimitivesData> for Primitives<f32> {
             band_freq: d.band_freq,
             band_phase: d.band_phase,
             sh: d.sh,
+            band_count,
         }
     }
 }

@@ -94,7 +94,8 @@ struct TrainArgs {
     /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`).
     #[arg(required = true)]
     data: Option<PathBuf>,
-    /// Run folder (checkpoint, metrics.csv, plots, PLY, renders, G-buffers).
+    /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
+    /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]
     out: Option<PathBuf>,
     /// s3tir (learnable β + bands), 3dgs (β ≡ 2, no bands), ges (learnable β, no bands),
@@ -160,6 +161,9 @@ struct TrainArgs {
     /// β learning rate (β units).
     #[arg(long, default_value_t = 1e-3)]
     beta_lr: f64,
+    /// Compute the multi-view consistency loss every k-th iteration (it renders a second view).
+    #[arg(long, default_value_t = 1)]
+    consist_every: u64,
 }
 
 fn main() -> Result<()> {
@@ -246,6 +250,7 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         cfg.eval_every_s = a.eval_every_s;
         cfg.checkpoint_every_s = a.checkpoint_every_s;
         cfg.lr.beta = a.beta_lr;
+        cfg.consist_every = a.consist_every;
         cfg.backend = a.backend.clone();
         cfg
     };

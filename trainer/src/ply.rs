@@ -17,6 +17,7 @@
 //! | `s3tir_beta_raw` | β parameter: `β = min(2 + softplus(beta_raw), 64)` |
 //! | `s3tir_beta` | β itself (informative; the reader uses `s3tir_beta_raw`) |
 //! | `s3tir_omega_low` | base intensity ω_low (normalised units) |
+//! | `s3tir_band_count` | live bands (slots `0..count`; the others are dropped and hold zeros); files without it read as all live |
 //! | `s3tir_band{j}_amp`, `_fx`, `_fy`, `_fz`, `_phase` | Gabor band j: amplitude, frequency (cycles/m, world), phase (rad) |
 //!
 //! Header comments `s3tir bands M` and `s3tir sh_degree D` (or `none`) carry the layout.
@@ -76,6 +77,7 @@ pub fn property_names(bands: usize, sh_degree: Option<usize>) -> Vec<String> {
     v.push("s3tir_beta_raw".into());
     v.push("s3tir_beta".into());
     v.push("s3tir_omega_low".into());
+    v.push("s3tir_band_count".into());
     for j in 0..bands {
         for s in ["amp", "fx", "fy", "fz", "phase"] {
             v.push(format!("s3tir_band{j}_{s}"));
@@ -136,6 +138,7 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
         row.push(prims.beta_raw[i]);
         row.push(beta_of_raw(f64::from(prims.beta_raw[i])).0 as f32);
         row.push(prims.omega_low[i]);
+        row.push(prims.live_bands(i) as f32);
         for j in 0..m {
             let b = m * i + j;
             row.push(prims.band_amp[b]);
@@ -210,7 +213,14 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
     let sh_degree = sh_degree.ok_or_else(|| fmt("missing `comment s3tir sh_degree`".into()))?;
     let n = count.ok_or_else(|| fmt("missing `element vertex N`".into()))?;
     let expected = property_names(bands, sh_degree);
-    if names != expected {
+    // Files written before the band mask existed lack `s3tir_band_count`: every slot is live.
+    let legacy: Vec<String> = expected
+        .iter()
+        .filter(|n| *n != "s3tir_band_count")
+        .cloned()
+        .collect();
+    let has_count = names != legacy;
+    if names != expected && names != legacy {
         return Err(fmt(format!(
             "properties differ from the s3tir layout: got {names:?}, expected {expected:?}"
         )));
@@ -258,6 +268,13 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
         prims.beta_raw.extend(take(1));
         take(1); // β (derived)
         prims.omega_low.extend(take(1));
+        let live = if has_count { take(1)[0] } else { bands as f32 };
+        if !(live >= 0.0 && live <= bands as f32 && live.fract() == 0.0) {
+            return Err(fmt(format!(
+                "vertex {i}: s3tir_band_count {live} is not a whole number in 0..={bands}"
+            )));
+        }
+        prims.band_count.push(live as u32);
         for _ in 0..bands {
             let b = take(5);
             prims.band_amp.push(b[0]);

@@ -15,10 +15,21 @@
 //!   [`BETA_MAX`] = 64 keeps `m^β` finite for every `m` the renderer evaluates (it only evaluates
 //!   where `m^β ≤ ln 255`), and the gradient w.r.t. `beta_raw` is zero on the clamp.
 //!   `beta_raw = `[`BETA_RAW_GAUSSIAN`] gives β = 2 + 4.5e-5 (the paper's "β init 2");
+//!   `beta_raw = `[`BETA_RAW_FROZEN`] (−10³⁰) gives, **through the same formula**, β = 2 exactly
+//!   and `dβ/dbeta_raw = 0` exactly in f32 and f64 (`softplus` and `sigmoid` underflow to 0): a
+//!   primitive frozen on the Gaussian path. No renderer or shader formula changes for it;
+//!   the optimiser leaves such values alone ([`is_beta_frozen`]);
 //! - base intensity `ω_low = omega_low[i]`;
-//! - `M = bands` Gabor bands per primitive: amplitude `band_amp[M i + j]`, frequency
+//! - `M = bands` Gabor band slots per primitive: amplitude `band_amp[M i + j]`, frequency
 //!   `band_freq[3(M i + j)..+3]` (cycles per metre, world frame), phase `band_phase[M i + j]`
 //!   (radians). `M = 0` is allowed (then the primitive is a GES primitive);
+//! - live bands `band_count[i]` ≤ M: slots `j < band_count[i]` are the primitive's bands, slots
+//!   from `band_count[i]` on are **dropped** (capacity adaptation): they are not part of the
+//!   model — they contribute nothing to any output and their gradients are zero — and the
+//!   trainer keeps their parameters at 0 and never updates them, so they cannot grow back. (A
+//!   renderer that ignores `band_count`, e.g. the Vulkan kernels today, computes the same
+//!   outputs because the dropped slots hold zeros; only its gradients of those slots differ,
+//!   and the optimiser discards them.) [`Primitives::push`] makes every slot live;
 //! - optional RGB colour as real spherical harmonics of degree `sh_degree` (`None`: no colour):
 //!   `sh[(K i + k) * 3 + c]`, `K = (degree + 1)²`.
 //!
@@ -35,6 +46,9 @@ use crate::real::Real;
 
 /// Upper clamp of β. Above it the gradient w.r.t. `beta_raw` is zero.
 pub const BETA_MAX: f64 = 64.0;
+/// `beta_raw` of a primitive frozen on the Gaussian path: β = 2 exactly, `dβ/dbeta_raw = 0`
+/// exactly (see the module docs). Finite, so it survives JSON checkpoints and f32 PLY.
+pub const BETA_RAW_FROZEN: f64 = -1e30;
 /// `beta_raw` giving β ≈ 2 (2 + softplus(−10) = 2 + 4.5e-5).
 pub const BETA_RAW_GAUSSIAN: f64 = -10.0;
 /// Quaternions with a smaller norm are treated as the identity (zero gradient).
@@ -59,6 +73,16 @@ pub struct Primitives<T> {
     pub band_freq: Vec<T>,
     pub band_phase: Vec<T>,
     pub sh: Vec<T>,
+    /// Live band slots per primitive (slots `0..band_count[i]`, read through
+    /// [`Primitives::live_bands`], which clamps to M; see the module docs). Not a
+    /// parameter group: no gradient, no optimiser moments (a gradient or moment set carries a
+    /// copy of its parameters' counts).
+    pub band_count: Vec<u32>,
+}
+
+/// Whether a raw β value is the frozen Gaussian sentinel [`BETA_RAW_FROZEN`].
+pub fn is_beta_frozen(raw: f64) -> bool {
+    raw <= 0.5 * BETA_RAW_FROZEN
 }
 
 /// Number of SH coefficients per colour channel for a degree.
@@ -134,6 +158,7 @@ impl<T: Real> Primitives<T> {
             band_freq: Vec::new(),
             band_phase: Vec::new(),
             sh: Vec::new(),
+            band_count: Vec::new(),
         }
     }
 
@@ -171,6 +196,16 @@ impl<T: Real> Primitives<T> {
             let c = p.sh.get(k).copied().unwrap_or([0.0; 3]);
             self.sh.extend(c.iter().map(|&x| f(x)));
         }
+        self.band_count
+            .push(u32::try_from(self.bands).unwrap_or(u32::MAX));
+    }
+
+    /// Live bands of primitive `i` (slots `0..live_bands(i)`).
+    #[inline]
+    pub fn live_bands(&self, i: usize) -> usize {
+        self.band_count
+            .get(i)
+            .map_or(self.bands, |&c| (c as usize).min(self.bands))
     }
 
     /// A set of the same shape filled with zeros (the layout of a gradient).
@@ -189,6 +224,7 @@ impl<T: Real> Primitives<T> {
             band_freq: z(&self.band_freq),
             band_phase: z(&self.band_phase),
             sh: z(&self.sh),
+            band_count: self.band_count.clone(),
         }
     }
 
@@ -212,6 +248,7 @@ impl<T: Real> Primitives<T> {
             band_freq: c(&self.band_freq),
             band_phase: c(&self.band_phase),
             sh: c(&self.sh),
+            band_count: self.band_count.clone(),
         }
     }
 
@@ -276,6 +313,13 @@ impl<T: Real> Primitives<T> {
                     actual: v.len(),
                 });
             }
+        }
+        if self.band_count.len() != n {
+            return Err(crate::error::TrainerError::ParameterLength {
+                group: "band_count",
+                expected: n,
+                actual: self.band_count.len(),
+            });
         }
         Ok(())
     }

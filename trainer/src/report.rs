@@ -276,10 +276,100 @@ pub fn write_thermal_png16(
     })
 }
 
+/// Writes a `height × width` f32 plane as a NumPy `.npy` file (format 1.0, little-endian `<f4`,
+/// C order): `numpy.load` reads it, and so does [`read_npy_f32`].
+pub fn write_npy_f32(
+    path: &Path,
+    plane: &[f32],
+    width: usize,
+    height: usize,
+) -> Result<(), ReportError> {
+    if plane.len() != width * height {
+        return Err(ReportError::Format {
+            path: path.to_path_buf(),
+            reason: format!("plane has {} values, not {width}×{height}", plane.len()),
+        });
+    }
+    let mut header =
+        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
+    // Magic (6) + version (2) + header length (2) + header + '\n' is a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + 4 * plane.len());
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for v in plane {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    fs::write(path, out).map_err(|source| ReportError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a 2-D little-endian f32 `.npy` file written by [`write_npy_f32`]: `(width, height,
+/// values)`.
+pub fn read_npy_f32(path: &Path) -> Result<(usize, usize, Vec<f32>), ReportError> {
+    let bad = |reason: String| ReportError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let data = fs::read(path).map_err(|source| ReportError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if data.len() < 10 || &data[..8] != b"\x93NUMPY\x01\x00" {
+        return Err(bad("not a version 1.0 .npy file".into()));
+    }
+    let hlen = usize::from(u16::from_le_bytes([data[8], data[9]]));
+    let header = data
+        .get(10..10 + hlen)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or_else(|| bad("truncated header".into()))?;
+    if !header.contains("'descr': '<f4'") || !header.contains("'fortran_order': False") {
+        return Err(bad(format!(
+            "unsupported header {header:?} (need <f4, C order)"
+        )));
+    }
+    let shape: Vec<usize> = header
+        .split("'shape': (")
+        .nth(1)
+        .and_then(|r| r.split(')').next())
+        .ok_or_else(|| bad(format!("no shape in {header:?}")))?
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| {
+            t.parse::<usize>()
+                .map_err(|e| bad(format!("shape {t:?}: {e}")))
+        })
+        .collect::<Result<_, _>>()?;
+    let [height, width] = shape[..] else {
+        return Err(bad(format!("shape {shape:?} is not 2-D")));
+    };
+    let body = &data[10 + hlen..];
+    if body.len() != 4 * width * height {
+        return Err(bad(format!(
+            "{} data bytes for a {height}×{width} f32 array",
+            body.len()
+        )));
+    }
+    let values = body
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Ok((width, height, values))
+}
+
 /// Writes the G-buffers of one view as grey PNGs `PREFIX_{psi_low,psi_high,psi_beta,depth}.png`:
 /// Ψ_low and Ψ_high over [0, max], Ψ_β over [2, max(3, max β)] (normalised by accumulated
 /// alpha, so a pixel covered by primitives of β = 2 is black), depth (expected, `depth/alpha`)
-/// over its range. Returns the files written.
+/// over its range; and the exact values as f32 `.npy` arrays `PREFIX_{name}.npy` for the same
+/// four planes (same normalisation; 0 where alpha ≤ 10⁻³) plus `PREFIX_alpha.npy` (accumulated
+/// alpha). Returns the files written.
 pub fn write_gbuffers(
     dir: &Path,
     prefix: &str,
@@ -318,9 +408,18 @@ pub fn write_gbuffers(
             max(&depth),
         ),
     ];
-    for (name, plane, lo, hi) in planes {
+    for (name, plane, lo, hi) in &planes {
         let p = dir.join(format!("{prefix}_{name}.png"));
-        write_plane_png(&p, &plane, w, h, lo, hi)?;
+        write_plane_png(&p, plane, w, h, *lo, *hi)?;
+        out.push(p);
+    }
+    for (name, plane) in planes
+        .iter()
+        .map(|(n, p, _, _)| (*n, p))
+        .chain([("alpha", &gb.alpha)])
+    {
+        let p = dir.join(format!("{prefix}_{name}.npy"));
+        write_npy_f32(&p, plane, w, h)?;
         out.push(p);
     }
     Ok(out)

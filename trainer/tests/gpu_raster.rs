@@ -27,7 +27,7 @@ use s3tir_trainer::camera::PinholeCamera;
 use s3tir_trainer::gpu::accumulate::AccumulateVariant;
 use s3tir_trainer::gpu::raster::GpuRasterizer;
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
-use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives};
 use s3tir_trainer::render::{GBuffers, RenderSettings, render, render_backward};
 
 fn lavapipe() -> GpuContext {
@@ -51,6 +51,31 @@ fn camera(width: usize, height: usize) -> PinholeCamera {
         width,
         height,
     )
+}
+
+/// What capacity adaptation leaves behind: every third primitive keeps one band (its other slots
+/// zeroed and dropped), every fourth loses all bands and has β frozen at exactly 2.
+fn adapted(mut prims: Primitives<f64>) -> Primitives<f64> {
+    let m = prims.bands;
+    for i in 0..prims.len() {
+        let live = if i % 4 == 0 {
+            prims.beta_raw[i] = BETA_RAW_FROZEN;
+            0
+        } else if i % 3 == 0 {
+            m.min(1)
+        } else {
+            m
+        };
+        prims.band_count[i] = live as u32;
+        for j in live..m {
+            prims.band_amp[m * i + j] = 0.0;
+            prims.band_phase[m * i + j] = 0.0;
+            for a in 0..3 {
+                prims.band_freq[3 * (m * i + j) + a] = 0.0;
+            }
+        }
+    }
+    prims
 }
 
 fn random_scene(seed: u64, n: usize, bands: usize) -> Primitives<f64> {
@@ -191,7 +216,9 @@ fn gpu_forward_matches_cpu_reference_on_random_scenes() {
     .into_iter()
     .enumerate()
     {
+        // The third scene as capacity adaptation leaves it (dropped bands, frozen β).
         let prims = random_scene(seed as u64, n, bands);
+        let prims = if seed == 2 { adapted(prims) } else { prims };
         let cam = camera(w, h);
         for cull in [true, false] {
             let settings = RenderSettings { near_m: 0.05, cull };
@@ -324,11 +351,14 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
                 (120usize, 4usize, 48usize, 40usize),
                 (150, 0, 37, 29),
                 (40, 24, 33, 21),
+                (120, 4, 48, 40),
             ]
             .into_iter()
             .enumerate()
             {
+                // The last scene as capacity adaptation leaves it (dropped bands, frozen β).
                 let prims = random_scene(50 + seed as u64, n, bands);
+                let prims = if seed == 3 { adapted(prims) } else { prims };
                 let cam = camera(w, h);
                 let settings = RenderSettings {
                     near_m: 0.05,

@@ -2,17 +2,23 @@
 //! bands are dropped and the band storage compacts (M shrinks, memory falls, training goes on),
 //! colour is not allocated without RGB, the consistency loss is reported as skipped when no view
 //! pair overlaps enough (and as not needed in 3dgs mode), the primitive budget holds through
-//! density control, and the row-wise parameter helpers keep rows aligned. Does NOT measure step
-//! time savings (timing asserts are not allowed in tests; the report carries the measurement).
+//! density control, and the row-wise parameter helpers keep rows aligned; that dropped band
+//! slots never grow back (the per-primitive `band_count` mask: Adam leaves those slots at zero
+//! whatever gradient they get, and the mask survives checkpoints and the PLY), and that
+//! primitives with β ≈ 2 and no live band are snapped to β = 2 and frozen on the cheap Gaussian
+//! path (3dgs mode: all of them from the start). Does NOT measure step time savings (timing
+//! asserts are not allowed in tests; `capacity.json` and `benches/cpu_render.rs` carry them).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::atomic::AtomicBool;
 
 use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
-use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives, is_beta_frozen};
 use s3tir_trainer::train::params::{compact_bands, gather};
-use s3tir_trainer::train::{CpuBackend, Mode, TrainConfig, Trainer};
+use s3tir_trainer::train::{
+    AdamParams, AdamState, CpuBackend, GroupLrs, Mode, TrainConfig, Trainer,
+};
 
 fn scene(dir: &std::path::Path) {
     let cfg = SynthConfig {
@@ -229,4 +235,194 @@ fn colour_is_allocated_and_trained_when_rgb_views_exist() {
     assert_ne!(t.prims.sh.len(), 0);
     let moved = sh0.len() != t.prims.sh.len() || sh0.iter().zip(&t.prims.sh).any(|(a, b)| a != b);
     assert!(moved, "SH colour should be trained on the RGB views");
+}
+
+/// Every dropped slot (j ≥ band_count[i]) holds exact zeros; returns how many primitives have
+/// some but not all slots live.
+fn dropped_slots_are_zero(p: &Primitives<f32>, when: &str) -> usize {
+    let m = p.bands;
+    let mut partial = 0;
+    for i in 0..p.len() {
+        let live = p.live_bands(i);
+        if live > 0 && live < m {
+            partial += 1;
+        }
+        for j in live..m {
+            let s = m * i + j;
+            let vals = [
+                p.band_amp[s],
+                p.band_phase[s],
+                p.band_freq[3 * s],
+                p.band_freq[3 * s + 1],
+                p.band_freq[3 * s + 2],
+            ];
+            assert!(
+                vals.iter().all(|v| *v == 0.0),
+                "{when}: primitive {i} slot {j} (live {live} of {m}) regrew: {vals:?}"
+            );
+        }
+    }
+    partial
+}
+
+#[test]
+fn adam_never_updates_dropped_slots_or_a_frozen_beta() {
+    let mut p = Primitives::<f64>::new(2, None);
+    for _ in 0..2 {
+        p.push(&PrimitiveInit {
+            beta: 3.0,
+            bands: vec![(0.2, [1.0; 3], 0.5), (0.0, [0.0; 3], 0.0)],
+            ..Default::default()
+        });
+    }
+    let mut p = p.cast::<f32>();
+    p.band_count = vec![1, 2];
+    p.beta_raw[1] = BETA_RAW_FROZEN as f32;
+    let mut grads = p.zeros_like();
+    for (_, g) in grads.groups_mut() {
+        g.fill(1.0);
+    }
+    let lrs = GroupLrs {
+        means: 0.1,
+        log_scales: 0.1,
+        quats: 0.1,
+        opacity_logits: 0.1,
+        beta: 0.1,
+        omega_low: 0.1,
+        band_amp: 0.1,
+        band_freq: 0.1,
+        band_phase: 0.1,
+        sh: 0.1,
+    };
+    let mut adam = AdamState::new(&p);
+    let before = p.clone();
+    for _ in 0..5 {
+        adam.step(&mut p, &grads, &lrs, &AdamParams::default());
+    }
+    assert_eq!(
+        (p.band_amp[1], p.band_phase[1], &p.band_freq[3..6]),
+        (0.0, 0.0, &[0.0f32; 3][..]),
+        "primitive 0's dropped slot 1 stays zero"
+    );
+    assert_eq!(
+        (adam.m.band_amp[1], adam.v.band_amp[1]),
+        (0.0, 0.0),
+        "moments held"
+    );
+    assert!(p.band_amp[0] != before.band_amp[0], "live slot 0 trains");
+    assert!(
+        p.band_amp[3] != before.band_amp[3],
+        "primitive 1's slot 1 is live and trains"
+    );
+    assert_eq!(
+        p.beta_raw[1], BETA_RAW_FROZEN as f32,
+        "a frozen β stays frozen"
+    );
+    assert!(p.beta_raw[0] != before.beta_raw[0], "a learnable β trains");
+}
+
+#[test]
+fn dropped_band_slots_never_regrow_and_the_mask_is_saved() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    scene(&data_dir);
+    let mut cfg = quick(&data_dir, Mode::S3tir);
+    cfg.iters = 60;
+    cfg.capacity.every = 10;
+    cfg.capacity.band_amp_threshold = 0.012;
+    cfg.lr.beta = 0.1;
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let run = tmp.path().join("run");
+    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let (mut partial_seen, mut frozen_seen) = (0, 0);
+    while t.iteration < 60 {
+        t.step().unwrap();
+        let when = format!("after iteration {}", t.iteration);
+        partial_seen = partial_seen.max(dropped_slots_are_zero(&t.prims, &when));
+        frozen_seen = frozen_seen.max(t.capacity_report().gaussian_path_primitives);
+    }
+    let cap = t.capacity_report();
+    eprintln!(
+        "M {} → {}, partial primitives seen {partial_seen}, dropped slots {}, Gaussian path {} of {}",
+        cap.bands_initial,
+        cap.bands_now,
+        cap.band_slots_dropped,
+        cap.gaussian_path_primitives,
+        t.prims.len()
+    );
+    assert!(
+        partial_seen > 0,
+        "the test must see primitives with some (not all) bands dropped"
+    );
+    assert!(
+        frozen_seen > 0,
+        "primitives with β ≈ 2 and no band must be frozen on the Gaussian path"
+    );
+    for i in 0..t.prims.len() {
+        let raw = f64::from(t.prims.beta_raw[i]);
+        if is_beta_frozen(raw) {
+            assert_eq!(
+                t.prims.live_bands(i),
+                0,
+                "frozen primitive {i} has no live band"
+            );
+        }
+    }
+    // The mask survives a checkpoint and the PLY.
+    t.save_checkpoint().unwrap();
+    let ck = s3tir_trainer::checkpoint::load(&run.join("checkpoint.json")).unwrap();
+    let back: Primitives<f32> = ck.primitives.into();
+    assert_eq!(
+        back.band_count, t.prims.band_count,
+        "band_count through the checkpoint"
+    );
+    assert_eq!(
+        back.beta_raw, t.prims.beta_raw,
+        "frozen β through the checkpoint"
+    );
+    let ply = tmp.path().join("m.ply");
+    s3tir_trainer::ply::write_ply(&ply, &t.prims).unwrap();
+    let back = s3tir_trainer::ply::read_ply(&ply).unwrap();
+    assert_eq!(
+        back.band_count, t.prims.band_count,
+        "band_count through the PLY"
+    );
+    assert_eq!(back, t.prims, "PLY round trip");
+}
+
+#[test]
+fn gaussian_mode_runs_every_primitive_on_the_frozen_gaussian_path() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    scene(&data_dir);
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let mut t = Trainer::new(
+        quick(&data_dir, Mode::Gaussian),
+        data,
+        CpuBackend::default(),
+        &tmp.path().join("run"),
+    )
+    .unwrap();
+    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    assert!(
+        t.prims
+            .beta_raw
+            .iter()
+            .all(|&r| r == BETA_RAW_FROZEN as f32),
+        "3dgs mode: β frozen at exactly 2 for the whole run"
+    );
+    let cap: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.path().join("run/capacity.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        cap["gaussian_path_primitives"].as_u64(),
+        Some(t.prims.len() as u64),
+        "capacity.json: {cap}"
+    );
+    assert!(
+        cap["cpu_step_ms_with_shortcuts"].as_f64().is_some()
+            && cap["cpu_step_ms_general_path"].as_f64().is_some(),
+        "capacity.json reports the CPU step time with and without shortcuts: {cap}"
+    );
 }

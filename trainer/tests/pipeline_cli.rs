@@ -138,7 +138,11 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         assert!(run.join(f).exists(), "{f} missing");
     }
     let gb = std::fs::read_dir(run.join("gbuffers")).unwrap().count();
-    assert_eq!(gb, 2 * 4, "4 G-buffer images per held-out view (2 views)");
+    assert_eq!(
+        gb,
+        2 * 9,
+        "4 G-buffer PNGs and 5 .npy planes per held-out view (2 views)"
+    );
 
     // 3. Ctrl-C: checkpoint, then exit 130.
     let child = bin()

@@ -104,7 +104,13 @@ fn metrics_csv_round_trips_and_plots_are_written() {
         gb.depth[p] = 2.0 + p as f32 * 0.01;
     }
     let files = report::write_gbuffers(tmp.path(), "v", &gb).unwrap();
-    assert_eq!(files.len(), 4);
+    assert_eq!(files.len(), 9, "4 PNGs and 5 .npy planes: {files:?}");
+    let (w, h, exact) = report::read_npy_f32(&tmp.path().join("v_psi_beta.npy")).unwrap();
+    assert_eq!((w, h), (8, 4), "npy shape (width, height)");
+    assert_eq!(exact[0], 2.0, "Ψ_β/alpha at (0, 0)");
+    assert_eq!(exact[7], 10.0, "Ψ_β/alpha at (7, 0)");
+    let (_, _, alpha) = report::read_npy_f32(&tmp.path().join("v_alpha.npy")).unwrap();
+    assert!(alpha.iter().all(|&a| a == 1.0), "alpha plane {alpha:?}");
     let beta = image::open(tmp.path().join("v_psi_beta.png"))
         .unwrap()
         .to_luma8();

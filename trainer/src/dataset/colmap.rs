@@ -81,6 +81,29 @@ fn model_name(model_id: i32) -> String {
         .map_or_else(|| format!("model id {model_id}"), |m| m.1.to_owned())
 }
 
+/// One camera of either reader: the model name and parameter list as COLMAP stores them (text
+/// and binary carry the same fields) converted by [`camera_model`]; `line` (0 in binary files)
+/// is put into parse errors.
+fn colmap_camera(
+    file: &Path,
+    line: usize,
+    id: u32,
+    name: &str,
+    width: u64,
+    height: u64,
+    params: &[f64],
+) -> Result<ColmapCamera, DatasetError> {
+    let model = camera_model(file, name, width, height, params).map_err(|e| match e {
+        DatasetError::Parse { path, reason, .. } => DatasetError::Parse { path, line, reason },
+        other => other,
+    })?;
+    Ok(ColmapCamera {
+        id,
+        model_name: name.to_owned(),
+        model,
+    })
+}
+
 /// Converts COLMAP parameters to a `CameraModel` (½-px shift applied).
 fn camera_model(
     file: &Path,
@@ -241,19 +264,15 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         let width: u64 = parse_int(&path, n + 1, toks[2])?;
         let height: u64 = parse_int(&path, n + 1, toks[3])?;
         let params = parse_f64s(&path, n + 1, &toks[4..])?;
-        let cam = camera_model(&path, toks[1], width, height, &params).map_err(|e| match e {
-            DatasetError::Parse { path, reason, .. } => DatasetError::Parse {
-                path,
-                line: n + 1,
-                reason,
-            },
-            other => other,
-        })?;
-        model.cameras.push(ColmapCamera {
+        model.cameras.push(colmap_camera(
+            &path,
+            n + 1,
             id,
-            model_name: toks[1].to_owned(),
-            model: cam,
-        });
+            toks[1],
+            width,
+            height,
+            &params,
+        )?);
     }
 
     let path = dir.join("images.txt");
@@ -440,12 +459,9 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
             });
         };
         let params = (0..np).map(|_| c.f64()).collect::<Result<Vec<_>, _>>()?;
-        let cam = camera_model(&path, &name, width, height, &params)?;
-        model.cameras.push(ColmapCamera {
-            id: id as u32,
-            model_name: name,
-            model: cam,
-        });
+        model.cameras.push(colmap_camera(
+            &path, 0, id as u32, &name, width, height, &params,
+        )?);
     }
 
     let path: PathBuf = dir.join("images.bin");

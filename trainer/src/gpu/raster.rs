@@ -104,9 +104,11 @@ struct BinnedView {
     /// Output of `raster_forward` ([`FORWARD_PLANES`] planes), once rendered.
     planes: Option<usize>,
     tiles: [usize; 2],
-    /// What was binned: the camera and parameter blocks (the cache key of kept views).
+    /// What was binned: the camera and parameter blocks and the live band counts (the cache
+    /// key of kept views).
     camera_block: [f32; 32],
     parameter_block: Vec<f32>,
+    band_count: Vec<u32>,
 }
 
 impl BinnedView {
@@ -151,6 +153,7 @@ impl<'a> Transient<'a> {
         tiles: [usize; 2],
         camera_block: [f32; 32],
         parameter_block: Vec<f32>,
+        band_count: Vec<u32>,
     ) -> Self {
         Self {
             ctx,
@@ -165,6 +168,7 @@ impl<'a> Transient<'a> {
                 tiles,
                 camera_block,
                 parameter_block,
+                band_count,
             }),
         }
     }
@@ -369,7 +373,14 @@ impl GpuRasterizer {
         let tiles = tiles_x * tiles_y;
         let camera_block = camera_block(cam, settings);
         let parameter_block = parameter_block(prims);
-        let mut out = Transient::new(ctx, [tiles_x, tiles_y], camera_block, parameter_block);
+        let band_count: Vec<u32> = (0..n).map(|i| prims.live_bands(i) as u32).collect();
+        let mut out = Transient::new(
+            ctx,
+            [tiles_x, tiles_y],
+            camera_block,
+            parameter_block,
+            band_count,
+        );
         let binned = out.view_mut()?;
         binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
         let params = ctx.upload("raster.params", &binned.parameter_block)?;
@@ -387,6 +398,7 @@ impl GpuRasterizer {
         if n == 0 {
             return Ok(out);
         }
+        let band_count = binned.keep(ctx.upload("raster.band_count", &binned.band_count)?);
         // n counts + 1 trailing zero: after the exclusive scan, element n is the key total.
         let counts = binned.keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
         let mut scan_slot = lock(&self.scan)?;
@@ -409,6 +421,7 @@ impl GpuRasterizer {
                     b.get(b.views),
                     b.get(counts),
                     b.get(b.bands),
+                    b.get(band_count),
                 ],
                 &project_push,
                 [n.div_ceil(PROJECT_WG) as u32, 1, 1],
@@ -599,7 +612,15 @@ impl GpuRasterizer {
             let key_cam = camera_block(cam, settings);
             let v = kept
                 .iter()
-                .find(|v| v.camera_block == key_cam && v.parameter_block == key_params)
+                .find(|v| {
+                    v.camera_block == key_cam
+                        && v.parameter_block == key_params
+                        && v.band_count.len() == prims.len()
+                        && v.band_count
+                            .iter()
+                            .enumerate()
+                            .all(|(i, &c)| c as usize == prims.live_bands(i))
+                })
                 .ok_or_else(|| GpuError::InvalidInput {
                     reason: "submit_with_views: a view was not rendered from these parameters"
                         .to_owned(),
@@ -683,9 +704,15 @@ impl GpuRasterizer {
         let key_cam = camera_block(cam, settings);
         let key_params = parameter_block(prims);
         let mut kept = lock(&self.kept)?;
-        let position = kept
-            .iter()
-            .position(|v| v.camera_block == key_cam && v.parameter_block == key_params);
+        let position = kept.iter().position(|v| {
+            v.camera_block == key_cam
+                && v.parameter_block == key_params
+                && v.band_count.len() == prims.len()
+                && v.band_count
+                    .iter()
+                    .enumerate()
+                    .all(|(i, &c)| c as usize == prims.live_bands(i))
+        });
         let mut fresh = None;
         let view: &mut BinnedView = match position {
             Some(at) => &mut kept[at],
@@ -707,7 +734,7 @@ impl GpuRasterizer {
         // Floats of the parameter block (raster_common.glsl): every group but the SH colour.
         let param_count = view.parameter_block.len();
         // Per-step buffers, released at the end of this call (after the readback).
-        let mut scratch = Transient::new(ctx, view.tiles, [0.0; 32], Vec::new());
+        let mut scratch = Transient::new(ctx, view.tiles, [0.0; 32], Vec::new(), Vec::new());
         let s = scratch.view_mut()?;
         let acc = s.keep(ctx.upload("raster.grad_acc", &vec![0f32; fields * n])?);
         let out = s.keep(ctx.create_buffer(

@@ -84,7 +84,7 @@ pub const KERNELS: &[KernelSpec] = &[
     },
     KernelSpec {
         name: "raster_project",
-        storage_buffers: 5,
+        storage_buffers: 6,
         push_constant_bytes: 16,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,

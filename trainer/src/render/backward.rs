@@ -133,7 +133,8 @@ pub fn render_backward_prepared<T: Real>(
                 let g_f = if s.f_active { dv[0] } else { T::ZERO };
                 grads.omega_low[i] += dv[1] + g_f;
                 let mut g_delta = [T::ZERO; 3];
-                for j in 0..m {
+                // Dropped slots (j ≥ live) are not part of the model: zero gradient.
+                for j in 0..pv.live_bands {
                     let k = m * i + j;
                     let amp = prims.band_amp[k];
                     grads.band_amp[k] += dv[2] * amp.sign0();
@@ -164,9 +165,15 @@ pub fn render_backward_prepared<T: Real>(
                 if !s.clamped {
                     ac.g_o += d_alpha * s.s;
                     let g_s = d_alpha * pv.opacity;
-                    let half_beta = pv.beta * T::HALF;
-                    g_q = -g_s * s.s * half_beta * s.q.powf(half_beta - T::ONE);
-                    if s.q > T::ZERO {
+                    // Cheap Gaussian path: at β = 2 exactly, (β/2) q*^{β/2 − 1} = 1.
+                    g_q = if pv.gaussian {
+                        -g_s * s.s
+                    } else {
+                        let half_beta = pv.beta * T::HALF;
+                        -g_s * s.s * half_beta * s.q.powf(half_beta - T::ONE)
+                    };
+                    // ∂S/∂β only matters through dβ/dbeta_raw, exactly 0 for a frozen β.
+                    if s.q > T::ZERO && pv.d_beta != T::ZERO {
                         ac.g_beta += -g_s * s.s * s.mb * T::HALF * s.q.ln();
                     }
                 }

@@ -55,7 +55,12 @@ pub(crate) fn sample<T: Real>(
     }
     let r = v3::add(a, v3::scale(b, t));
     let q = v3::dot(r, r);
-    let mb = q.powf(pv.beta * T::HALF);
+    // Cheap Gaussian path: at β = 2 exactly, q*^{β/2} = q* (same value, no pow).
+    let mb = if pv.gaussian {
+        q
+    } else {
+        q.powf(pv.beta * T::HALF)
+    };
     let s = (-mb).exp();
     let os = pv.opacity * s;
     let clamped = os > T::from_f64(ALPHA_MAX);
@@ -66,7 +71,7 @@ pub(crate) fn sample<T: Real>(
     }
     let d = v3::mat_vec(&prep.pix_to_dir, p);
     let delta = v3::add(pv.c_minus_mu, v3::scale(d, t));
-    let (pre, _) = spectrum_pre(prims, i, delta);
+    let (pre, _) = spectrum_pre(prims, pv, i, delta);
     let f_active = pre > T::ZERO;
     Some(Sample {
         alpha,
@@ -85,13 +90,18 @@ pub(crate) fn sample<T: Real>(
     })
 }
 
-/// Pre-ReLU spectrum `ω_low + Σ_j ω_j cos θ_j` at offset `delta = x − μ`.
+/// Pre-ReLU spectrum `ω_low + Σ_j ω_j cos θ_j` over the live bands at offset `delta = x − μ`.
 #[inline]
-pub(crate) fn spectrum_pre<T: Real>(prims: &Primitives<T>, i: usize, delta: [T; 3]) -> (T, ()) {
+pub(crate) fn spectrum_pre<T: Real>(
+    prims: &Primitives<T>,
+    pv: &PrimView<T>,
+    i: usize,
+    delta: [T; 3],
+) -> (T, ()) {
     let m = prims.bands;
     let two_pi = T::from_f64(std::f64::consts::TAU);
     let mut pre = prims.omega_low[i];
-    for j in 0..m {
+    for j in 0..pv.live_bands {
         let k = m * i + j;
         let fr = [
             prims.band_freq[3 * k],

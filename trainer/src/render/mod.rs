@@ -23,6 +23,20 @@
 //! thermal image `Σ w F`, optional RGB `Σ w c`, `Ψ_low = Σ w ω_low`, `Ψ_high = Σ w Σ_j|ω_j|`,
 //! `Ψ_β = Σ w β`, depth `Σ w t*` (divide by `alpha` for the expected depth) and `alpha = Σ w`.
 //!
+//! # Leaving out what a primitive does not need (exact shortcuts, not other formulas)
+//! - **Cheap Gaussian path.** A primitive whose β is exactly 2 (the trainer stores
+//!   [`crate::primitive::BETA_RAW_FROZEN`] for it: `β = 2`, `dβ/dbeta_raw = 0` through the
+//!   unchanged parameterisation) has `m^β = q*` and `∂S/∂q* = −S`, so `pow` is skipped in the
+//!   forward and backward passes, and the `∂S/∂β = −S m^β ln m` term, which only reaches
+//!   `beta_raw` through `dβ/dbeta_raw = 0`, is not evaluated. Every value is the one the general
+//!   path gives (`pow(q, 1) = q`, `pow(q, 0) = 1`).
+//! - **Dropped bands.** Band slots `j ≥ band_count[i]` are not part of the model: the spectrum,
+//!   Ψ_high and their gradients loop over the live slots only (dropped slots hold zeros, so the
+//!   outputs equal those of a loop over every slot; their gradients are zero by definition).
+//!
+//! A primitive with β = 2 and no live band therefore costs one `exp` per sample, like a 3DGS
+//! Gaussian. (GPU kernels that do not branch compute the same outputs.)
+//!
 //! # Near plane
 //! A primitive whose centre has camera z ≤ `near_m` is skipped entirely (as in 3DGS); a sample
 //! whose peak point has `t* ≤ near_m` is skipped. A primitive whose culling ellipsoid reaches the

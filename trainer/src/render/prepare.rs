@@ -36,7 +36,12 @@ pub struct PrimView<T> {
     pub d_opacity: T,
     pub beta: T,
     pub d_beta: T,
-    /// `Σ_j |ω_j|`.
+    /// β is exactly 2: the support is evaluated as `exp(−q*)` without `pow` (the cheap Gaussian
+    /// path; an exact shortcut of `q*^{β/2}` at β = 2, see the parent module).
+    pub gaussian: bool,
+    /// Live bands (`Primitives::live_bands`): the spectrum loops over these slots only.
+    pub live_bands: usize,
+    /// `Σ_j |ω_j|` over the live bands.
     pub psi_high: T,
     pub colour: [T; 3],
     pub sh_dir: [T; 3],
@@ -60,6 +65,20 @@ pub struct Prepared<T> {
     pub order: Vec<u32>,
     /// Per tile (row-major over tiles), primitive indices front to back.
     pub tile_lists: Vec<Vec<u32>>,
+}
+
+impl<T: Copy> Prepared<T> {
+    /// A copy with the shortcuts off: every primitive through `pow` and every one of the
+    /// `bands` slots evaluated (outputs unchanged while dropped slots hold zeros; dropped slots
+    /// then get gradients). For benchmarks and for tests of the shortcuts' exactness.
+    pub fn without_shortcuts(&self, bands: usize) -> Self {
+        let mut out = self.clone();
+        for pv in &mut out.prims {
+            pv.gaussian = false;
+            pv.live_bands = bands;
+        }
+        out
+    }
 }
 
 impl<T> Prepared<T> {
@@ -108,7 +127,9 @@ pub fn prepare<T: Real>(
         let (opacity, d_opacity) = prims.opacity(i);
         let (beta, d_beta) = prims.beta(i);
         let m = prims.bands;
-        let psi_high = (0..m).fold(T::ZERO, |acc, j| acc + prims.band_amp[m * i + j].abs());
+        let live_bands = prims.live_bands(i);
+        let psi_high =
+            (0..live_bands).fold(T::ZERO, |acc, j| acc + prims.band_amp[m * i + j].abs());
         let (sh_dir, sh_norm) = sh::normalize(v3::sub(mu, centre));
         let colour = if k > 0 {
             sh::eval(&prims.sh[3 * k * i..3 * k * (i + 1)], k, sh_dir).0
@@ -146,6 +167,8 @@ pub fn prepare<T: Real>(
         pv.d_opacity = d_opacity;
         pv.beta = beta;
         pv.d_beta = d_beta;
+        pv.gaussian = beta == T::TWO;
+        pv.live_bands = live_bands;
         pv.psi_high = psi_high;
         pv.colour = colour;
         pv.sh_dir = sh_dir;

@@ -6,10 +6,15 @@
 //! move β by one. The paper's "β lr 0.001" is read as a step size on β itself: the gradient is
 //! mapped `g_β = g_raw / (dβ/dbeta_raw)`, Adam steps β, β is clamped to [2, 64] and mapped back
 //! with [`beta_raw_from_beta`].
+//!
+//! Two kinds of values are never updated (their moments are held at 0): a `beta_raw` frozen on the
+//! Gaussian path ([`is_beta_frozen`]), and every parameter of a dropped band slot (slot `j ≥
+//! band_count[i]`), so dropped bands cannot grow back whatever gradient a backend reports for
+//! them.
 
 use serde::{Deserialize, Serialize};
 
-use crate::primitive::{BETA_MAX, Primitives, beta_of_raw, beta_raw_from_beta};
+use crate::primitive::{BETA_MAX, Primitives, beta_of_raw, beta_raw_from_beta, is_beta_frozen};
 
 /// Adam hyper-parameters shared by every group.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -93,6 +98,8 @@ impl AdamState {
         let bc1 = 1.0 - hp.beta1.powf(t);
         let bc2 = 1.0 - hp.beta2.powf(t);
         let (b1, b2) = (hp.beta1 as f32, hp.beta2 as f32);
+        let bands = params.bands;
+        let live: Vec<usize> = (0..params.len()).map(|i| params.live_bands(i)).collect();
         let groups = params
             .groups_mut()
             .into_iter()
@@ -106,7 +113,22 @@ impl AdamState {
             let step = (lr / bc1) as f32;
             let bc2s = bc2.sqrt() as f32;
             let eps = hp.eps as f32;
+            // Values per band slot in a band group (0: not a band group).
+            let per_slot = match name {
+                "band_amp" | "band_phase" => 1,
+                "band_freq" => 3,
+                _ => 0,
+            };
             for i in 0..p.len() {
+                let held = match i.checked_div(per_slot) {
+                    Some(slot) => slot % bands >= live[slot / bands],
+                    None => name == "beta_raw" && is_beta_frozen(f64::from(p[i])),
+                };
+                if held {
+                    m[i] = 0.0;
+                    v[i] = 0.0;
+                    continue;
+                }
                 let mut gi = if g[i].is_finite() { g[i] } else { 0.0 };
                 if name == "beta_raw" {
                     let (_, dbeta) = beta_of_raw(f64::from(p[i]));

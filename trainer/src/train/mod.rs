@@ -3,8 +3,11 @@
 //! Vulkan backend plugs into the same loop.
 //!
 //! # Schedule (paper §4.1)
-//! Iterations `< warmup`: Gaussian warm-up — β frozen at 2 (its lr is 0) and band amplitudes
-//! held at 0 (band lrs 0), only the photometric loss. From `warmup` on, in the modes that have
+//! Iterations `< warmup`: Gaussian warm-up — β frozen at exactly 2 (`beta_raw` =
+//! [`BETA_RAW_FROZEN`], so the renderer takes the cheap Gaussian path) and band amplitudes
+//! held at 0 (band lrs 0), only the photometric loss. At the warm-up's end, in modes that learn β,
+//! every frozen β is released to [`BETA_RAW_GAUSSIAN`] (β = 2 + 4.5e-5, learnable); in 3dgs and
+//! gabor modes β stays frozen for the whole run. From `warmup` on, in the modes that have
 //! them, β and the bands train, and `L_sparse` (Ψ_high), `L_smooth` (TV of Ψ_β) and
 //! `L_consist` (Ψ_high, Ψ_β warped to the view's overlap partner) join the loss. A term whose
 //! G-buffer cannot change in the mode (e.g. `L_sparse` without bands) is not computed.
@@ -17,13 +20,15 @@
 //!   it is never computed;
 //! - every `capacity.every` iterations after the warm-up, bands with `|ω_j| <
 //!   band_amp_threshold` are dropped per primitive (zeroed), each primitive's live bands are
-//!   moved to its first slots, and the band storage of the whole set compacts to the largest
-//!   live count (M shrinks; dropped bands never return);
-//! - primitives with β ≤ `gaussian_beta_max` and no live band are counted as the cheap Gaussian
-//!   path. The CPU reference renderer evaluates every primitive the same way (it does not branch
-//!   on β), so on CPU this saves nothing yet; the count is what a backend with a Gaussian fast
-//!   path would skip. The report ([`CapacityReport`]) says all of this with the measured
-//!   memory and step times.
+//!   moved to its first slots and the rest marked dropped (`band_count`, saved in checkpoints
+//!   and the PLY): the renderer skips dropped slots and Adam never updates them, so they cannot
+//!   grow back. The band storage of the whole set compacts to the largest live count (M shrinks);
+//! - at the same check, in modes that learn β, primitives with β ≤ `gaussian_beta_max` and no
+//!   live band are snapped to β = 2 exactly and frozen ([`BETA_RAW_FROZEN`]): from then on the
+//!   renderer evaluates them on the cheap Gaussian path (no `pow`, no bands, no β gradient; see
+//!   [`crate::render`]). The report ([`CapacityReport`]) says all of this with the memory saved
+//!   and the CPU reference renderer's step time with and without the shortcuts, measured on a
+//!   training view when the outputs are written.
 //!
 //! # Scales and aliasing
 //! The renderer point-samples pixel centres, so primitives smaller than a pixel footprint can
@@ -57,7 +62,9 @@ use crate::loss::photometric::l1_dssim;
 use crate::loss::{LossWeights, view_loss};
 use crate::metrics::{EvalSummary, view_metrics};
 use crate::ply::PlyError;
-use crate::primitive::{PrimitiveInit, Primitives, beta_of_raw};
+use crate::primitive::{
+    BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw, is_beta_frozen,
+};
 use crate::render::GBuffers;
 use crate::report::{self, MetricsRow, ReportError};
 
@@ -134,10 +141,26 @@ pub struct CapacityReport {
     pub consistency_reason: String,
     pub bands_initial: usize,
     pub bands_now: usize,
-    /// Bands zeroed per primitive (sum over primitives), at the last check.
+    /// Bands dropped at the last check (sum over primitives).
     pub bands_dropped_total: usize,
+    /// Dropped band slots still in storage (below M, above a primitive's live count): the
+    /// renderer skips them and Adam never updates them.
+    #[serde(default)]
+    pub band_slots_dropped: usize,
+    /// Bytes freed by band compaction (parameters and both Adam moments).
     pub band_bytes_saved: usize,
+    /// Primitives on the cheap Gaussian path (β exactly 2 and frozen, no live band).
     pub gaussian_path_primitives: usize,
+    /// Primitives snapped to β = 2 and frozen by the last check.
+    #[serde(default)]
+    pub gaussian_frozen_last_check: usize,
+    /// CPU reference renderer, forward + backward of one training view at the end of the run:
+    /// with the shortcuts (cheap Gaussian path, dropped slots skipped) and with every primitive
+    /// forced through the general path (ms, best of 3).
+    #[serde(default)]
+    pub cpu_step_ms_with_shortcuts: Option<f64>,
+    #[serde(default)]
+    pub cpu_step_ms_general_path: Option<f64>,
     pub primitives: usize,
     pub memory_bytes: usize,
     /// Mean step time before and after the last band compaction (ms).
@@ -367,7 +390,12 @@ impl<B: Backend> Trainer<B> {
                 sh: vec![rgb.map(|c| (f64::from(c) / 255.0 - 0.5) / c0)],
             });
         }
-        let prims = prims.cast::<f32>();
+        let mut prims = prims.cast::<f32>();
+        // β ≡ 2 during the warm-up (and for the whole run in modes without learnable β): frozen
+        // on the cheap Gaussian path; released at the warm-up's end (see `step`).
+        if !self.cfg.mode.learns_beta() || self.cfg.warmup > 0 {
+            prims.beta_raw.fill(BETA_RAW_FROZEN as f32);
+        }
         self.grad_accum = vec![0.0; prims.len()];
         self.grad_count = vec![0; prims.len()];
         prims
@@ -408,9 +436,9 @@ impl<B: Backend> Trainer<B> {
         }
     }
 
-    /// Bytes of parameters plus the two Adam moments.
+    /// Bytes of parameters plus the two Adam moments (each with its copy of the band mask).
     pub fn memory_bytes(&self) -> usize {
-        3 * 4 * params::value_count(&self.prims)
+        3 * 4 * (params::value_count(&self.prims) + self.prims.band_count.len())
     }
 
     fn after_warmup(&self) -> bool {
@@ -496,6 +524,9 @@ impl<B: Backend> Trainer<B> {
             self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.iteration,
         );
         let vi = self.data.train[rng.random_range(0..self.data.train.len())];
+        if self.iteration == self.cfg.warmup && self.cfg.mode.learns_beta() {
+            self.release_warmup_beta();
+        }
         let weights = self.loss_weights();
         let cam_i = self.data.views[vi].camera;
         let has_rgb = !self.prims.sh.is_empty();
@@ -592,14 +623,63 @@ impl<B: Backend> Trainer<B> {
             self.densify(&mut rng);
         }
         let c = self.cfg.capacity;
-        if self.prims.bands > 0
+        if (self.prims.bands > 0 || self.cfg.mode.learns_beta())
             && c.every > 0
             && self.iteration > self.cfg.warmup
             && (self.iteration - self.cfg.warmup).is_multiple_of(c.every)
         {
-            self.drop_bands();
+            if self.prims.bands > 0 {
+                self.drop_bands();
+            }
+            if self.cfg.mode.learns_beta() {
+                self.freeze_gaussians();
+            }
         }
         Ok(loss)
+    }
+
+    /// End of the warm-up: every frozen β becomes learnable (β = 2 + 4.5e-5).
+    fn release_warmup_beta(&mut self) {
+        let mut released = 0;
+        for (r, (m, v)) in self.prims.beta_raw.iter_mut().zip(
+            self.adam
+                .m
+                .beta_raw
+                .iter_mut()
+                .zip(&mut self.adam.v.beta_raw),
+        ) {
+            if is_beta_frozen(f64::from(*r)) {
+                *r = BETA_RAW_GAUSSIAN as f32;
+                (*m, *v) = (0.0, 0.0);
+                released += 1;
+            }
+        }
+        tracing::debug!(
+            iteration = self.iteration,
+            released,
+            "warm-up over: β learnable"
+        );
+    }
+
+    /// Snaps primitives with β ≤ `gaussian_beta_max` and no live band to β = 2, frozen.
+    fn freeze_gaussians(&mut self) {
+        let max = self.cfg.capacity.gaussian_beta_max;
+        let mut frozen = 0;
+        for i in 0..self.prims.len() {
+            let raw = f64::from(self.prims.beta_raw[i]);
+            if !is_beta_frozen(raw) && beta_of_raw(raw).0 <= max && self.prims.live_bands(i) == 0 {
+                self.prims.beta_raw[i] = BETA_RAW_FROZEN as f32;
+                self.adam.m.beta_raw[i] = 0.0;
+                self.adam.v.beta_raw[i] = 0.0;
+                frozen += 1;
+            }
+        }
+        self.state.capacity.gaussian_frozen_last_check = frozen;
+        tracing::debug!(
+            iteration = self.iteration,
+            frozen,
+            "β snapped to 2 (Gaussian path)"
+        );
     }
 
     /// Clone/split/prune under the budget (see [`Densify`]).
@@ -686,7 +766,7 @@ impl<B: Backend> Trainer<B> {
         let mut keep: Vec<Vec<usize>> = Vec::with_capacity(self.prims.len());
         let mut dropped = 0;
         for i in 0..self.prims.len() {
-            let mut live: Vec<usize> = (0..m)
+            let mut live: Vec<usize> = (0..self.prims.live_bands(i))
                 .filter(|&j| self.prims.band_amp[m * i + j].abs() >= thr)
                 .collect();
             live.sort_by(|&a, &b| {
@@ -694,7 +774,7 @@ impl<B: Backend> Trainer<B> {
                     .abs()
                     .total_cmp(&self.prims.band_amp[m * i + a].abs())
             });
-            dropped += m - live.len();
+            dropped += self.prims.live_bands(i) - live.len();
             keep.push(live);
         }
         let new_m = keep.iter().map(Vec::len).max().unwrap_or(0);
@@ -845,7 +925,6 @@ impl<B: Backend> Trainer<B> {
     pub fn capacity_report(&self) -> CapacityReport {
         let mut cap = self.state.capacity.clone();
         let m = self.prims.bands;
-        let thr = self.cfg.capacity.band_amp_threshold as f32;
         cap.bands_now = m;
         cap.primitives = self.prims.len();
         cap.memory_bytes = self.memory_bytes();
@@ -854,11 +933,12 @@ impl<B: Backend> Trainer<B> {
             (cap.bands_initial - m.min(cap.bands_initial)) * 5 * 4 * 3 * self.prims.len();
         cap.gaussian_path_primitives = (0..self.prims.len())
             .filter(|&i| {
-                f64::from(beta_of_raw(self.prims.beta_raw[i]).0)
-                    <= self.cfg.capacity.gaussian_beta_max
-                    && (0..m).all(|j| self.prims.band_amp[m * i + j].abs() < thr)
+                is_beta_frozen(f64::from(self.prims.beta_raw[i])) && self.prims.live_bands(i) == 0
             })
             .count();
+        cap.band_slots_dropped = (0..self.prims.len())
+            .map(|i| m - self.prims.live_bands(i))
+            .sum();
         if cap.step_ms_before_compaction.is_some() && self.state.step_count > 0 {
             cap.step_ms_after_compaction =
                 Some(self.state.step_ms_sum / self.state.step_count as f64);
@@ -905,8 +985,41 @@ impl<B: Backend> Trainer<B> {
         )?;
         let eval = self.evaluate()?;
         write_json(&dir.join(files::EVAL), &eval)?;
-        write_json(&dir.join(files::CAPACITY), &self.capacity_report())?;
+        let mut cap = self.capacity_report();
+        if let Some((with, general)) = self.cpu_shortcut_timing()? {
+            cap.cpu_step_ms_with_shortcuts = Some(with);
+            cap.cpu_step_ms_general_path = Some(general);
+        }
+        write_json(&dir.join(files::CAPACITY), &cap)?;
         Ok(())
+    }
+}
+
+impl<B: Backend> Trainer<B> {
+    /// CPU reference forward + backward of the first training view, best of 3, with the
+    /// renderer's shortcuts and with every primitive forced through the general path (ms).
+    fn cpu_shortcut_timing(&self) -> Result<Option<(f64, f64)>, TrainError> {
+        use crate::render::{RenderSettings, prepare, render_backward_prepared, render_prepared};
+        let Some(&vi) = self.data.train.first() else {
+            return Ok(None);
+        };
+        let cam = self.data.views[vi].camera;
+        let prep = prepare(&self.prims, &cam, &RenderSettings::default())?;
+        let general = prep.without_shortcuts(self.prims.bands);
+        let mut up = GBuffers::<f32>::zeros(prep.width, prep.height, !self.prims.sh.is_empty());
+        up.thermal.fill(1.0);
+        let time = |p: &crate::render::Prepared<f32>| {
+            (0..3)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    let gb = render_prepared(&self.prims, p);
+                    let g = render_backward_prepared(&self.prims, p, &up);
+                    std::hint::black_box((gb, g));
+                    t0.elapsed().as_secs_f64() * 1e3
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        Ok(Some((time(&prep), time(&general))))
     }
 }
 

@@ -26,6 +26,10 @@ pub fn gather(p: &Primitives<f32>, idx: &[usize]) -> Primitives<f32> {
             dst.extend_from_slice(&src[s * i..s * (i + 1)]);
         }
     }
+    out.band_count = idx
+        .iter()
+        .map(|&i| u32::try_from(p.live_bands(i)).unwrap_or(u32::MAX))
+        .collect();
     out
 }
 
@@ -41,7 +45,8 @@ pub fn zero_rows_from(p: &mut Primitives<f32>, from: usize) {
 }
 
 /// Re-lays the bands: row i keeps its bands `keep[i]` (in that order, at most `new_m`), the
-/// remaining slots are zero. Non-band groups are unchanged.
+/// remaining slots are zero and dropped (`band_count[i]` = the number kept). Non-band groups are
+/// unchanged.
 pub fn compact_bands(p: &Primitives<f32>, keep: &[Vec<usize>], new_m: usize) -> Primitives<f32> {
     let m = p.bands;
     let n = p.len();
@@ -50,7 +55,9 @@ pub fn compact_bands(p: &Primitives<f32>, keep: &[Vec<usize>], new_m: usize) -> 
     out.band_amp = vec![0.0; n * new_m];
     out.band_phase = vec![0.0; n * new_m];
     out.band_freq = vec![0.0; 3 * n * new_m];
+    out.band_count = vec![0; n];
     for (i, live) in keep.iter().enumerate().take(n) {
+        out.band_count[i] = u32::try_from(live.len().min(new_m)).unwrap_or(u32::MAX);
         for (slot, &j) in live.iter().take(new_m).enumerate() {
             let (src, dst) = (m * i + j, new_m * i + slot);
             out.band_amp[dst] = p.band_amp[src];
@@ -61,7 +68,7 @@ pub fn compact_bands(p: &Primitives<f32>, keep: &[Vec<usize>], new_m: usize) -> 
     out
 }
 
-/// Number of f32 values of a set.
+/// Number of f32 values of a set (parameters only; the `band_count` mask is extra).
 pub fn value_count(p: &Primitives<f32>) -> usize {
     p.groups().iter().map(|(_, v)| v.len()).sum()
 }
