@@ -32,11 +32,14 @@ pub enum CalibError {
     /// The board folder cannot be listed.
     #[error("board folder {path}: {reason}")]
     BoardFolder { path: PathBuf, reason: String },
-    /// A recorded session was given; only folders are supported for now.
+    /// A recorded session was given without the board description it needs.
     #[error(
-        "{path}: calibrating from a recorded session (.mcap) is not supported yet; extract the board frames into a folder (board.toml, thermal/, rgb/)"
+        "{path}: a recorded session (.mcap) does not carry the board geometry: pass --board board.toml ([board] inner_corners, square_mm)"
     )]
-    SessionUnsupported { path: PathBuf },
+    SessionNeedsBoard { path: PathBuf },
+    /// A recorded session could not be read.
+    #[error("session {path}: {reason}")]
+    Session { path: PathBuf, reason: String },
     /// Nothing in the input can be calibrated.
     #[error("{path}: nothing usable to calibrate: {reason}")]
     NothingUsable { path: PathBuf, reason: String },

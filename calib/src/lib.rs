@@ -22,6 +22,10 @@ pub mod pipeline;
 #[cfg(feature = "opencv")]
 pub mod report;
 #[cfg(feature = "opencv")]
+pub mod saddle;
+#[cfg(feature = "opencv")]
+pub mod session;
+#[cfg(feature = "opencv")]
 pub mod solve;
 #[cfg(feature = "opencv")]
 pub mod synth;

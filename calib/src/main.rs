@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use s3tir_calib::pipeline::{self, PipelineOptions};
+use s3tir_calib::session::SessionOptions;
 use s3tir_calib::solve::SolveOptions;
 use s3tir_calib::tags::{self, TagConfig, TagDetector};
 use s3tir_calib::{bench, detect, export, report};
@@ -20,7 +21,12 @@ use s3tir_calib::{bench, detect, export, report};
 /// camera with OpenCV's calibrateCamera, then solves both cameras' intrinsics, the
 /// thermal↔RGB extrinsic and all board poses in one robust Levenberg–Marquardt, and prints a
 /// summary. Files that cannot be used are listed with the reason; the run fails only when
-/// nothing is usable. Recorded sessions (.mcap) are not supported yet.
+/// nothing is usable.
+///
+/// `s3tir-calib session.mcap --board board.toml` calibrates from a session recorded by
+/// `s3tir-capture` instead: its thermal↔RGB pairs are the views (FFC-frozen thermal frames
+/// skipped, at most one pair per --session-interval-s); the board geometry comes from the
+/// given board.toml.
 #[derive(Debug, Parser)]
 #[command(
     name = "s3tir-calib",
@@ -38,8 +44,14 @@ struct Cli {
 
 #[derive(Debug, Args)]
 struct CalibrateArgs {
-    /// Board folder (board.toml, thermal/, rgb/).
+    /// Board folder (board.toml, thermal/, rgb/), or a recorded session (.mcap; needs --board).
     board_dir: Option<PathBuf>,
+    /// Board description for a recorded session (a folder uses its own board.toml).
+    #[arg(long)]
+    board: Option<PathBuf>,
+    /// Session input: smallest time between two pairs used, seconds (0 = every pair).
+    #[arg(long, default_value_t = 0.5)]
+    session_interval_s: f64,
     /// Where to write calibration.yaml; the exports (OpenCV, Kalibr, COLMAP, ROS) go beside it.
     #[arg(long, default_value = "calibration.yaml")]
     out: PathBuf,
@@ -161,15 +173,39 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         },
         progress: true,
     };
-    let cal = pipeline::calibrate_folder(dir, &opts)
-        .with_context(|| format!("calibrating from {}", dir.display()))?;
+    let cal = if pipeline::is_session(dir) {
+        let Some(board) = &args.board else {
+            bail!(
+                "{}: a recorded session (.mcap) does not carry the board geometry: pass --board board.toml",
+                dir.display()
+            );
+        };
+        let session_opts = SessionOptions {
+            min_interval_s: args.session_interval_s,
+        };
+        pipeline::calibrate_session(dir, board, &session_opts, &opts)
+    } else {
+        if let Some(board) = &args.board {
+            bail!(
+                "--board {} is for .mcap sessions; the folder {} uses its own board.toml",
+                board.display(),
+                dir.display()
+            );
+        }
+        pipeline::calibrate_folder(dir, &opts)
+    }
+    .with_context(|| format!("calibrating from {}", dir.display()))?;
     let written = export::write_all(&cal, &args.out)?;
     if let Some(path) = &args.summary_json {
         export::write_summary(&cal, path)?;
     }
     if let Some(report_dir) = &args.report {
         report::write_report(&cal, report_dir)?;
-        println!("report: {}", report_dir.join("report.md").display());
+        println!(
+            "report: {} and {}",
+            report_dir.join("report.md").display(),
+            report_dir.join("report.html").display()
+        );
     }
     for r in cal.cameras.iter().flatten() {
         let (i, s) = (r.model.intrinsics, r.sigma);

@@ -16,11 +16,13 @@ use serde::Serialize;
 use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
 use crate::camera::{BrownConrady, CameraModel, Intrinsics};
 use crate::error::CalibError;
+use crate::frontend::ScalarImage;
 use crate::frontend::{
     BoardDetection, DetectFailure, SourceKind, ThermalPolarity, detect_board, load_scalar,
     rotate_180,
 };
 use crate::geometry::Rigid3;
+use crate::session::{SessionOptions, SessionViews};
 use crate::solve::{
     ExtrinsicSigma, IntrinsicSigma, IterationLog, Observation, PoseFrame, Problem, RejectedCorner,
     SolveOptions, solve,
@@ -49,6 +51,8 @@ pub struct DetectedSet {
     pub polarity_note: String,
     pub source_kinds: Vec<(Camera, SourceKind)>,
     pub detection_wall_s: f64,
+    /// Input notes that become warnings (e.g. a truncated session).
+    pub notes: Vec<String>,
 }
 
 /// Options of a run.
@@ -66,28 +70,68 @@ fn problem(path: &Path, reason: impl Into<String>) -> FileProblem {
     }
 }
 
-/// Loads `board.toml` and detects the board in every image of `dir`.
-pub fn detect_folder(dir: &Path, progress: bool) -> Result<DetectedSet, CalibError> {
-    if dir
-        .extension()
+/// True when `path` names a recorded session (`.mcap`).
+pub fn is_session(path: &Path) -> bool {
+    path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
-    {
-        return Err(CalibError::SessionUnsupported {
+}
+
+/// Loads `board.toml` and detects the board in every image of `dir`. A session path
+/// (`.mcap`) is refused with [`CalibError::SessionNeedsBoard`]: use [`detect_session`].
+pub fn detect_folder(dir: &Path, progress: bool) -> Result<DetectedSet, CalibError> {
+    if is_session(dir) {
+        return Err(CalibError::SessionNeedsBoard {
             path: dir.to_path_buf(),
         });
     }
     let board = BoardSpec::load(&dir.join("board.toml"))?;
     let (files, mut problems) = list_views(dir)?;
-    detect_views(dir, board, files, &mut problems, progress)
+    let thermal_palette = board.thermal_palette;
+    detect_views(
+        dir,
+        board,
+        files,
+        &mut problems,
+        progress,
+        |path, camera| load_scalar(path, camera == Camera::Thermal, thermal_palette),
+    )
 }
 
-/// Detection over listed views (shared by [`detect_folder`]).
+/// Reads a recorded session (see [`crate::session`]) and detects the board described by
+/// `board_toml` in its views.
+pub fn detect_session(
+    session: &Path,
+    board_toml: &Path,
+    session_opts: &SessionOptions,
+    progress: bool,
+) -> Result<DetectedSet, CalibError> {
+    let board = BoardSpec::load(board_toml)?;
+    let SessionViews {
+        views,
+        images,
+        mut problems,
+        notes,
+    } = crate::session::read_views(session, session_opts)?;
+    let mut set = detect_views(
+        session,
+        board,
+        views,
+        &mut problems,
+        progress,
+        |name, camera| images.load(name, camera),
+    )?;
+    set.notes.extend(notes);
+    Ok(set)
+}
+
+/// Detection over listed views; `load` decodes a listed image (a file, or a session frame).
 pub fn detect_views(
     dir: &Path,
     board: BoardSpec,
     files: Vec<ViewFiles>,
     problems: &mut Vec<FileProblem>,
     progress: bool,
+    mut load: impl FnMut(&Path, Camera) -> Result<ScalarImage, CalibError>,
 ) -> Result<DetectedSet, CalibError> {
     let start = Instant::now();
     let total: usize = files.iter().map(|v| v.files.iter().flatten().count()).sum();
@@ -119,7 +163,7 @@ pub fn detect_views(
                     .unwrap_or_default(),
             );
             bar.inc(1);
-            let img = match load_scalar(path, camera == Camera::Thermal, board.thermal_palette) {
+            let img = match load(path, camera) {
                 Ok(i) => i,
                 Err(e) => {
                     problems.push(problem(path, format!("unreadable: {e}")));
@@ -184,6 +228,7 @@ pub fn detect_views(
         polarity_note,
         source_kinds,
         detection_wall_s: start.elapsed().as_secs_f64(),
+        notes: Vec::new(),
     })
 }
 
@@ -541,7 +586,7 @@ pub fn calibrate_detections(
     set: &DetectedSet,
     opts: &PipelineOptions,
 ) -> Result<Calibration, CalibError> {
-    let mut warnings = Vec::new();
+    let mut warnings = set.notes.clone();
     let object = set.board.object_points_m();
     let mut cameras: [Option<CameraModel>; 2] = [None, None];
     let mut init_poses: [Vec<(usize, Rigid3)>; 2] = [Vec::new(), Vec::new()];
@@ -834,5 +879,16 @@ fn coverage_warning(
 /// Detects and solves a board folder.
 pub fn calibrate_folder(dir: &Path, opts: &PipelineOptions) -> Result<Calibration, CalibError> {
     let set = detect_folder(dir, opts.progress)?;
+    calibrate_detections(&set, opts)
+}
+
+/// Calibrates from a recorded session (`.mcap`) with the board described by `board_toml`.
+pub fn calibrate_session(
+    session: &Path,
+    board_toml: &Path,
+    session_opts: &SessionOptions,
+    opts: &PipelineOptions,
+) -> Result<Calibration, CalibError> {
+    let set = detect_session(session, board_toml, session_opts, opts.progress)?;
     calibrate_detections(&set, opts)
 }

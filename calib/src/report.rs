@@ -1,6 +1,9 @@
-//! `--report DIR`: `report.md` plus PNG plots (plotters): per-view RMS bars, residual vectors
-//! over the image and a corner-coverage heat map per camera, and RMS against solver iteration
-//! and wall time (`rms_vs_iteration.png`, `rms_vs_time.png`, also as `iterations.csv`).
+//! `--report DIR`: `report.md` and `report.html` plus PNG plots (plotters): per-view RMS bars,
+//! residual vectors over the image and a corner-coverage heat map per camera, and RMS against
+//! solver iteration and wall time (`rms_vs_iteration.png`, `rms_vs_time.png`, also as
+//! `iterations.csv`). `report.html` is self-contained: the plots are embedded as `data:` URIs
+//! (and linked to the PNG files beside it), with tables of the result, the extrinsic, per-view
+//! RMS, rejected corners, warnings and the files not used.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -339,6 +342,8 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
         );
     }
     let _ = writeln!(md, "\n## Plots\n");
+    // (caption, file name) of every plot, for the HTML page.
+    let mut plots: Vec<(String, String)> = Vec::new();
     for camera in Camera::BOTH {
         let Some(r) = &c.cameras[camera.index()] else {
             continue;
@@ -357,6 +362,18 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
             md,
             "![{name} per-view RMS](per_view_rms_{name}.png)\n\n![{name} residuals ×{scale:.0}](residuals_{name}.png)\n\n![{name} coverage](coverage_{name}.png)\n"
         );
+        plots.push((
+            format!("{name}: RMS per view"),
+            format!("per_view_rms_{name}.png"),
+        ));
+        plots.push((
+            format!("{name}: residual vectors ×{scale:.0} (red: rejected)"),
+            format!("residuals_{name}.png"),
+        ));
+        plots.push((
+            format!("{name}: corner coverage"),
+            format!("coverage_{name}.png"),
+        ));
         let _ = writeln!(
             md,
             "| {name} view | RMS px | corners | tilt ° |\n|---|---|---|---|"
@@ -375,6 +392,15 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
         rms_curve(c, by_time, &p)?;
         files.push(p);
         let _ = writeln!(md, "![{name}]({name})\n");
+        plots.push((
+            if by_time {
+                "joint RMS vs solver wall time"
+            } else {
+                "joint RMS vs solver iteration"
+            }
+            .to_string(),
+            name.to_string(),
+        ));
     }
     let mut csv = String::from("iteration,wall_s,rms_px,lambda\n");
     for i in &c.iterations {
@@ -396,5 +422,261 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
         reason: x.to_string(),
     })?;
     files.push(p);
+    let p = dir.join("report.html");
+    let html = html_report(c, dir, &plots)?;
+    std::fs::write(&p, html).map_err(|x| CalibError::Output {
+        path: p.clone(),
+        reason: x.to_string(),
+    })?;
+    files.push(p);
     Ok(files)
+}
+
+/// Escapes text for HTML element content and attribute values.
+fn esc(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for ch in text.chars() {
+        match ch {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Standard base64 (RFC 4648, with padding), for `data:` URIs.
+fn base64(bytes: &[u8]) -> String {
+    const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            chunk.get(1).copied().unwrap_or(0),
+            chunk.get(2).copied().unwrap_or(0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(char::from(TABLE[((n >> (18 - 6 * k)) & 63) as usize]));
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// `report.html`: the same content as `report.md` as one self-contained page (plots embedded
+/// as `data:` URIs, each also linked to its PNG beside the page).
+fn html_report(
+    c: &Calibration,
+    dir: &Path,
+    plots: &[(String, String)],
+) -> Result<String, CalibError> {
+    let mut h = String::new();
+    let _ = writeln!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>s3tir-calib report</title>\n<style>\nbody {{ font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; }}\ntable {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}\nth, td {{ border: 1px solid #bbb; padding: 0.2em 0.6em; text-align: right; }}\nth {{ background: #eee; }}\ntd.l, th.l {{ text-align: left; }}\nfigure {{ margin: 1em 0; }}\nimg {{ max-width: 100%; border: 1px solid #ddd; }}\n.warn {{ color: #a40; }}\n</style>\n</head>\n<body>\n<h1>s3tir-calib report</h1>"
+    );
+    let _ = writeln!(
+        h,
+        "<p>Board {}×{} inner corners, {} mm squares. Thermal ordering: {}.</p>",
+        c.board.cols(),
+        c.board.rows(),
+        c.board.square_mm,
+        esc(&c.polarity_note)
+    );
+    let _ = writeln!(
+        h,
+        "<p>Detection {:.2} s, joint solve {:.3} s ({} iterations, converged: {}).</p>",
+        c.detection_wall_s,
+        c.solve_wall_s,
+        c.iterations.len().saturating_sub(1),
+        c.converged
+    );
+    let _ = writeln!(
+        h,
+        "<h2 id=\"result\">Result</h2>\n<table>\n<tr><th class=\"l\">camera</th><th>images</th><th>views found</th><th>views used</th><th>RMS px</th><th>OpenCV init RMS px</th><th>fx ± σ</th><th>fy ± σ</th><th>cx ± σ</th><th>cy ± σ</th><th class=\"l\">distortion k1 k2 p1 p2 k3</th></tr>"
+    );
+    for r in c.cameras.iter().flatten() {
+        let (i, s, d) = (r.model.intrinsics, r.sigma, r.model.distortion);
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.3} ± {:.3}</td><td>{:.3} ± {:.3}</td><td>{:.3} ± {:.3}</td><td>{:.3} ± {:.3}</td><td class=\"l\">{:.5} {:.5} {:.6} {:.6} {:.5}</td></tr>",
+            r.camera.name(),
+            r.images,
+            r.views_found,
+            r.views_used,
+            r.rms_px,
+            r.init_rms_px,
+            i.fx,
+            s.fx,
+            i.fy,
+            s.fy,
+            i.cx,
+            s.cx,
+            i.cy,
+            s.cy,
+            d.k1,
+            d.k2,
+            d.p1,
+            d.p2,
+            d.k3
+        );
+    }
+    let _ = writeln!(
+        h,
+        "</table>\n<p>Joint RMS {:.4} px over {} pairs (and unpaired views).</p>",
+        c.joint_rms_px, c.pairs_used
+    );
+    if let Some(t) = c.rgb_from_thermal {
+        let (axis, angle) = t.rotation.to_axis_angle();
+        let _ = writeln!(
+            h,
+            "<h2 id=\"extrinsic\">Extrinsic <code>rgb_from_thermal</code></h2>\n<table>\n<tr><th class=\"l\">quantity</th><th>value</th><th>1σ</th></tr>"
+        );
+        let sigma = c.extrinsic_sigma;
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l\">rotation angle</td><td>{:.4}° about ({:.3}, {:.3}, {:.3})</td><td>{}</td></tr>",
+            angle.to_degrees(),
+            axis.x,
+            axis.y,
+            axis.z,
+            sigma.map_or_else(
+                || "–".to_string(),
+                |s| format!(
+                    "({:.4}, {:.4}, {:.4})°",
+                    s.rotation_deg[0], s.rotation_deg[1], s.rotation_deg[2]
+                )
+            )
+        );
+        for (k, axis_name) in ["x", "y", "z"].iter().enumerate() {
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"l\">translation {axis_name}</td><td>{:.5} m</td><td>{}</td></tr>",
+                t.translation_m[k],
+                sigma.map_or_else(
+                    || "–".to_string(),
+                    |s| format!("{:.5} m", s.translation_m[k])
+                )
+            );
+        }
+        let _ = writeln!(h, "</table>");
+    }
+    let _ = writeln!(h, "<h2 id=\"warnings\">Warnings</h2>");
+    if c.warnings.is_empty() {
+        let _ = writeln!(h, "<p>None.</p>");
+    } else {
+        let _ = writeln!(h, "<ul>");
+        for w in &c.warnings {
+            let _ = writeln!(h, "<li class=\"warn\">{}</li>", esc(w));
+        }
+        let _ = writeln!(h, "</ul>");
+    }
+    let _ = writeln!(h, "<h2 id=\"bad-input\">Files not used</h2>");
+    if c.problems.is_empty() {
+        let _ = writeln!(h, "<p>None.</p>");
+    } else {
+        let _ = writeln!(
+            h,
+            "<table>\n<tr><th class=\"l\">file</th><th class=\"l\">reason</th></tr>"
+        );
+        for p in &c.problems {
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"l\"><code>{}</code></td><td class=\"l\">{}</td></tr>",
+                esc(&p.path.display().to_string()),
+                esc(&p.reason)
+            );
+        }
+        let _ = writeln!(h, "</table>");
+    }
+    let _ = writeln!(h, "<h2 id=\"rejected\">Rejected corners (k·σ test)</h2>");
+    if c.rejected.is_empty() {
+        let _ = writeln!(h, "<p>None.</p>");
+    } else {
+        let _ = writeln!(
+            h,
+            "<table>\n<tr><th class=\"l\">camera</th><th class=\"l\">view</th><th>corner</th><th>residual px</th></tr>"
+        );
+        for r in &c.rejected {
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.3}</td></tr>",
+                r.camera.name(),
+                esc(c.view_keys.get(r.view).map_or("?", String::as_str)),
+                r.corner,
+                r.residual_px
+            );
+        }
+        let _ = writeln!(h, "</table>");
+    }
+    for r in c.cameras.iter().flatten() {
+        let name = r.camera.name();
+        let _ = writeln!(
+            h,
+            "<h2 id=\"per-view-{name}\">{name}: RMS per view</h2>\n<table>\n<tr><th class=\"l\">view</th><th>RMS px</th><th>corners</th><th>tilt °</th></tr>"
+        );
+        for v in &r.per_view {
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"l\">{}</td><td>{:.4}</td><td>{}</td><td>{:.1}</td></tr>",
+                esc(&v.key),
+                v.rms_px,
+                v.corners_used,
+                v.tilt_deg
+            );
+        }
+        let _ = writeln!(h, "</table>");
+    }
+    let _ = writeln!(h, "<h2 id=\"plots\">Plots</h2>");
+    for (caption, file) in plots {
+        let path = dir.join(file);
+        let bytes = std::fs::read(&path).map_err(|x| CalibError::Output {
+            path: path.clone(),
+            reason: format!("reading the plot back for report.html: {x}"),
+        })?;
+        let _ = writeln!(
+            h,
+            "<figure><a href=\"{f}\"><img alt=\"{c}\" src=\"data:image/png;base64,{b}\"></a><figcaption>{c} (<a href=\"{f}\">{f}</a>)</figcaption></figure>",
+            f = esc(file),
+            c = esc(caption),
+            b = base64(&bytes)
+        );
+    }
+    let _ = writeln!(h, "</body>\n</html>");
+    Ok(h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_rfc_4648_vectors() {
+        for (input, want) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(input.as_bytes()), want, "base64({input:?})");
+        }
+    }
+
+    #[test]
+    fn html_escaping_covers_markup_characters() {
+        assert_eq!(
+            esc(r#"<a href="x">'&'</a>"#),
+            "&lt;a href=&quot;x&quot;&gt;&#39;&amp;&#39;&lt;/a&gt;"
+        );
+    }
 }

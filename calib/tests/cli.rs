@@ -1,7 +1,9 @@
 //! Proves the `s3tir-calib BOARD_DIR --out … --report … --summary-json …` command line works
 //! end to end on OpenCV's stereo samples: exit status 0, the summary JSON carries the issue's
 //! keys with finite values, calibration.yaml and every export are written, the report has its
-//! markdown and PNG plots. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
+//! markdown, PNG plots and a self-contained `report.html` (the 8 plots embedded and linked, the
+//! per-view, rejected-corner, warning and bad-input sections); `.mcap` input without `--board`
+//! fails naming the flag. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -137,15 +139,49 @@ fn calibrate_command_writes_summary_exports_and_report() {
             std::fs::metadata(report.join(name)).unwrap_or_else(|e| panic!("report/{name}: {e}"));
         assert!(meta.len() > 100, "report/{name} is {} bytes", meta.len());
     }
+    // report.html: self-contained (every plot embedded), linking the PNGs, with the tables.
+    let html = std::fs::read_to_string(report.join("report.html"))
+        .unwrap_or_else(|e| panic!("report/report.html: {e}"));
+    let embedded = html
+        .matches("src=\"data:image/png;base64,iVBORw0KGgo")
+        .count();
+    assert_eq!(
+        embedded, 8,
+        "report.html should embed 8 PNG plots (3 per camera + 2 RMS curves), found {embedded}"
+    );
+    for needle in [
+        "<!DOCTYPE html>",
+        "href=\"per_view_rms_thermal.png\"",
+        "href=\"residuals_rgb.png\"",
+        "href=\"coverage_thermal.png\"",
+        "href=\"rms_vs_iteration.png\"",
+        "href=\"rms_vs_time.png\"",
+        "id=\"per-view-thermal\"",
+        "id=\"per-view-rgb\"",
+        "id=\"rejected\"",
+        "id=\"warnings\"",
+        "id=\"bad-input\"",
+        "rgb_from_thermal",
+        "</html>",
+    ] {
+        assert!(
+            html.contains(needle),
+            "report.html lacks {needle:?} ({} bytes)",
+            html.len()
+        );
+    }
 }
 
 #[test]
-fn mcap_input_is_refused_with_a_clear_error() {
+fn mcap_input_without_board_is_refused_with_a_clear_error() {
     let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
         .arg("/nonexistent/session.mcap")
         .output()
         .unwrap();
     assert!(!result.status.success(), "must fail");
     let stderr = String::from_utf8_lossy(&result.stderr);
-    assert!(stderr.contains("not supported yet"), "stderr: {stderr}");
+    assert!(
+        stderr.contains("pass --board board.toml"),
+        "stderr should name --board: {stderr}"
+    );
 }

@@ -2,7 +2,8 @@
 //! per-file problem instead of NaN or an abort: fronto-parallel-only views, a camera that sees
 //! the board in only 3 views, boards partly out of frame, pseudo-colour thermal images, bad
 //! files (unreadable, wrong size, not an image), a missing camera, nothing usable, and `.mcap`
-//! input (not supported yet: a clear error). Accuracy here is checked only loosely (these are
+//! input without `--board` (a clear error; session input itself is tested in
+//! `tests/tests/calib_session.rs`). Accuracy here is checked only loosely (these are
 //! degraded sets); `synthetic_truth.rs` holds the tight bounds.
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -258,17 +259,17 @@ fn nothing_usable_fails_with_a_clear_message() {
 }
 
 #[test]
-fn mcap_sessions_are_refused_clearly() {
+fn mcap_sessions_without_a_board_are_refused_clearly() {
     let err = calibrate_folder(
         std::path::Path::new("/tmp/session.mcap"),
         &PipelineOptions::default(),
     )
     .unwrap_err();
     assert!(
-        matches!(err, CalibError::SessionUnsupported { .. }),
+        matches!(err, CalibError::SessionNeedsBoard { .. }),
         "got {err}"
     );
-    assert!(err.to_string().contains("not supported yet"), "{err}");
+    assert!(err.to_string().contains("--board board.toml"), "{err}");
 }
 
 #[test]

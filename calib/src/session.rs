@@ -1,0 +1,278 @@
+//! A recorded session (`.mcap`, written by `s3tir-capture`) as calibration input.
+//!
+//! The session is read with the capture crate's crash-tolerant reader
+//! ([`s3tir_capture::session::read_session`]; a truncated file is used up to its last complete
+//! chunk, with a warning). Views are the recorded thermal↔RGB pairs (`/pairs`):
+//! - a pair whose thermal frame is an FFC-frozen copy (`ffc = in_progress`) is skipped and
+//!   listed with the reason (a frozen frame repeats an older image, not the board's pose at
+//!   the pair's time);
+//! - a board waved at 8.7–60 Hz gives many near-identical pairs, which add detection time but
+//!   no information: a pair is taken only when its thermal frame is at least
+//!   `min_interval_s` after the previously taken one (default 0.5 s; 0 takes every pair);
+//! - a session without pair records (one camera recorded) gives single-camera views from
+//!   each stream's frames at the same interval.
+//!
+//! The board geometry is not in a session: the caller passes `board.toml`.
+//!
+//! Each view is named after the session and the frame's sequence number
+//! (`session.mcap#thermal/000123`), which is what the report's "files not used" list shows.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use s3tir_capture::frame::{CapturedFrame, RgbFrame, StreamKind, ThermalFrame};
+use s3tir_capture::session::{SessionItem, parse_recorded, read_session};
+
+use crate::board::{Camera, FileProblem, ViewFiles};
+use crate::error::CalibError;
+use crate::frontend::{ScalarImage, SourceKind, luminance};
+
+/// How frames are taken from a session.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SessionOptions {
+    /// Smallest time between two views taken (thermal capture clock), seconds.
+    pub min_interval_s: f64,
+}
+
+impl Default for SessionOptions {
+    fn default() -> Self {
+        Self {
+            min_interval_s: 0.5,
+        }
+    }
+}
+
+enum Stored {
+    Thermal(ThermalFrame),
+    Rgb(RgbFrame),
+}
+
+/// The frames of a session chosen as views, kept in memory (RGB still compressed) and decoded
+/// on demand.
+pub struct SessionImages {
+    path: PathBuf,
+    frames: HashMap<PathBuf, Stored>,
+}
+
+impl std::fmt::Debug for SessionImages {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SessionImages")
+            .field("path", &self.path)
+            .field("frames", &self.frames.len())
+            .finish()
+    }
+}
+
+/// Views, images and problems found in a session.
+#[derive(Debug)]
+pub struct SessionViews {
+    pub views: Vec<ViewFiles>,
+    pub images: SessionImages,
+    pub problems: Vec<FileProblem>,
+    /// Notes for the warnings list (truncation, pairs thinned out).
+    pub notes: Vec<String>,
+}
+
+fn frame_name(session: &Path, stream: StreamKind, sequence: u32) -> PathBuf {
+    PathBuf::from(format!(
+        "{}#{}/{sequence:06}",
+        session.display(),
+        stream.name()
+    ))
+}
+
+fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
+    CalibError::Session {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
+}
+
+/// Reads a session and chooses its views (module docs).
+pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, CalibError> {
+    let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
+    // Recent frames by sequence (pairs refer to frames a few frames back).
+    let mut recent: [BTreeMap<u32, CapturedFrame>; 2] = [BTreeMap::new(), BTreeMap::new()];
+    // Single-stream candidates, used when the session has no pairs.
+    let mut singles: [Vec<(u64, CapturedFrame)>; 2] = [Vec::new(), Vec::new()];
+    let mut last_single_ns: [Option<u64>; 2] = [None, None];
+    let mut pairs: Vec<(ThermalFrame, RgbFrame)> = Vec::new();
+    let mut problems = Vec::new();
+    let mut pair_records = 0usize;
+    let mut thinned = 0usize;
+    let mut last_pair_ns: Option<u64> = None;
+    let due = |last: Option<u64>, now: u64| last.is_none_or(|l| now >= l + min_interval_ns);
+    let outcome = read_session(path, |item| {
+        match item {
+            SessionItem::Frame(f) => {
+                let frame = parse_recorded(path, &f)?;
+                let k = match frame.stream() {
+                    StreamKind::Thermal => 0,
+                    StreamKind::Rgb => 1,
+                };
+                let t_ns = f.raw.monotonic_ns;
+                let frozen = matches!(&frame, CapturedFrame::Thermal(t) if t.is_ffc_frozen());
+                // Single-stream views are only needed while no pair has been seen.
+                if pair_records == 0 && !frozen && due(last_single_ns[k], t_ns) {
+                    last_single_ns[k] = Some(t_ns);
+                    singles[k].push((t_ns, frame.clone()));
+                }
+                recent[k].insert(f.raw.sequence, frame);
+                while recent[k].len() > 512 {
+                    recent[k].pop_first();
+                }
+            }
+            SessionItem::Pair(p) => {
+                pair_records += 1;
+                singles = [Vec::new(), Vec::new()];
+                let (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) = (
+                    recent[0].get(&p.thermal_sequence),
+                    recent[1].get(&p.rgb_sequence),
+                ) else {
+                    problems.push(FileProblem {
+                        path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
+                        reason: format!(
+                            "pair with RGB frame {} refers to a frame not in the session",
+                            p.rgb_sequence
+                        ),
+                    });
+                    return Ok(());
+                };
+                if t.is_ffc_frozen() {
+                    problems.push(FileProblem {
+                        path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
+                        reason: "FFC-frozen thermal frame (flat-field correction in progress): pair skipped".into(),
+                    });
+                    return Ok(());
+                }
+                if !due(last_pair_ns, p.thermal_monotonic_ns) {
+                    thinned += 1;
+                    return Ok(());
+                }
+                last_pair_ns = Some(p.thermal_monotonic_ns);
+                pairs.push((t.clone(), r.clone()));
+            }
+            SessionItem::Drop(_) | SessionItem::Status(_) => {}
+        }
+        Ok(())
+    })
+    .map_err(|e| capture_err(path, e))?;
+    let mut notes = Vec::new();
+    if outcome.truncated {
+        notes.push(format!(
+            "session {} is truncated ({}): read up to its last complete chunk",
+            path.display(),
+            outcome
+                .truncation_reason
+                .as_deref()
+                .unwrap_or("no reason given")
+        ));
+    }
+    if thinned > 0 {
+        notes.push(format!(
+            "session: {} of {pair_records} recorded pairs used, {thinned} skipped as less than {:.2} s after the previous one (--session-interval-s)",
+            pairs.len(),
+            opts.min_interval_s
+        ));
+    }
+    let mut frames = HashMap::new();
+    let mut views = Vec::new();
+    if pair_records > 0 {
+        for (t, r) in pairs {
+            let tn = frame_name(path, StreamKind::Thermal, t.time.sequence);
+            let rn = frame_name(path, StreamKind::Rgb, r.time.sequence);
+            views.push(ViewFiles {
+                key: format!("{:06}", t.time.sequence),
+                files: [Some(tn.clone()), Some(rn.clone())],
+            });
+            frames.insert(tn, Stored::Thermal(t));
+            frames.insert(rn, Stored::Rgb(r));
+        }
+    } else {
+        notes.push(format!(
+            "session {} has no thermal↔RGB pairs: each recorded stream calibrates its camera alone",
+            path.display()
+        ));
+        for (k, list) in singles.into_iter().enumerate() {
+            for (_, frame) in list {
+                let (stream, sequence, stored) = match frame {
+                    CapturedFrame::Thermal(t) => {
+                        (StreamKind::Thermal, t.time.sequence, Stored::Thermal(t))
+                    }
+                    CapturedFrame::Rgb(r) => (StreamKind::Rgb, r.time.sequence, Stored::Rgb(r)),
+                };
+                let name = frame_name(path, stream, sequence);
+                let mut files = [None, None];
+                files[k] = Some(name.clone());
+                views.push(ViewFiles {
+                    key: format!("{}-{sequence:06}", stream.name()),
+                    files,
+                });
+                frames.insert(name, stored);
+            }
+        }
+    }
+    Ok(SessionViews {
+        views,
+        images: SessionImages {
+            path: path.to_path_buf(),
+            frames,
+        },
+        problems,
+        notes,
+    })
+}
+
+impl SessionImages {
+    /// Decodes a view's frame (`name` as listed in [`SessionViews::views`]).
+    pub fn load(&self, name: &Path, camera: Camera) -> Result<ScalarImage, CalibError> {
+        let bad = |reason: String| CalibError::Image {
+            path: name.to_path_buf(),
+            reason,
+        };
+        let img = match (self.frames.get(name), camera) {
+            (Some(Stored::Thermal(t)), Camera::Thermal) => ScalarImage {
+                width_px: t.width,
+                height_px: t.height,
+                values: t.pixels.iter().map(|&v| f32::from(v)).collect(),
+                source: SourceKind::Grey16,
+            },
+            (Some(Stored::Rgb(r)), Camera::Rgb) => {
+                let rgb = r
+                    .to_rgb8(&self.path.display().to_string())
+                    .map_err(|e| bad(e.to_string()))?;
+                let n = (r.width as usize) * (r.height as usize);
+                if rgb.len() != 3 * n {
+                    return Err(bad(format!(
+                        "decoded {} bytes for a {}x{} RGB frame",
+                        rgb.len(),
+                        r.width,
+                        r.height
+                    )));
+                }
+                ScalarImage {
+                    width_px: r.width,
+                    height_px: r.height,
+                    values: rgb
+                        .chunks_exact(3)
+                        .map(|p| luminance([p[0], p[1], p[2]]))
+                        .collect(),
+                    source: SourceKind::ColourLuminance,
+                }
+            }
+            _ => return Err(bad("no such frame in the session".into())),
+        };
+        if img.width_px < 16
+            || img.height_px < 16
+            || img.values.len() != (img.width_px * img.height_px) as usize
+        {
+            return Err(bad(format!(
+                "{}x{} frame with {} values is not usable for board detection",
+                img.width_px,
+                img.height_px,
+                img.values.len()
+            )));
+        }
+        Ok(img)
+    }
+}
