@@ -152,7 +152,12 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                 last_pair_ns = Some(p.thermal_monotonic_ns);
                 pairs.push((t.clone(), r.clone()));
             }
-            SessionItem::Drop(_) | SessionItem::Status(_) => {}
+            // Drops, status, rig trigger pulses and the rig clock fit do not change which
+            // frames show the board.
+            SessionItem::Drop(_)
+            | SessionItem::Status(_)
+            | SessionItem::Trigger(_)
+            | SessionItem::Clock(_) => {}
         }
         Ok(())
     })

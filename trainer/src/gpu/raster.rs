@@ -121,6 +121,19 @@ impl BinnedView {
         &self.buffers[handle]
     }
 
+    /// Whether this view was binned from these camera and parameter blocks and `prims`' live
+    /// band counts (the key of kept views).
+    fn is_view_of(&self, camera: &[f32; 32], parameters: &[f32], prims: &Primitives<f32>) -> bool {
+        self.camera_block == *camera
+            && self.parameter_block == parameters
+            && self.band_count.len() == prims.len()
+            && self
+                .band_count
+                .iter()
+                .enumerate()
+                .all(|(i, &c)| c as usize == prims.live_bands(i))
+    }
+
     fn destroy(mut self, ctx: &GpuContext) {
         for b in self.buffers.drain(..) {
             ctx.destroy_buffer(b);
@@ -612,15 +625,7 @@ impl GpuRasterizer {
             let key_cam = camera_block(cam, settings);
             let v = kept
                 .iter()
-                .find(|v| {
-                    v.camera_block == key_cam
-                        && v.parameter_block == key_params
-                        && v.band_count.len() == prims.len()
-                        && v.band_count
-                            .iter()
-                            .enumerate()
-                            .all(|(i, &c)| c as usize == prims.live_bands(i))
-                })
+                .find(|v| v.is_view_of(&key_cam, &key_params, prims))
                 .ok_or_else(|| GpuError::InvalidInput {
                     reason: "submit_with_views: a view was not rendered from these parameters"
                         .to_owned(),
@@ -704,15 +709,9 @@ impl GpuRasterizer {
         let key_cam = camera_block(cam, settings);
         let key_params = parameter_block(prims);
         let mut kept = lock(&self.kept)?;
-        let position = kept.iter().position(|v| {
-            v.camera_block == key_cam
-                && v.parameter_block == key_params
-                && v.band_count.len() == prims.len()
-                && v.band_count
-                    .iter()
-                    .enumerate()
-                    .all(|(i, &c)| c as usize == prims.live_bands(i))
-        });
+        let position = kept
+            .iter()
+            .position(|v| v.is_view_of(&key_cam, &key_params, prims));
         let mut fresh = None;
         let view: &mut BinnedView = match position {
             Some(at) => &mut kept[at],
