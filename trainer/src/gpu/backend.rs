@@ -34,6 +34,8 @@ struct DeviceLosses {
     /// Upstream gradient planes (6 each) of the reference and the paired view.
     up_i: GpuBuffer,
     up_j: GpuBuffer,
+    /// Zero planes standing in for a view no primitive covers (the rasteriser keeps none).
+    zeros: GpuBuffer,
 }
 
 impl DeviceLosses {
@@ -52,24 +54,29 @@ impl DeviceLosses {
                 return Err(e);
             }
         };
-        let up = ctx
-            .create_buffer("device_step.up_i", bytes, MemoryLocation::DeviceOnly)
-            .and_then(|a| {
-                match ctx.create_buffer("device_step.up_j", bytes, MemoryLocation::DeviceOnly) {
-                    Ok(b) => Ok((a, b)),
-                    Err(e) => {
-                        ctx.destroy_buffer(a);
-                        Err(e)
-                    }
+        let mut buffers = Vec::new();
+        for (name, size) in [
+            ("device_step.up_i", bytes),
+            ("device_step.up_j", bytes),
+            ("device_step.zeros", (7 * width * height * 4) as u64),
+        ] {
+            match ctx.create_buffer(name, size, MemoryLocation::DeviceOnly) {
+                Ok(b) => buffers.push(b),
+                Err(e) => {
+                    buffers.into_iter().for_each(|b| ctx.destroy_buffer(b));
+                    view_loss.destroy(ctx);
+                    consistency.destroy(ctx);
+                    return Err(e);
                 }
-            });
-        let (up_i, up_j) = match up {
-            Ok(pair) => pair,
-            Err(e) => {
-                view_loss.destroy(ctx);
-                consistency.destroy(ctx);
-                return Err(e);
             }
+        }
+        let mut b = buffers.into_iter();
+        let (Some(up_i), Some(up_j), Some(zeros)) = (b.next(), b.next(), b.next()) else {
+            view_loss.destroy(ctx);
+            consistency.destroy(ctx);
+            return Err(GpuError::InvalidInput {
+                reason: "device losses: buffer list incomplete".to_owned(),
+            });
         };
         Ok(Self {
             width,
@@ -79,6 +86,7 @@ impl DeviceLosses {
             targets: HashMap::new(),
             up_i,
             up_j,
+            zeros,
         })
     }
 
@@ -90,6 +98,7 @@ impl DeviceLosses {
         }
         ctx.destroy_buffer(self.up_i);
         ctx.destroy_buffer(self.up_j);
+        ctx.destroy_buffer(self.zeros);
     }
 }
 
@@ -174,16 +183,11 @@ impl VulkanBackend {
             })?;
         // Views rendered now stay on the GPU for the losses and the backward passes.
         raster.render_kept(ctx, prims, step.cam, &self.settings)?;
-        let pair = step.pair.filter(|c| (c.width, c.height) == (w, h));
+        let pair = step.pair;
         if let Some(cam_j) = pair {
             raster.render_kept(ctx, prims, cam_j, &self.settings)?;
         }
-        // Planes of a view no primitive covers (the rasteriser keeps none): all zero.
-        let zeros = ctx.create_buffer(
-            "device_step.zeros",
-            (7 * npix * 4) as u64,
-            MemoryLocation::DeviceOnly,
-        )?;
+        let zeros = &losses.zeros;
         let mut cams: Vec<&PinholeCamera> = vec![step.cam];
         cams.extend(pair);
         let recorded = raster.submit_with_views(ctx, prims, &cams, &self.settings, |rec, views| {
@@ -191,11 +195,11 @@ impl VulkanBackend {
                 v.planes.unwrap_or(zeros)
             }
             let view_i = &views[0];
-            rec.fill_zero(&zeros);
+            rec.fill_zero(zeros);
             rec.fill_zero(&losses.up_j);
             losses.view_loss.record(
                 rec,
-                planes_of(view_i, &zeros),
+                planes_of(view_i, zeros),
                 target,
                 &losses.up_i,
                 &step.weights,
@@ -207,8 +211,8 @@ impl VulkanBackend {
                     &ConsistencyViews {
                         cam_i: view_i.camera,
                         cam_j: view_j.camera,
-                        planes_i: planes_of(view_i, &zeros),
-                        planes_j: planes_of(view_j, &zeros),
+                        planes_i: planes_of(view_i, zeros),
+                        planes_j: planes_of(view_j, zeros),
                         up_i: &losses.up_i,
                         up_j: &losses.up_j,
                         width_j: view_j.width,
@@ -220,7 +224,6 @@ impl VulkanBackend {
             }
             Ok(())
         });
-        ctx.destroy_buffer(zeros);
         recorded?;
         let values = losses.view_loss.values(ctx)?;
         let mut loss = values.total(&step.weights);
@@ -316,7 +319,12 @@ impl Backend for VulkanBackend {
         prims: &Primitives<f32>,
         step: &DeviceStep<'_>,
     ) -> Option<Result<DeviceStepResult, TrainerError>> {
-        if !self.device_losses || prims.sh_degree.is_some() {
+        // The device path covers thermal-only steps whose two views share one size (its loss
+        // buffers are sized per view size); anything else takes the host path.
+        let same_size = step
+            .pair
+            .is_none_or(|c| (c.width, c.height) == (step.cam.width, step.cam.height));
+        if !self.device_losses || prims.sh_degree.is_some() || !same_size {
             return None;
         }
         let _span = tracing::trace_span!("vulkan_device_step").entered();
