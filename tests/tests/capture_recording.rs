@@ -19,31 +19,8 @@ use std::time::{Duration, Instant};
 
 use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig};
 use s3tir_capture::synth::{Script, ThermalSynth};
-use s3tir_tests::bin;
+use s3tir_tests::{bin, capture_info_json as info_json, json_u64 as u};
 use serde_json::Value;
-
-fn info_json(path: &std::path::Path) -> Value {
-    let out = Command::new(bin("s3tir-capture"))
-        .args(["info", "--json"])
-        .arg(path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "info failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-fn u(v: &Value, path: &[&str]) -> u64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_u64()
-        .unwrap_or_else(|| panic!("{path:?} missing or not an integer in {v}"))
-}
 
 #[test]
 fn ten_second_boson_rgb_recording_is_complete_and_replays_byte_exact() {

@@ -24,17 +24,8 @@
 
 use std::process::{Command, Stdio};
 
-use s3tir_tests::bin;
+use s3tir_tests::{bin, json_f64 as f};
 use serde_json::Value;
-
-fn f(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{path:?} missing or not a number in {v}"))
-}
 
 #[test]
 fn triggered_recording_maps_the_controller_clock_and_pairs_by_pulse() {

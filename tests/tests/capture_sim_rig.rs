@@ -30,42 +30,10 @@
 
 use std::process::{Command, Stdio};
 
-use s3tir_tests::bin;
+use s3tir_tests::{bin, capture_info_json as info_json, json_f64 as f, json_u64 as u};
 use serde_json::Value;
 
 const DURATION_S: f64 = 10.0;
-
-fn info_json(path: &std::path::Path) -> Value {
-    let out = Command::new(bin("s3tir-capture"))
-        .args(["info", "--json"])
-        .arg(path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "info failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-fn u(v: &Value, path: &[&str]) -> u64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_u64()
-        .unwrap_or_else(|| panic!("{path:?} missing or not an integer in {v}"))
-}
-
-fn f(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{path:?} missing or not a number in {v}"))
-}
 
 #[test]
 fn ten_seconds_of_the_simulated_boson_and_rgb_are_complete_and_replay_byte_exact() {
