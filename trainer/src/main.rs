@@ -371,6 +371,10 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         "  peak GPU memory             {:8.1} MiB",
         r.peak_gpu_bytes as f64 / (1024.0 * 1024.0)
     );
+    println!(
+        "  host reads per step         {:8.1} ({:.0} bytes; {:.1} submissions), Vulkan s3tir",
+        r.host_reads_per_step, r.host_read_bytes_per_step, r.submissions_per_step
+    );
     println!("  GPU time per step, s3tir mode:");
     for k in &r.kernels {
         println!(

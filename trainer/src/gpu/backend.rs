@@ -1,12 +1,16 @@
 //! The Vulkan training backend: [`crate::train::backend::Backend`] over the GPU rasteriser, so
 //! `s3tir-train --backend vulkan` runs the same training loop as the CPU backend.
 //!
-//! Thermal training steps take the device path ([`Backend::device_step`]): both views are
-//! rendered into buffers that stay on the GPU, the single-view loss ([`super::loss`]) and the
-//! consistency term ([`super::consistency`]) write the upstream gradient planes on the GPU, and
-//! the backward passes read them there. Per step the host reads back the two key counts, six
-//! loss floats and the parameter gradients (the optimiser still runs on the host); targets are
-//! uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
+//! Thermal training steps run resident ([`Backend::resident_step`]): the parameters, the Adam
+//! moments and the densification statistics stay on the GPU ([`super::optimiser`]); both views
+//! are rendered into buffers that stay there, the single-view loss ([`super::loss`]) and the
+//! consistency term ([`super::consistency`]) write the upstream gradient planes, both backward
+//! passes write the parameter gradients into the optimiser's buffers and the `adam` kernel
+//! steps the state. Per step the host reads the key count of each view (it sizes the sort) and
+//! the loss values. With [`VulkanBackend::set_resident_optimiser`] off, steps take the device
+//! path ([`Backend::device_step`]: the same, with the gradients read back for the host's
+//! Adam); with [`VulkanBackend::set_device_losses`] off, the host path (images read back).
+//! Targets are uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
 
 use std::collections::HashMap;
 
@@ -15,12 +19,13 @@ use super::consistency::{ConsistencyViews, GpuConsistency};
 use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation};
 use super::error::GpuError;
 use super::loss::GpuViewLoss;
-use super::raster::{GpuRasterizer, KeptView};
+use super::optimiser::{AdamStep, GpuOptimiser};
+use super::raster::{GpuRasterizer, KeptView, ParamSource};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
-use crate::train::backend::{Backend, DeviceStep, DeviceStepResult};
+use crate::train::backend::{Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep};
 
 /// Loss kernels and buffers of the device path, for views of one size.
 #[derive(Debug)]
@@ -108,8 +113,14 @@ pub struct VulkanBackend {
     // Field order: the rasteriser's kernels are released (Drop) before the context.
     raster: Option<GpuRasterizer>,
     losses: Option<DeviceLosses>,
+    /// Parameters, moments and statistics on the GPU (built on the first upload).
+    optimiser: Option<GpuOptimiser>,
     /// Whether thermal steps take the device path (default); off: host losses, as the CPU.
     device_losses: bool,
+    /// Whether the optimiser state may stay on the GPU (default; needs `device_losses`).
+    resident: bool,
+    /// Steps taken with the optimiser state on the GPU.
+    resident_steps: u64,
     ctx: GpuContext,
     pub settings: RenderSettings,
 }
@@ -124,7 +135,10 @@ impl VulkanBackend {
         Ok(Self {
             raster: Some(raster),
             losses: None,
+            optimiser: None,
             device_losses: true,
+            resident: true,
+            resident_steps: 0,
             ctx,
             settings,
         })
@@ -136,12 +150,20 @@ impl VulkanBackend {
         self.device_losses = on;
     }
 
-    /// The device path of [`Backend::device_step`].
-    fn device_step_inner(
-        &mut self,
-        prims: &Primitives<f32>,
-        step: &DeviceStep<'_>,
-    ) -> Result<DeviceStepResult, GpuError> {
+    /// Chooses whether the optimiser state (parameters, Adam moments, densification
+    /// statistics) stays on the GPU between steps and Adam runs there (the default), or Adam
+    /// runs on the host with the gradients read back every step (for comparisons and tests).
+    pub fn set_resident_optimiser(&mut self, on: bool) {
+        self.resident = on;
+    }
+
+    /// Steps taken so far with the optimiser state resident on the GPU.
+    pub fn resident_steps(&self) -> u64 {
+        self.resident_steps
+    }
+
+    /// Creates the loss buffers for the size of `step`'s views and uploads its target once.
+    fn prepare_losses(&mut self, step: &DeviceStep<'_>) -> Result<(), GpuError> {
         let (w, h) = (step.cam.width, step.cam.height);
         let npix = w * h;
         if step.target.len() != npix {
@@ -153,9 +175,7 @@ impl VulkanBackend {
                 ),
             });
         }
-        let raster = self.raster.as_ref().ok_or_else(|| GpuError::InvalidInput {
-            reason: "the Vulkan backend was already shut down".to_owned(),
-        })?;
+        let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let ctx = &self.ctx;
         if self
             .losses
@@ -174,7 +194,22 @@ impl VulkanBackend {
         if let std::collections::hash_map::Entry::Vacant(slot) = losses.targets.entry(step.view) {
             slot.insert(ctx.upload("device_step.target", step.target)?);
         }
-        let losses = &*losses;
+        Ok(())
+    }
+
+    /// Renders the views of `step` (kept on the GPU) from the parameters of `src` and records
+    /// the losses, which write the upstream planes `up_i` / `up_j`; returns the weighted loss.
+    fn forward_losses(
+        &self,
+        prims: &Primitives<f32>,
+        src: ParamSource<'_>,
+        step: &DeviceStep<'_>,
+    ) -> Result<f64, GpuError> {
+        let raster = self.raster.as_ref().ok_or_else(shut_down)?;
+        let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
+            reason: "device losses unavailable".to_owned(),
+        })?;
+        let ctx = &self.ctx;
         let target = losses
             .targets
             .get(&step.view)
@@ -182,15 +217,15 @@ impl VulkanBackend {
                 reason: "thermal target not uploaded".to_owned(),
             })?;
         // Views rendered now stay on the GPU for the losses and the backward passes.
-        raster.render_kept(ctx, prims, step.cam, &self.settings)?;
+        raster.render_kept(ctx, prims, src, step.cam, &self.settings)?;
         let pair = step.pair;
         if let Some(cam_j) = pair {
-            raster.render_kept(ctx, prims, cam_j, &self.settings)?;
+            raster.render_kept(ctx, prims, src, cam_j, &self.settings)?;
         }
         let zeros = &losses.zeros;
         let mut cams: Vec<&PinholeCamera> = vec![step.cam];
         cams.extend(pair);
-        let recorded = raster.submit_with_views(ctx, prims, &cams, &self.settings, |rec, views| {
+        raster.submit_with_views(ctx, prims, src, &cams, &self.settings, |rec, views| {
             fn planes_of<'a>(v: &KeptView<'a>, zeros: &'a GpuBuffer) -> &'a GpuBuffer {
                 v.planes.unwrap_or(zeros)
             }
@@ -223,14 +258,30 @@ impl VulkanBackend {
                 )?;
             }
             Ok(())
-        });
-        recorded?;
-        let values = losses.view_loss.values(ctx)?;
-        let mut loss = values.total(&step.weights);
+        })?;
+        let mut loss = losses.view_loss.values(ctx)?.total(&step.weights);
+        if pair.is_some() {
+            loss += step.weights.lambda_consist * losses.consistency.values(ctx)?.loss;
+        }
+        Ok(loss)
+    }
+
+    /// The device path of [`Backend::device_step`].
+    fn device_step_inner(
+        &mut self,
+        prims: &Primitives<f32>,
+        step: &DeviceStep<'_>,
+    ) -> Result<DeviceStepResult, GpuError> {
+        self.prepare_losses(step)?;
+        let loss = self.forward_losses(prims, ParamSource::Host, step)?;
+        let raster = self.raster.as_ref().ok_or_else(shut_down)?;
+        let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
+            reason: "device losses unavailable".to_owned(),
+        })?;
+        let ctx = &self.ctx;
         let mut grads =
             raster.render_backward_device(ctx, prims, step.cam, &self.settings, &losses.up_i)?;
-        if let Some(cam_j) = pair {
-            loss += step.weights.lambda_consist * losses.consistency.values(ctx)?.loss;
+        if let Some(cam_j) = step.pair {
             let g_j =
                 raster.render_backward_device(ctx, prims, cam_j, &self.settings, &losses.up_j)?;
             for ((_, a), (_, b)) in grads.groups_mut().into_iter().zip(g_j.groups()) {
@@ -240,6 +291,61 @@ impl VulkanBackend {
             }
         }
         Ok(DeviceStepResult { loss, grads })
+    }
+
+    /// The path of [`Backend::resident_step`]: as [`Self::device_step_inner`] from the
+    /// resident parameters, with the gradients written to the optimiser's buffers and the Adam
+    /// step on the GPU. Host reads per step: the key count of each view and the loss values.
+    fn resident_step_inner(
+        &mut self,
+        prims: &Primitives<f32>,
+        step: &ResidentStep<'_>,
+    ) -> Result<f64, GpuError> {
+        let losses_step = &step.losses;
+        self.prepare_losses(losses_step)?;
+        let opt = self.optimiser.as_ref().ok_or_else(no_resident_state)?;
+        let (params, generation) = opt.params().ok_or_else(no_resident_state)?;
+        let src = ParamSource::Device {
+            buffer: params,
+            generation,
+        };
+        let loss = self.forward_losses(prims, src, losses_step)?;
+        let raster = self.raster.as_ref().ok_or_else(shut_down)?;
+        let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
+            reason: "device losses unavailable".to_owned(),
+        })?;
+        let ctx = &self.ctx;
+        let (grads_i, grads_j) = opt.grads().ok_or_else(no_resident_state)?;
+        let settings = &self.settings;
+        let written_i = raster.backward_into(
+            ctx,
+            prims,
+            src,
+            losses_step.cam,
+            settings,
+            &losses.up_i,
+            grads_i,
+        )?;
+        let written_j = match losses_step.pair {
+            Some(cam_j) => {
+                raster.backward_into(ctx, prims, src, cam_j, settings, &losses.up_j, grads_j)?
+            }
+            None => false,
+        };
+        let adam = AdamStep {
+            lrs: step.lrs,
+            hp: step.hp,
+            step: step.adam_step,
+            min_log_scale: step.min_log_scale,
+        };
+        raster.submit_recorded(ctx, |rec| {
+            opt.record_step(rec, &adam, losses_step.cam, written_i, written_j)
+        })?;
+        if let Some(opt) = self.optimiser.as_mut() {
+            opt.advance();
+        }
+        self.resident_steps += 1;
+        Ok(loss)
     }
 
     pub fn context(&self) -> &GpuContext {
@@ -263,9 +369,7 @@ impl VulkanBackend {
 
     fn raster(&self) -> Result<&GpuRasterizer, TrainerError> {
         self.raster.as_ref().ok_or_else(|| TrainerError::Gpu {
-            source: GpuError::InvalidInput {
-                reason: "the Vulkan backend was already shut down".to_owned(),
-            },
+            source: shut_down(),
         })
     }
 
@@ -281,6 +385,18 @@ impl VulkanBackend {
             });
         }
         Ok(())
+    }
+}
+
+fn shut_down() -> GpuError {
+    GpuError::InvalidInput {
+        reason: "the Vulkan backend was already shut down".to_owned(),
+    }
+}
+
+fn no_resident_state() -> GpuError {
+    GpuError::InvalidInput {
+        reason: "no optimiser state on the GPU (resident_upload first)".to_owned(),
     }
 }
 
@@ -333,10 +449,76 @@ impl Backend for VulkanBackend {
                 .map_err(|source| TrainerError::Gpu { source }),
         )
     }
+
+    fn resident_upload(&mut self, state: &mut OptimiserState<'_>) -> Result<bool, TrainerError> {
+        if !(self.resident && self.device_losses) || state.prims.sh_degree.is_some() {
+            return Ok(false);
+        }
+        let gpu = |source| TrainerError::Gpu { source };
+        if self.optimiser.is_none() {
+            self.optimiser = Some(GpuOptimiser::new(&self.ctx).map_err(gpu)?);
+        }
+        let Some(opt) = self.optimiser.as_mut() else {
+            return Ok(false);
+        };
+        opt.upload(
+            &self.ctx,
+            state.prims,
+            state.adam,
+            state.grad_accum,
+            state.grad_count,
+        )
+        .map_err(gpu)?;
+        Ok(true)
+    }
+
+    fn resident_step(
+        &mut self,
+        prims: &Primitives<f32>,
+        step: &ResidentStep<'_>,
+    ) -> Option<Result<f64, TrainerError>> {
+        let l = &step.losses;
+        let same_size = l
+            .pair
+            .is_none_or(|c| (c.width, c.height) == (l.cam.width, l.cam.height));
+        let resident = self
+            .optimiser
+            .as_ref()
+            .is_some_and(GpuOptimiser::is_resident);
+        if !resident || prims.sh_degree.is_some() || !same_size {
+            return None;
+        }
+        let _span = tracing::trace_span!("vulkan_resident_step").entered();
+        Some(
+            self.resident_step_inner(prims, step)
+                .map_err(|source| TrainerError::Gpu { source }),
+        )
+    }
+
+    fn resident_download(&mut self, state: &mut OptimiserState<'_>) -> Result<(), TrainerError> {
+        let Some(opt) = self.optimiser.as_mut() else {
+            return Ok(());
+        };
+        if !opt.is_resident() {
+            return Ok(());
+        }
+        let out = opt.download(
+            &self.ctx,
+            state.prims,
+            state.adam,
+            state.grad_accum,
+            state.grad_count,
+        );
+        opt.release(&self.ctx);
+        out.map_err(|source| TrainerError::Gpu { source })
+    }
 }
 
 impl Drop for VulkanBackend {
     fn drop(&mut self) {
+        if let Some(o) = self.optimiser.take() {
+            o.destroy(&self.ctx);
+        }
         if let Some(r) = self.raster.take() {
             r.destroy(&self.ctx);
         }

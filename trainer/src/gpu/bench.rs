@@ -86,6 +86,11 @@ pub struct BenchReport {
     /// Per-kernel GPU time in s3tir mode, largest first.
     pub kernels: Vec<KernelShare>,
     pub peak_gpu_bytes: u64,
+    /// Vulkan s3tir steps: host reads of GPU data per step (each waits for the GPU), their
+    /// bytes, and command submissions per step.
+    pub host_reads_per_step: f64,
+    pub host_read_bytes_per_step: f64,
+    pub submissions_per_step: f64,
 }
 
 /// Errors of the benchmark.
@@ -137,6 +142,8 @@ fn process_cpu_s() -> f64 {
 struct Measured<B> {
     steps_per_s: f64,
     cpu_ms_per_step: f64,
+    /// Vulkan traffic during the timed steps: (host reads, bytes read, submissions).
+    traffic: (u64, u64, u64),
     backend: B,
 }
 
@@ -149,6 +156,7 @@ fn measure<B: Backend>(
     opts: &BenchOptions,
     backend: B,
     before_timing: &mut dyn FnMut(&mut B),
+    traffic: &dyn Fn(&B) -> (u64, u64, u64),
 ) -> Result<Measured<B>, BenchError> {
     let train = |source| BenchError::Train { source };
     let data =
@@ -162,6 +170,7 @@ fn measure<B: Backend>(
         t.step().map_err(train)?;
     }
     before_timing(&mut t.backend);
+    let traffic_start = traffic(&t.backend);
     let start = Instant::now();
     let cpu_start = process_cpu_s();
     for _ in 0..opts.steps {
@@ -169,9 +178,16 @@ fn measure<B: Backend>(
     }
     let cpu_s = process_cpu_s() - cpu_start;
     let seconds = start.elapsed().as_secs_f64();
+    let traffic_end = traffic(&t.backend);
+    t.sync_host().map_err(train)?;
     Ok(Measured {
         steps_per_s: opts.steps as f64 / seconds.max(1e-9),
         cpu_ms_per_step: 1e3 * cpu_s / opts.steps as f64,
+        traffic: (
+            traffic_end.0 - traffic_start.0,
+            traffic_end.1 - traffic_start.1,
+            traffic_end.2 - traffic_start.2,
+        ),
         backend: t.backend,
     })
 }
@@ -225,6 +241,7 @@ fn run_in(
         opts,
         CpuBackend { settings },
         &mut |_| {},
+        &|_| (0, 0, 0),
     )?;
 
     progress("Vulkan backend, 3dgs mode");
@@ -236,6 +253,7 @@ fn run_in(
         opts,
         vk,
         &mut |_| {},
+        &|b: &VulkanBackend| b.context().traffic(),
     )?;
 
     progress("Vulkan backend, s3tir mode (with per-kernel timestamps in a second pass)");
@@ -248,6 +266,7 @@ fn run_in(
         opts,
         vk,
         &mut |_| {},
+        &|b: &VulkanBackend| b.context().traffic(),
     )?;
     // Timestamps add work of their own: time the kernels in a separate pass.
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
@@ -261,6 +280,7 @@ fn run_in(
             b.set_profiling(true);
             let _ = b.take_timings();
         },
+        &|b: &VulkanBackend| b.context().traffic(),
     )?
     .backend;
     let mut per_kernel: BTreeMap<String, f64> = BTreeMap::new();
@@ -278,6 +298,7 @@ fn run_in(
         .collect();
     kernels.sort_by(|a, b| b.ms_per_step.total_cmp(&a.ms_per_step));
     let peak_gpu_bytes = vk.context().peak_allocated_bytes();
+    let per_step = |x: u64| x as f64 / opts.steps as f64;
     Ok(BenchReport {
         device,
         width: opts.width,
@@ -295,5 +316,8 @@ fn run_in(
         gaussian_cpu_ms_per_step: gaussian.cpu_ms_per_step,
         kernels,
         peak_gpu_bytes,
+        host_reads_per_step: per_step(s3tir.traffic.0),
+        host_read_bytes_per_step: per_step(s3tir.traffic.1),
+        submissions_per_step: per_step(s3tir.traffic.2),
     })
 }

@@ -103,6 +103,11 @@ pub struct GpuContext {
     caps: Capabilities,
     allocated_bytes: AtomicU64,
     peak_allocated_bytes: AtomicU64,
+    /// Host reads of GPU-written data ([`Self::read_at`]) and their bytes, and submissions:
+    /// each read waits for the GPU (`s3tir-train bench` reports them per step).
+    host_reads: AtomicU64,
+    host_read_bytes: AtomicU64,
+    submissions: AtomicU64,
     // Last: destroyed after the device (see Drop).
     instance: VulkanInstance,
 }
@@ -252,6 +257,9 @@ impl GpuContext {
             caps,
             allocated_bytes: AtomicU64::new(0),
             peak_allocated_bytes: AtomicU64::new(0),
+            host_reads: AtomicU64::new(0),
+            host_read_bytes: AtomicU64::new(0),
+            submissions: AtomicU64::new(0),
             instance,
         })
     }
@@ -285,6 +293,15 @@ impl GpuContext {
     /// Largest [`Self::allocated_bytes`] seen since the context opened.
     pub fn peak_allocated_bytes(&self) -> u64 {
         self.peak_allocated_bytes.load(Ordering::Relaxed)
+    }
+
+    /// Traffic so far: (host reads of GPU data, bytes read, submissions).
+    pub fn traffic(&self) -> (u64, u64, u64) {
+        (
+            self.host_reads.load(Ordering::Relaxed),
+            self.host_read_bytes.load(Ordering::Relaxed),
+            self.submissions.load(Ordering::Relaxed),
+        )
     }
 
     /// Creates a storage buffer of `size_bytes`, checked against the device's storage-buffer
@@ -437,6 +454,9 @@ impl GpuContext {
         if end as u64 > buffer.size_bytes {
             return Err(out_of_range());
         }
+        self.host_reads.fetch_add(1, Ordering::Relaxed);
+        self.host_read_bytes
+            .fetch_add((end - start) as u64, Ordering::Relaxed);
         let mapped = buffer.allocation.mapped_slice().ok_or_else(out_of_range)?;
         let bytes = mapped.get(start..end).ok_or_else(out_of_range)?;
         // Copy element-wise: mapped memory need not be aligned for T.
@@ -595,6 +615,7 @@ impl GpuContext {
     where
         F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
     {
+        self.submissions.fetch_add(1, Ordering::Relaxed);
         let d = &self.device;
         let pool_sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
@@ -886,6 +907,63 @@ impl Recorder<'_> {
                 &[],
             );
         }
+    }
+
+    /// Copies the first `bytes` bytes of `src` to the start of `dst` (a transfer command), after
+    /// every shader write recorded before it, and makes the copy visible to the shaders recorded
+    /// after it. The caller keeps `bytes` within both buffers (checked: a longer copy is an
+    /// error naming the buffers).
+    pub fn copy_buffer(
+        &mut self,
+        src: &GpuBuffer,
+        dst: &GpuBuffer,
+        bytes: u64,
+    ) -> Result<(), GpuError> {
+        for b in [src, dst] {
+            if bytes > b.size_bytes {
+                return Err(GpuError::BufferRange {
+                    name: b.name.clone(),
+                    requested_bytes: bytes,
+                    capacity_bytes: b.size_bytes,
+                });
+            }
+        }
+        if bytes == 0 {
+            return Ok(());
+        }
+        let before = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE)];
+        let after = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE)];
+        let region = [vk::BufferCopy::default().size(bytes)];
+        // SAFETY: recording into a command buffer in the recording state; both buffers belong to
+        // this device, were created with TRANSFER_SRC | TRANSFER_DST usage (every GpuBuffer is)
+        // and hold at least `bytes` bytes (checked above).
+        unsafe {
+            let d = &self.ctx.device;
+            d.cmd_pipeline_barrier(
+                self.cmd,
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::DependencyFlags::empty(),
+                &before,
+                &[],
+                &[],
+            );
+            d.cmd_copy_buffer(self.cmd, src.raw, dst.raw, &region);
+            d.cmd_pipeline_barrier(
+                self.cmd,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::DependencyFlags::empty(),
+                &after,
+                &[],
+                &[],
+            );
+        }
+        Ok(())
     }
 
     /// Makes every shader write before it visible to every shader read/write after it.

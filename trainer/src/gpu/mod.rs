@@ -15,6 +15,8 @@
 //!   renderer by parity tests,
 //! - [`loss`]: the single-view loss (L1 + D-SSIM, sparsity, TV) and its gradient,
 //! - [`consistency`]: the multi-view frequency consistency term and its gradients,
+//! - [`optimiser`]: parameters, Adam moments and densification statistics resident on the GPU,
+//!   and the Adam kernel (the host optimiser's rules),
 //! - [`backend`]: the training loop's `Backend` on the GPU (`s3tir-train --backend vulkan`),
 //! - [`bench`]: `s3tir-train bench`, Vulkan vs CPU steps/s and the per-kernel breakdown.
 //!
@@ -29,6 +31,7 @@ pub mod context;
 pub mod devices;
 pub mod error;
 pub mod loss;
+pub mod optimiser;
 pub mod raster;
 pub mod reduce;
 pub mod scan;

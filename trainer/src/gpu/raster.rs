@@ -90,6 +90,43 @@ const FORWARD_PLANES: usize = 7;
 /// most two views before it back-propagates them).
 const KEPT_VIEWS: usize = 2;
 
+/// Where the rasteriser reads the primitives' parameter values. The structure (count, band
+/// slots, live band counts) always comes from the host `Primitives`.
+#[derive(Debug, Clone, Copy)]
+pub enum ParamSource<'a> {
+    /// The host `Primitives`' values, uploaded per view; kept views are matched by value.
+    Host,
+    /// A parameter block resident on the GPU (the layout of raster_common.glsl, every group but
+    /// the SH colour), copied on the GPU per view. `generation` identifies its values: the owner
+    /// changes it whenever they change, and kept views are matched by it.
+    Device {
+        buffer: &'a GpuBuffer,
+        generation: u64,
+    },
+}
+
+/// What a view was binned from: the parameter values (host source) or the generation of a
+/// resident parameter block.
+#[derive(Debug, Clone, PartialEq)]
+enum ParamKey {
+    Values(Vec<f32>),
+    Generation(u64),
+}
+
+impl ParamKey {
+    fn of(prims: &Primitives<f32>, src: ParamSource<'_>) -> Self {
+        match src {
+            ParamSource::Host => Self::Values(parameter_block(prims)),
+            ParamSource::Device { generation, .. } => Self::Generation(generation),
+        }
+    }
+}
+
+/// Floats of the parameter block of `prims` (every group but the SH colour).
+pub fn parameter_count(prims: &Primitives<f32>) -> usize {
+    prims.len() * (13 + 5 * prims.bands)
+}
+
 /// A view binned (and, once rendered, with its forward planes) on the GPU. The buffers are
 /// owned here and released with [`BinnedView::destroy`]; [`Transient`] does that on drop.
 #[derive(Debug)]
@@ -104,10 +141,10 @@ struct BinnedView {
     /// Output of `raster_forward` ([`FORWARD_PLANES`] planes), once rendered.
     planes: Option<usize>,
     tiles: [usize; 2],
-    /// What was binned: the camera and parameter blocks and the live band counts (the cache
+    /// What was binned: the camera block, the parameters and the live band counts (the cache
     /// key of kept views).
     camera_block: [f32; 32],
-    parameter_block: Vec<f32>,
+    param_key: ParamKey,
     band_count: Vec<u32>,
 }
 
@@ -121,11 +158,16 @@ impl BinnedView {
         &self.buffers[handle]
     }
 
-    /// Whether this view was binned from these camera and parameter blocks and `prims`' live
+    /// Whether this view was binned from this camera block, these parameters and `prims`' live
     /// band counts (the key of kept views).
-    fn is_view_of(&self, camera: &[f32; 32], parameters: &[f32], prims: &Primitives<f32>) -> bool {
+    fn is_view_of(
+        &self,
+        camera: &[f32; 32],
+        parameters: &ParamKey,
+        prims: &Primitives<f32>,
+    ) -> bool {
         self.camera_block == *camera
-            && self.parameter_block == parameters
+            && self.param_key == *parameters
             && self.band_count.len() == prims.len()
             && self
                 .band_count
@@ -165,7 +207,7 @@ impl<'a> Transient<'a> {
         ctx: &'a GpuContext,
         tiles: [usize; 2],
         camera_block: [f32; 32],
-        parameter_block: Vec<f32>,
+        param_key: ParamKey,
         band_count: Vec<u32>,
     ) -> Self {
         Self {
@@ -180,7 +222,7 @@ impl<'a> Transient<'a> {
                 planes: None,
                 tiles,
                 camera_block,
-                parameter_block,
+                param_key,
                 band_count,
             }),
         }
@@ -235,7 +277,7 @@ pub fn camera_block(cam: &PinholeCamera, settings: &RenderSettings) -> [f32; 32]
 }
 
 /// The parameter block of `raster_common.glsl` (sections in its order).
-fn parameter_block(prims: &Primitives<f32>) -> Vec<f32> {
+pub fn parameter_block(prims: &Primitives<f32>) -> Vec<f32> {
     let mut out = Vec::new();
     for section in [
         &prims.means,
@@ -361,6 +403,14 @@ impl GpuRasterizer {
         }
     }
 
+    /// Submits `record` (timed with the rasteriser's kernels when profiling).
+    pub fn submit_recorded<F>(&self, ctx: &GpuContext, record: F) -> Result<(), GpuError>
+    where
+        F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
+    {
+        self.submit(ctx, record)
+    }
+
     /// The gradient-accumulation path in use.
     pub fn variant(&self) -> AccumulateVariant {
         self.variant
@@ -372,11 +422,29 @@ impl GpuRasterizer {
         &self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
+        src: ParamSource<'_>,
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<Transient<'a>, GpuError> {
         let invalid = |reason: String| GpuError::InvalidInput { reason };
-        prims.validate().map_err(|e| invalid(e.to_string()))?;
+        match src {
+            // The host values are the ones rendered: check them.
+            ParamSource::Host => prims.validate().map_err(|e| invalid(e.to_string()))?,
+            // Resident values: only the structure is on the host.
+            ParamSource::Device { buffer, .. } => {
+                let need = (parameter_count(prims) * 4) as u64;
+                if buffer.size_bytes() < need {
+                    return Err(invalid(format!(
+                        "resident parameter block `{}` holds {} bytes, {} primitives with {} \
+                         bands need {need}",
+                        buffer.name(),
+                        buffer.size_bytes(),
+                        prims.len(),
+                        prims.bands
+                    )));
+                }
+            }
+        }
         cam.validate().map_err(|e| invalid(e.to_string()))?;
         let n = prims.len();
         let (tiles_x, tiles_y) = (
@@ -385,18 +453,30 @@ impl GpuRasterizer {
         );
         let tiles = tiles_x * tiles_y;
         let camera_block = camera_block(cam, settings);
-        let parameter_block = parameter_block(prims);
         let band_count: Vec<u32> = (0..n).map(|i| prims.live_bands(i) as u32).collect();
         let mut out = Transient::new(
             ctx,
             [tiles_x, tiles_y],
             camera_block,
-            parameter_block,
+            ParamKey::of(prims, src),
             band_count,
         );
         let binned = out.view_mut()?;
         binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
-        let params = ctx.upload("raster.params", &binned.parameter_block)?;
+        // A resident block is copied on the GPU (first thing in the first submission below):
+        // the optimiser may change it while this view is kept.
+        let (params, resident) = match (&binned.param_key, src) {
+            (ParamKey::Values(block), _) => (ctx.upload("raster.params", block)?, None),
+            (ParamKey::Generation(_), ParamSource::Device { buffer, .. }) => {
+                let bytes = (parameter_count(prims) * 4) as u64;
+                let copy =
+                    ctx.create_buffer("raster.params", bytes.max(4), MemoryLocation::DeviceOnly)?;
+                (copy, Some((buffer, bytes)))
+            }
+            (ParamKey::Generation(_), ParamSource::Host) => {
+                return Err(poisoned("parameter source"));
+            }
+        };
         binned.params = binned.keep(params);
         binned.views = binned.keep(ctx.create_buffer(
             "raster.views",
@@ -426,6 +506,9 @@ impl GpuRasterizer {
             push_u32s(&[n as u32, prims.bands as u32, tiles_x as u32, tiles_y as u32]);
         let b = &*binned;
         let first = self.submit(ctx, |rec| {
+            if let Some((buffer, bytes)) = resident {
+                rec.copy_buffer(buffer, b.get(b.params), bytes)?;
+            }
             rec.dispatch(
                 &self.project,
                 &[
@@ -502,10 +585,11 @@ impl GpuRasterizer {
         &self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
+        src: ParamSource<'_>,
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<Transient<'a>, GpuError> {
-        let mut out = self.bin_view(ctx, prims, cam, settings)?;
+        let mut out = self.bin_view(ctx, prims, src, cam, settings)?;
         let binned = out.view_mut()?;
         let Some((values, ranges)) = binned.lists else {
             return Ok(out);
@@ -563,7 +647,7 @@ impl GpuRasterizer {
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<GBuffers<f32>, GpuError> {
-        let rendered = self.bin_and_render(ctx, prims, cam, settings)?;
+        let rendered = self.bin_and_render(ctx, prims, ParamSource::Host, cam, settings)?;
         let npix = cam.width * cam.height;
         let mut out = GBuffers::zeros(cam.width, cam.height, false);
         let view = rendered.view()?;
@@ -594,10 +678,11 @@ impl GpuRasterizer {
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
+        src: ParamSource<'_>,
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<(), GpuError> {
-        let rendered = self.bin_and_render(ctx, prims, cam, settings)?;
+        let rendered = self.bin_and_render(ctx, prims, src, cam, settings)?;
         if let Some(view) = rendered.take() {
             self.keep_view(ctx, view)?;
         }
@@ -611,6 +696,7 @@ impl GpuRasterizer {
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
+        src: ParamSource<'_>,
         cams: &[&PinholeCamera],
         settings: &RenderSettings,
         record: F,
@@ -618,7 +704,7 @@ impl GpuRasterizer {
     where
         F: FnOnce(&mut Recorder<'_>, &[KeptView<'_>]) -> Result<(), GpuError>,
     {
-        let key_params = parameter_block(prims);
+        let key_params = ParamKey::of(prims, src);
         let kept = lock(&self.kept)?;
         let mut views = Vec::with_capacity(cams.len());
         for cam in cams {
@@ -694,6 +780,62 @@ impl GpuRasterizer {
         settings: &RenderSettings,
         up_buf: &GpuBuffer,
     ) -> Result<Primitives<f32>, GpuError> {
+        let mut grads = prims.zeros_like();
+        let param_count = parameter_count(prims);
+        let out = ctx.create_buffer(
+            "raster.grads",
+            (param_count.max(1) * 4) as u64,
+            MemoryLocation::Readback,
+        )?;
+        let result = self
+            .backward_into(ctx, prims, ParamSource::Host, cam, settings, up_buf, &out)
+            .and_then(|written| {
+                if written {
+                    ctx.read::<f32>(&out, param_count)
+                } else {
+                    Ok(Vec::new())
+                }
+            });
+        ctx.destroy_buffer(out);
+        let flat = result?;
+        if flat.is_empty() {
+            return Ok(grads);
+        }
+        let mut rest = flat.as_slice();
+        let targets = [
+            &mut grads.means,
+            &mut grads.log_scales,
+            &mut grads.quats,
+            &mut grads.opacity_logits,
+            &mut grads.beta_raw,
+            &mut grads.omega_low,
+            &mut grads.band_amp,
+            &mut grads.band_freq,
+            &mut grads.band_phase,
+        ];
+        for target in targets {
+            let (head, tail) = rest.split_at(target.len().min(rest.len()));
+            target.copy_from_slice(head);
+            rest = tail;
+        }
+        Ok(grads)
+    }
+
+    /// The backward pass of `cam` with the upstream planes in `up_buf`, writing the parameter
+    /// gradients into `out` on the GPU (the parameter-block layout, [`parameter_count`] floats;
+    /// nothing is read back). Returns `false` when no primitive covers the view: `out` is then
+    /// not written and the caller treats the gradient as zero.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_into(
+        &self,
+        ctx: &GpuContext,
+        prims: &Primitives<f32>,
+        src: ParamSource<'_>,
+        cam: &PinholeCamera,
+        settings: &RenderSettings,
+        up_buf: &GpuBuffer,
+        out: &GpuBuffer,
+    ) -> Result<bool, GpuError> {
         let (width, height) = (cam.width, cam.height);
         let npix = width * height;
         if up_buf.size_bytes() < (6 * npix * 4) as u64 {
@@ -705,9 +847,16 @@ impl GpuRasterizer {
                 ),
             });
         }
-        let mut grads = prims.zeros_like();
+        let param_count = parameter_count(prims);
+        if out.size_bytes() < (param_count * 4) as u64 {
+            return Err(GpuError::BufferRange {
+                name: out.name().to_owned(),
+                requested_bytes: (param_count * 4) as u64,
+                capacity_bytes: out.size_bytes(),
+            });
+        }
         let key_cam = camera_block(cam, settings);
-        let key_params = parameter_block(prims);
+        let key_params = ParamKey::of(prims, src);
         let mut kept = lock(&self.kept)?;
         let position = kept
             .iter()
@@ -717,7 +866,7 @@ impl GpuRasterizer {
             Some(at) => &mut kept[at],
             None => {
                 drop(kept);
-                fresh = Some(self.bin_and_render(ctx, prims, cam, settings)?);
+                fresh = Some(self.bin_and_render(ctx, prims, src, cam, settings)?);
                 kept = lock(&self.kept)?;
                 fresh
                     .as_mut()
@@ -726,25 +875,29 @@ impl GpuRasterizer {
             }
         };
         let (Some((values, ranges)), Some(planes)) = (view.lists, view.planes) else {
-            return Ok(grads);
+            return Ok(false);
         };
         let n = prims.len();
         let fields = acc_fields(prims.bands);
-        // Floats of the parameter block (raster_common.glsl): every group but the SH colour.
-        let param_count = view.parameter_block.len();
-        // Per-step buffers, released at the end of this call (after the readback).
-        let mut scratch = Transient::new(ctx, view.tiles, [0.0; 32], Vec::new(), Vec::new());
+        // Per-step buffers, released at the end of this call.
+        let mut scratch = Transient::new(
+            ctx,
+            view.tiles,
+            [0.0; 32],
+            ParamKey::Values(Vec::new()),
+            Vec::new(),
+        );
         let s = scratch.view_mut()?;
-        let acc = s.keep(ctx.upload("raster.grad_acc", &vec![0f32; fields * n])?);
-        let out = s.keep(ctx.create_buffer(
-            "raster.grads",
-            (param_count.max(1) * 4) as u64,
-            MemoryLocation::Readback,
+        let acc = s.keep(ctx.create_buffer(
+            "raster.grad_acc",
+            (fields * n).max(1) as u64 * 4,
+            MemoryLocation::DeviceOnly,
         )?);
         let s = &*s;
         let v = &*view;
         let [tiles_x, tiles_y] = v.tiles;
         self.submit(ctx, |rec| {
+            rec.fill_zero(s.get(acc));
             rec.dispatch(
                 &self.backward,
                 &[
@@ -769,32 +922,14 @@ impl GpuRasterizer {
             rec.compute_barrier();
             rec.dispatch(
                 &self.finish,
-                &[v.get(v.cam), v.get(v.params), s.get(acc), s.get(out)],
+                &[v.get(v.cam), v.get(v.params), s.get(acc), out],
                 &push_u32s(&[n as u32, prims.bands as u32]),
                 [n.div_ceil(PROJECT_WG) as u32, 1, 1],
             )
         })?;
-        let flat: Vec<f32> = ctx.read(s.get(out), param_count)?;
         drop(kept);
         drop(fresh);
-        let mut rest = flat.as_slice();
-        let targets = [
-            &mut grads.means,
-            &mut grads.log_scales,
-            &mut grads.quats,
-            &mut grads.opacity_logits,
-            &mut grads.beta_raw,
-            &mut grads.omega_low,
-            &mut grads.band_amp,
-            &mut grads.band_freq,
-            &mut grads.band_phase,
-        ];
-        for target in targets {
-            let (head, tail) = rest.split_at(target.len().min(rest.len()));
-            target.copy_from_slice(head);
-            rest = tail;
-        }
-        Ok(grads)
+        Ok(true)
     }
 
     pub fn destroy(self, ctx: &GpuContext) {

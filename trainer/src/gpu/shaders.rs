@@ -139,6 +139,13 @@ pub const KERNELS: &[KernelSpec] = &[
         needs_float_atomic_add: false,
     },
     KernelSpec {
+        name: "adam",
+        storage_buffers: 8,
+        push_constant_bytes: 92,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
         name: "raster_backward_finish",
         storage_buffers: 4,
         push_constant_bytes: 8,

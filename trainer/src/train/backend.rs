@@ -9,6 +9,7 @@ use crate::loss::LossWeights;
 use crate::loss::consistency::ConsistencyOptions;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings, render, render_backward};
+use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 /// One training step's thermal losses, for a backend that evaluates them on its own device
 /// ([`Backend::device_step`]): the view's `(1 − λ)·L1 + λ·(1 − SSIM)`, sparsity and TV against
@@ -33,6 +34,29 @@ pub struct DeviceStepResult {
     pub loss: f64,
     /// `dL/dprims`, both views' contributions summed.
     pub grads: Primitives<f32>,
+}
+
+/// One optimisation step with the optimiser state resident on the backend's device
+/// ([`Backend::resident_step`]): the losses of `losses`, then Adam with these settings.
+#[derive(Debug, Clone, Copy)]
+pub struct ResidentStep<'a> {
+    pub losses: DeviceStep<'a>,
+    pub lrs: GroupLrs,
+    pub hp: AdamParams,
+    /// Adam's step count including this step (bias corrections).
+    pub adam_step: u64,
+    /// Lower bound of every log-scale after the update.
+    pub min_log_scale: f32,
+}
+
+/// The optimiser state the training loop keeps: parameters, Adam moments and the
+/// densification statistics (sum of screen-space mean-gradient norms and their count).
+#[derive(Debug)]
+pub struct OptimiserState<'a> {
+    pub prims: &'a mut Primitives<f32>,
+    pub adam: &'a mut AdamState,
+    pub grad_accum: &'a mut [f64],
+    pub grad_count: &'a mut [u32],
 }
 
 /// A renderer with gradients.
@@ -63,6 +87,31 @@ pub trait Backend {
         _step: &DeviceStep<'_>,
     ) -> Option<Result<DeviceStepResult, TrainerError>> {
         None
+    }
+
+    /// Takes the optimiser state onto the backend's device, so that whole steps
+    /// ([`Backend::resident_step`]) run there with at most small readbacks. `Ok(false)`: this
+    /// backend keeps no state (the default), the loop runs Adam on the host.
+    fn resident_upload(&mut self, _state: &mut OptimiserState<'_>) -> Result<bool, TrainerError> {
+        Ok(false)
+    }
+
+    /// One step on the resident state: renders, evaluates the losses, back-propagates,
+    /// accumulates the densification statistics and steps Adam, all on the device; returns the
+    /// weighted loss. `prims` gives the structure only (its values may be stale). `None`: this
+    /// step cannot run resident; the loop then downloads the state and takes the host path.
+    fn resident_step(
+        &mut self,
+        _prims: &Primitives<f32>,
+        _step: &ResidentStep<'_>,
+    ) -> Option<Result<f64, TrainerError>> {
+        None
+    }
+
+    /// Copies the resident state into the host's (before the loop reads or changes it) and
+    /// releases it from the device: the host's copy is the truth again.
+    fn resident_download(&mut self, _state: &mut OptimiserState<'_>) -> Result<(), TrainerError> {
+        Ok(())
     }
 }
 

@@ -50,7 +50,9 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use adam::{AdamParams, AdamState, GroupLrs};
-pub use backend::{Backend, CpuBackend, DeviceStep, DeviceStepResult};
+pub use backend::{
+    Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep,
+};
 pub use config::{Capacity, Densify, Mode, TrainConfig, Weights};
 
 use crate::camera::PinholeCamera;
@@ -198,6 +200,9 @@ pub struct Trainer<B: Backend> {
     pairs: Vec<Option<usize>>,
     grad_accum: Vec<f64>,
     grad_count: Vec<u32>,
+    /// The optimiser state (`prims`' values, `adam`'s moments, the densification statistics)
+    /// lives on the backend's device; the host copies are stale until [`Trainer::sync_host`].
+    resident: bool,
     state: LoopState,
 }
 
@@ -317,6 +322,7 @@ impl<B: Backend> Trainer<B> {
             pairs,
             grad_accum: Vec::new(),
             grad_count: Vec::new(),
+            resident: false,
             state: LoopState::default(),
         }
     }
@@ -518,23 +524,125 @@ impl<B: Backend> Trainer<B> {
         Ok(loss)
     }
 
+    /// Brings the optimiser state back from the backend's device when it is there (the
+    /// host's `prims`, `adam` and densification statistics are current afterwards). The loop
+    /// calls it before it reads or changes them; call it before reading `prims` between steps.
+    pub fn sync_host(&mut self) -> Result<(), TrainError> {
+        if self.resident {
+            self.resident = false;
+            self.backend.resident_download(&mut OptimiserState {
+                prims: &mut self.prims,
+                adam: &mut self.adam,
+                grad_accum: &mut self.grad_accum,
+                grad_count: &mut self.grad_count,
+            })?;
+        }
+        Ok(())
+    }
+
     /// One optimisation step on one training view; returns its loss.
+    ///
+    /// Thermal steps on a backend that keeps the optimiser state on its device
+    /// ([`Backend::resident_step`]) run there whole: losses, backward, densification
+    /// statistics and Adam. Otherwise the backend's device path ([`Backend::device_step`]) or
+    /// the host path computes the gradients and Adam runs on the host.
     pub fn step(&mut self) -> Result<f64, TrainError> {
         let mut rng = ChaCha8Rng::seed_from_u64(
             self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.iteration,
         );
         let vi = self.data.train[rng.random_range(0..self.data.train.len())];
         if self.iteration == self.cfg.warmup && self.cfg.mode.learns_beta() {
+            self.sync_host()?;
             self.release_warmup_beta();
         }
         let weights = self.loss_weights();
-        let cam_i = self.data.views[vi].camera;
         let has_rgb = !self.prims.sh.is_empty();
         let pair = if self.consist_active() {
             self.pairs[vi]
         } else {
             None
         };
+        let thermal_only = self.data.views[vi].thermal.is_some() && !has_rgb;
+        if thermal_only && !self.resident {
+            self.resident = self.backend.resident_upload(&mut OptimiserState {
+                prims: &mut self.prims,
+                adam: &mut self.adam,
+                grad_accum: &mut self.grad_accum,
+                grad_count: &mut self.grad_count,
+            })?;
+        }
+        let lrs = self.lrs();
+        let cam_i = self.data.views[vi].camera;
+        let mut resident_loss = None;
+        if let (Some(target), true) = (&self.data.views[vi].thermal, self.resident) {
+            let step = ResidentStep {
+                losses: DeviceStep {
+                    view: vi,
+                    cam: &cam_i,
+                    target,
+                    pair: pair.map(|vj| &self.data.views[vj].camera),
+                    weights,
+                    consistency: ConsistencyOptions::default(),
+                },
+                lrs,
+                hp: AdamParams::default(),
+                adam_step: self.adam.step + 1,
+                min_log_scale: self.min_log_scale,
+            };
+            resident_loss = self.backend.resident_step(&self.prims, &step).transpose()?;
+        }
+        let loss = match resident_loss {
+            Some(loss) => {
+                self.adam.step += 1;
+                loss
+            }
+            None => {
+                self.sync_host()?;
+                self.host_optimiser_step(vi, pair, &weights, &lrs)?
+            }
+        };
+        self.iteration += 1;
+
+        let d = self.cfg.densify;
+        // As 3DGS (15 000 of 30 000): no density changes in the second half of the run, so the
+        // last primitives added have time to settle.
+        if d.every > 0
+            && self.iteration >= d.from
+            && self.iteration < d.until.min(self.cfg.iters / 2)
+            && self.iteration.is_multiple_of(d.every)
+        {
+            self.sync_host()?;
+            self.densify(&mut rng);
+        }
+        let c = self.cfg.capacity;
+        if (self.prims.bands > 0 || self.cfg.mode.learns_beta())
+            && c.every > 0
+            && self.iteration > self.cfg.warmup
+            && (self.iteration - self.cfg.warmup).is_multiple_of(c.every)
+        {
+            self.sync_host()?;
+            if self.prims.bands > 0 {
+                self.drop_bands();
+            }
+            if self.cfg.mode.learns_beta() {
+                self.freeze_gaussians();
+            }
+        }
+        Ok(loss)
+    }
+
+    /// Gradients (the backend's device path, else render + host losses + backward),
+    /// densification statistics and Adam on the host; returns the loss.
+    fn host_optimiser_step(
+        &mut self,
+        vi: usize,
+        pair: Option<usize>,
+        weights: &LossWeights,
+        lrs: &GroupLrs,
+    ) -> Result<f64, TrainError> {
+        let weights = *weights;
+        let cam_i = self.data.views[vi].camera;
+        let has_rgb = !self.prims.sh.is_empty();
         // The backend's device path when it has one (images stay on the device), else the
         // host path below: render, losses on the host, backward.
         let device = match (&self.data.views[vi].thermal, has_rgb) {
@@ -604,36 +712,10 @@ impl<B: Backend> Trainer<B> {
             }
         }
 
-        let lrs = self.lrs();
         self.adam
-            .step(&mut self.prims, &grads, &lrs, &AdamParams::default());
+            .step(&mut self.prims, &grads, lrs, &AdamParams::default());
         for s in &mut self.prims.log_scales {
             *s = s.max(self.min_log_scale);
-        }
-        self.iteration += 1;
-
-        let d = self.cfg.densify;
-        // As 3DGS (15 000 of 30 000): no density changes in the second half of the run, so the
-        // last primitives added have time to settle.
-        if d.every > 0
-            && self.iteration >= d.from
-            && self.iteration < d.until.min(self.cfg.iters / 2)
-            && self.iteration.is_multiple_of(d.every)
-        {
-            self.densify(&mut rng);
-        }
-        let c = self.cfg.capacity;
-        if (self.prims.bands > 0 || self.cfg.mode.learns_beta())
-            && c.every > 0
-            && self.iteration > self.cfg.warmup
-            && (self.iteration - self.cfg.warmup).is_multiple_of(c.every)
-        {
-            if self.prims.bands > 0 {
-                self.drop_bands();
-            }
-            if self.cfg.mode.learns_beta() {
-                self.freeze_gaussians();
-            }
         }
         Ok(loss)
     }
@@ -801,6 +883,7 @@ impl<B: Backend> Trainer<B> {
 
     /// Renders the held-out views (all training views if there are none) and measures them.
     pub fn evaluate(&mut self) -> Result<EvalSummary, TrainError> {
+        self.sync_host()?;
         let ids = if self.data.test.is_empty() {
             self.data.train.clone()
         } else {
@@ -850,6 +933,7 @@ impl<B: Backend> Trainer<B> {
 
     /// Writes `checkpoint.json` atomically.
     pub fn save_checkpoint(&mut self) -> Result<(), TrainError> {
+        self.sync_host()?;
         self.state.last_checkpoint_s = self.train_seconds;
         let ck = Checkpoint {
             version: CHECKPOINT_VERSION,
@@ -948,6 +1032,7 @@ impl<B: Backend> Trainer<B> {
 
     /// PLY, renders and G-buffers of the test views, β histogram, plots, eval and capacity JSON.
     pub fn write_outputs(&mut self) -> Result<(), TrainError> {
+        self.sync_host()?;
         let dir = self.run_dir.clone();
         crate::ply::write_ply(&dir.join(files::PLY), &self.prims)?;
         let renders = dir.join(files::RENDERS);
