@@ -195,3 +195,47 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
         }
     }
 }
+
+/// A resident step waits for the GPU twice and reads 32 bytes: the key totals of both views
+/// (8 bytes, they size the sort) and the loss sums (24 bytes); no parameters, gradients or
+/// images. Counted over steps with no host work in between (no density control, no capacity
+/// checks, no evaluation), from the context's traffic counters.
+#[test]
+fn vulkan_resident_step_reads_two_small_results() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    let scfg = SynthConfig {
+        width: 40,
+        height: 30,
+        f_px: 34.0,
+        points: 300,
+        ..SynthConfig::default()
+    };
+    synth::write_scene(&data_dir, &scfg).unwrap();
+    let options = ContextOptions {
+        device: DeviceChoice::NameContains("llvmpipe".into()),
+        disable_float_atomics: false,
+    };
+    let backend = VulkanBackend::new(&options, RenderSettings::default())
+        .expect("lavapipe must be available");
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let mut c = config(&data_dir);
+    c.warmup = 0;
+    c.consist_every = 1; // both views every step
+    c.densify.from = u64::MAX;
+    c.capacity.every = u64::MAX;
+    let mut t = Trainer::new(c, data, backend, &tmp.path().join("run")).unwrap();
+    t.step().unwrap(); // uploads the state
+    let (r0, b0, _) = t.backend.context().traffic();
+    let steps = 8;
+    for _ in 0..steps {
+        t.step().unwrap();
+    }
+    let (r1, b1, _) = t.backend.context().traffic();
+    assert_eq!(t.backend.resident_steps(), steps + 1, "every step resident");
+    assert_eq!(
+        (r1 - r0, b1 - b0),
+        (2 * steps, 32 * steps),
+        "host reads and bytes over {steps} resident steps (expected 2 reads, 32 bytes per step)"
+    );
+}

@@ -6,8 +6,9 @@
 //! are rendered into buffers that stay there, the single-view loss ([`super::loss`]) and the
 //! consistency term ([`super::consistency`]) write the upstream gradient planes, both backward
 //! passes write the parameter gradients into the optimiser's buffers and the `adam` kernel
-//! steps the state. Per step the host reads the key count of each view (it sizes the sort) and
-//! the loss values. With [`VulkanBackend::set_resident_optimiser`] off, steps take the device
+//! steps the state. A step is three submissions (binning of both views, sorting and forward
+//! passes, then losses + backward passes + Adam) and two small reads: the key totals of both
+//! views (they size the sort) and the loss sums. With [`VulkanBackend::set_resident_optimiser`] off, steps take the device
 //! path ([`Backend::device_step`]: the same, with the gradients read back for the host's
 //! Adam); with [`VulkanBackend::set_device_losses`] off, the host path (images read back).
 //! Targets are uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
@@ -16,7 +17,7 @@ use std::collections::HashMap;
 
 use super::accumulate::AccumulateVariant;
 use super::consistency::{ConsistencyViews, GpuConsistency};
-use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation};
+use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;
 use super::loss::GpuViewLoss;
 use super::optimiser::{AdamStep, GpuOptimiser};
@@ -26,6 +27,10 @@ use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
 use crate::train::backend::{Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep};
+
+/// Work recorded after the losses, in the same submission, with the kept views.
+type RecordAfterLosses<'r> =
+    dyn Fn(&mut Recorder<'_>, &[KeptView<'_>]) -> Result<(), GpuError> + 'r;
 
 /// Loss kernels and buffers of the device path, for views of one size.
 #[derive(Debug)]
@@ -41,6 +46,8 @@ struct DeviceLosses {
     up_j: GpuBuffer,
     /// Zero planes standing in for a view no primitive covers (the rasteriser keeps none).
     zeros: GpuBuffer,
+    /// The step's loss sums (view loss 4, consistency 2), copied here to be read at once.
+    step_out: GpuBuffer,
 }
 
 impl DeviceLosses {
@@ -64,8 +71,14 @@ impl DeviceLosses {
             ("device_step.up_i", bytes),
             ("device_step.up_j", bytes),
             ("device_step.zeros", (7 * width * height * 4) as u64),
+            ("device_step.loss_sums", 6 * 4),
         ] {
-            match ctx.create_buffer(name, size, MemoryLocation::DeviceOnly) {
+            let location = if name.ends_with("loss_sums") {
+                MemoryLocation::Readback
+            } else {
+                MemoryLocation::DeviceOnly
+            };
+            match ctx.create_buffer(name, size, location) {
                 Ok(b) => buffers.push(b),
                 Err(e) => {
                     buffers.into_iter().for_each(|b| ctx.destroy_buffer(b));
@@ -76,7 +89,9 @@ impl DeviceLosses {
             }
         }
         let mut b = buffers.into_iter();
-        let (Some(up_i), Some(up_j), Some(zeros)) = (b.next(), b.next(), b.next()) else {
+        let (Some(up_i), Some(up_j), Some(zeros), Some(step_out)) =
+            (b.next(), b.next(), b.next(), b.next())
+        else {
             view_loss.destroy(ctx);
             consistency.destroy(ctx);
             return Err(GpuError::InvalidInput {
@@ -92,6 +107,7 @@ impl DeviceLosses {
             up_i,
             up_j,
             zeros,
+            step_out,
         })
     }
 
@@ -104,6 +120,7 @@ impl DeviceLosses {
         ctx.destroy_buffer(self.up_i);
         ctx.destroy_buffer(self.up_j);
         ctx.destroy_buffer(self.zeros);
+        ctx.destroy_buffer(self.step_out);
     }
 }
 
@@ -197,13 +214,15 @@ impl VulkanBackend {
         Ok(())
     }
 
-    /// Renders the views of `step` (kept on the GPU) from the parameters of `src` and records
-    /// the losses, which write the upstream planes `up_i` / `up_j`; returns the weighted loss.
+    /// Renders the views of `step` (kept on the GPU) from the parameters of `src`, records
+    /// the losses, which write the upstream planes `up_i` / `up_j`, then `after` in the same
+    /// submission; returns the weighted loss (one read for all the loss values).
     fn forward_losses(
         &self,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
         step: &DeviceStep<'_>,
+        after: &RecordAfterLosses<'_>,
     ) -> Result<f64, GpuError> {
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
@@ -217,14 +236,11 @@ impl VulkanBackend {
                 reason: "thermal target not uploaded".to_owned(),
             })?;
         // Views rendered now stay on the GPU for the losses and the backward passes.
-        raster.render_kept(ctx, prims, src, step.cam, &self.settings)?;
         let pair = step.pair;
-        if let Some(cam_j) = pair {
-            raster.render_kept(ctx, prims, src, cam_j, &self.settings)?;
-        }
-        let zeros = &losses.zeros;
         let mut cams: Vec<&PinholeCamera> = vec![step.cam];
         cams.extend(pair);
+        raster.render_kept(ctx, prims, src, &cams, &self.settings)?;
+        let zeros = &losses.zeros;
         raster.submit_with_views(ctx, prims, src, &cams, &self.settings, |rec, views| {
             fn planes_of<'a>(v: &KeptView<'a>, zeros: &'a GpuBuffer) -> &'a GpuBuffer {
                 v.planes.unwrap_or(zeros)
@@ -257,11 +273,20 @@ impl VulkanBackend {
                     step.weights.lambda_consist as f32,
                 )?;
             }
+            after(rec, views)?;
+            rec.copy_buffer(losses.view_loss.sums_buffer(), &losses.step_out, 16)?;
+            if views.len() > 1 {
+                rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, 16, 8)?;
+            }
             Ok(())
         })?;
-        let mut loss = losses.view_loss.values(ctx)?.total(&step.weights);
+        let sums: Vec<f32> = ctx.read(&losses.step_out, 6)?;
+        let mut loss = losses
+            .view_loss
+            .values_from(&sums[..4])
+            .total(&step.weights);
         if pair.is_some() {
-            loss += step.weights.lambda_consist * losses.consistency.values(ctx)?.loss;
+            loss += step.weights.lambda_consist * losses.consistency.values_from(&sums[4..]).loss;
         }
         Ok(loss)
     }
@@ -273,7 +298,7 @@ impl VulkanBackend {
         step: &DeviceStep<'_>,
     ) -> Result<DeviceStepResult, GpuError> {
         self.prepare_losses(step)?;
-        let loss = self.forward_losses(prims, ParamSource::Host, step)?;
+        let loss = self.forward_losses(prims, ParamSource::Host, step, &|_, _| Ok(()))?;
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -309,36 +334,29 @@ impl VulkanBackend {
             buffer: params,
             generation,
         };
-        let loss = self.forward_losses(prims, src, losses_step)?;
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
         })?;
-        let ctx = &self.ctx;
         let (grads_i, grads_j) = opt.grads().ok_or_else(no_resident_state)?;
-        let settings = &self.settings;
-        let written_i = raster.backward_into(
-            ctx,
-            prims,
-            src,
-            losses_step.cam,
-            settings,
-            &losses.up_i,
-            grads_i,
-        )?;
-        let written_j = match losses_step.pair {
-            Some(cam_j) => {
-                raster.backward_into(ctx, prims, src, cam_j, settings, &losses.up_j, grads_j)?
-            }
-            None => false,
-        };
+        let (acc_i, acc_j) = opt.scratch().ok_or_else(no_resident_state)?;
         let adam = AdamStep {
             lrs: step.lrs,
             hp: step.hp,
             step: step.adam_step,
             min_log_scale: step.min_log_scale,
         };
-        raster.submit_recorded(ctx, |rec| {
+        // Losses, both backward passes and Adam in one submission.
+        let loss = self.forward_losses(prims, src, losses_step, &|rec, views| {
+            rec.compute_barrier();
+            let written_i =
+                raster.record_backward(rec, prims, &views[0], &losses.up_i, acc_i, grads_i)?;
+            let written_j = match views.get(1) {
+                Some(view_j) => {
+                    raster.record_backward(rec, prims, view_j, &losses.up_j, acc_j, grads_j)?
+                }
+                None => false,
+            };
             opt.record_step(rec, &adam, losses_step.cam, written_i, written_j)
         })?;
         if let Some(opt) = self.optimiser.as_mut() {

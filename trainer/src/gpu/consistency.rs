@@ -160,12 +160,22 @@ impl GpuConsistency {
     /// The loss (unweighted, as [`Consistency::loss`]) and valid-pixel count of the last
     /// recorded submission (2 floats: a small readback).
     pub fn values(&self, ctx: &GpuContext) -> Result<Consistency, GpuError> {
-        let s: Vec<f32> = ctx.read(&self.sums, 2)?;
+        Ok(self.values_from(&ctx.read::<f32>(&self.sums, 2)?))
+    }
+
+    /// The 2 sums [`Self::values`] reads (host-visible), for a caller that copies them into a
+    /// buffer of its own to read several results at once.
+    pub fn sums_buffer(&self) -> &GpuBuffer {
+        &self.sums
+    }
+
+    /// The term from the 2 floats of [`Self::sums_buffer`].
+    pub fn values_from(&self, s: &[f32]) -> Consistency {
         let n = (self.width * self.height) as f64;
-        Ok(Consistency {
+        Consistency {
             loss: f64::from(s.first().copied().unwrap_or(f32::NAN)) / n,
             valid_px: s.get(1).copied().unwrap_or(0.0).round().max(0.0) as usize,
-        })
+        }
     }
 
     pub fn destroy(self, ctx: &GpuContext) {

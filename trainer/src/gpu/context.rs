@@ -919,11 +919,23 @@ impl Recorder<'_> {
         dst: &GpuBuffer,
         bytes: u64,
     ) -> Result<(), GpuError> {
-        for b in [src, dst] {
-            if bytes > b.size_bytes {
+        self.copy_region(src, 0, dst, 0, bytes)
+    }
+
+    /// As [`Self::copy_buffer`], from byte `src_offset` of `src` to byte `dst_offset` of `dst`.
+    pub fn copy_region(
+        &mut self,
+        src: &GpuBuffer,
+        src_offset: u64,
+        dst: &GpuBuffer,
+        dst_offset: u64,
+        bytes: u64,
+    ) -> Result<(), GpuError> {
+        for (b, offset) in [(src, src_offset), (dst, dst_offset)] {
+            if offset + bytes > b.size_bytes {
                 return Err(GpuError::BufferRange {
                     name: b.name.clone(),
-                    requested_bytes: bytes,
+                    requested_bytes: offset + bytes,
                     capacity_bytes: b.size_bytes,
                 });
             }
@@ -937,10 +949,13 @@ impl Recorder<'_> {
         let after = [vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
             .dst_access_mask(vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE)];
-        let region = [vk::BufferCopy::default().size(bytes)];
+        let region = [vk::BufferCopy::default()
+            .src_offset(src_offset)
+            .dst_offset(dst_offset)
+            .size(bytes)];
         // SAFETY: recording into a command buffer in the recording state; both buffers belong to
         // this device, were created with TRANSFER_SRC | TRANSFER_DST usage (every GpuBuffer is)
-        // and hold at least `bytes` bytes (checked above).
+        // and hold the copied ranges (checked above).
         unsafe {
             let d = &self.ctx.device;
             d.cmd_pipeline_barrier(

@@ -213,15 +213,25 @@ impl GpuViewLoss {
 
     /// Reads the loss values of the last recorded submission (4 floats: a small readback).
     pub fn values(&self, ctx: &GpuContext) -> Result<GpuViewLossValues, GpuError> {
-        let s: Vec<f32> = ctx.read(&self.sums, 4)?;
+        Ok(self.values_from(&ctx.read::<f32>(&self.sums, 4)?))
+    }
+
+    /// The 4 sums [`Self::values`] reads (host-visible), for a caller that copies them into a
+    /// buffer of its own to read several results at once.
+    pub fn sums_buffer(&self) -> &GpuBuffer {
+        &self.sums
+    }
+
+    /// The values from the 4 floats of [`Self::sums_buffer`].
+    pub fn values_from(&self, s: &[f32]) -> GpuViewLossValues {
         let n = (self.width * self.height) as f64;
         let mean = |i: usize| f64::from(s.get(i).copied().unwrap_or(f32::NAN)) / n;
-        Ok(GpuViewLossValues {
+        GpuViewLossValues {
             l1: mean(0),
             ssim: mean(1),
             sparse: mean(2),
             smooth: mean(3),
-        })
+        }
     }
 
     pub fn destroy(self, ctx: &GpuContext) {

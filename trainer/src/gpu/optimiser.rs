@@ -10,7 +10,7 @@
 
 use super::context::{ComputeKernel, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;
-use super::raster::{parameter_block, parameter_count};
+use super::raster::{GpuRasterizer, parameter_block, parameter_count};
 use super::shaders;
 use crate::camera::PinholeCamera;
 use crate::primitive::Primitives;
@@ -31,11 +31,16 @@ struct Resident {
     band_count: GpuBuffer,
     stats_accum: GpuBuffer,
     stats_count: GpuBuffer,
+    /// Backward-pass scratch of the two views ([`GpuRasterizer::backward_scratch_floats`]).
+    acc_i: GpuBuffer,
+    acc_j: GpuBuffer,
 }
 
 impl Resident {
-    fn buffers(self) -> [GpuBuffer; 8] {
+    fn buffers(self) -> [GpuBuffer; 10] {
         [
+            self.acc_i,
+            self.acc_j,
             self.params,
             self.m,
             self.v,
@@ -148,6 +153,11 @@ impl GpuOptimiser {
         self.state.as_ref().map(|s| (&s.grads_i, &s.grads_j))
     }
 
+    /// The backward-pass scratch of the two views.
+    pub fn scratch(&self) -> Option<(&GpuBuffer, &GpuBuffer)> {
+        self.state.as_ref().map(|s| (&s.acc_i, &s.acc_j))
+    }
+
     /// Puts `prims` (thermal only: no SH colour), the Adam moments and the densification
     /// statistics on the GPU, replacing any state there.
     pub fn upload(
@@ -214,6 +224,16 @@ impl GpuOptimiser {
                 }
             }
         }
+        let scratch_bytes = GpuRasterizer::backward_scratch_floats(prims).max(1) as u64 * 4;
+        for name in ["optimiser.acc_i", "optimiser.acc_j"] {
+            match ctx.create_buffer(name, scratch_bytes, MemoryLocation::DeviceOnly) {
+                Ok(b) => made.push(b),
+                Err(e) => {
+                    made.into_iter().for_each(|b| ctx.destroy_buffer(b));
+                    return Err(e);
+                }
+            }
+        }
         let mut it = made.into_iter();
         let (
             Some(params),
@@ -224,7 +244,11 @@ impl GpuOptimiser {
             Some(band_count),
             Some(stats_accum),
             Some(stats_count),
+            Some(acc_i),
+            Some(acc_j),
         ) = (
+            it.next(),
+            it.next(),
             it.next(),
             it.next(),
             it.next(),
@@ -248,6 +272,8 @@ impl GpuOptimiser {
             band_count,
             stats_accum,
             stats_count,
+            acc_i,
+            acc_j,
         });
         self.generation += 1;
         Ok(())

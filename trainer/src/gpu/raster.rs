@@ -136,6 +136,10 @@ struct BinnedView {
     params: usize,
     views: usize,
     bands: usize,
+    /// Live band counts (absent without primitives).
+    band_count_buf: Option<usize>,
+    /// The (tile, depth) keys (absent when no primitive covers the view).
+    keys: Option<usize>,
     /// Sorted primitive indices and per-tile ranges; `None` when no primitive covers a tile.
     lists: Option<(usize, usize)>,
     /// Output of `raster_forward` ([`FORWARD_PLANES`] planes), once rendered.
@@ -193,6 +197,17 @@ pub struct KeptView<'a> {
     pub planes: Option<&'a GpuBuffer>,
     pub width: usize,
     pub height: usize,
+    /// The kept view itself (for [`GpuRasterizer::record_backward`]).
+    view: &'a BinnedView,
+}
+
+/// A view's buffers before any work ([`GpuRasterizer::alloc_view`]).
+struct AllocatedView<'a, 'b> {
+    view: Transient<'a>,
+    /// The resident parameter block to copy into the view's, and its bytes.
+    resident_copy: Option<(&'b GpuBuffer, u64)>,
+    /// Handle of the tile-count buffer (absent without primitives).
+    counts: Option<usize>,
 }
 
 /// A view's buffers on the way to the cache or to release: freed if the render fails.
@@ -218,6 +233,8 @@ impl<'a> Transient<'a> {
                 params: 0,
                 views: 0,
                 bands: 0,
+                band_count_buf: None,
+                keys: None,
                 lists: None,
                 planes: None,
                 tiles,
@@ -416,16 +433,17 @@ impl GpuRasterizer {
         self.variant
     }
 
-    /// Projection, culling, key emission, sort and tile ranges of one view (two submissions and
-    /// one 4-byte readback: the key count).
-    fn bin_view<'a>(
+    /// The buffers of one view before any work: camera, parameters (uploaded from the host, or
+    /// the resident block to copy in the first submission), primitive views, band views, live
+    /// band counts, tile counts.
+    fn alloc_view<'a, 'b>(
         &self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
-        src: ParamSource<'_>,
+        src: ParamSource<'b>,
         cam: &PinholeCamera,
         settings: &RenderSettings,
-    ) -> Result<Transient<'a>, GpuError> {
+    ) -> Result<AllocatedView<'a, 'b>, GpuError> {
         let invalid = |reason: String| GpuError::InvalidInput { reason };
         match src {
             // The host values are the ones rendered: check them.
@@ -451,7 +469,6 @@ impl GpuRasterizer {
             cam.width.div_ceil(TILE_SIZE),
             cam.height.div_ceil(TILE_SIZE),
         );
-        let tiles = tiles_x * tiles_y;
         let camera_block = camera_block(cam, settings);
         let band_count: Vec<u32> = (0..n).map(|i| prims.live_bands(i) as u32).collect();
         let mut out = Transient::new(
@@ -463,8 +480,8 @@ impl GpuRasterizer {
         );
         let binned = out.view_mut()?;
         binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
-        // A resident block is copied on the GPU (first thing in the first submission below):
-        // the optimiser may change it while this view is kept.
+        // A resident block is copied on the GPU (first thing in the first submission): the
+        // optimiser may change it while this view is kept.
         let (params, resident) = match (&binned.param_key, src) {
             (ParamKey::Values(block), _) => (ctx.upload("raster.params", block)?, None),
             (ParamKey::Generation(_), ParamSource::Device { buffer, .. }) => {
@@ -489,11 +506,48 @@ impl GpuRasterizer {
             MemoryLocation::DeviceOnly,
         )?);
         if n == 0 {
-            return Ok(out);
+            return Ok(AllocatedView {
+                view: out,
+                resident_copy: resident,
+                counts: None,
+            });
         }
         let band_count = binned.keep(ctx.upload("raster.band_count", &binned.band_count)?);
+        binned.band_count_buf = Some(band_count);
         // n counts + 1 trailing zero: after the exclusive scan, element n is the key total.
         let counts = binned.keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
+        Ok(AllocatedView {
+            view: out,
+            resident_copy: resident,
+            counts: Some(counts),
+        })
+    }
+
+    /// Bins and renders `prims` seen by each camera of `cams`: projection, culling, tile counts
+    /// and their scan for every view in one submission, ONE host read (the key totals of all
+    /// views), then key emission, sort, tile ranges and `raster_forward` for every view in a
+    /// second submission. The planes stay on the GPU.
+    fn bin_and_render_views<'a>(
+        &self,
+        ctx: &'a GpuContext,
+        prims: &Primitives<f32>,
+        src: ParamSource<'_>,
+        cams: &[&PinholeCamera],
+        settings: &RenderSettings,
+    ) -> Result<Vec<Transient<'a>>, GpuError> {
+        let n = prims.len();
+        let mut outs = Vec::with_capacity(cams.len());
+        let mut copies = Vec::with_capacity(cams.len());
+        let mut counts = Vec::with_capacity(cams.len());
+        for cam in cams {
+            let a = self.alloc_view(ctx, prims, src, cam, settings)?;
+            outs.push(a.view);
+            copies.push(a.resident_copy);
+            counts.push(a.counts);
+        }
+        if n == 0 || cams.is_empty() {
+            return Ok(outs);
+        }
         let mut scan_slot = lock(&self.scan)?;
         if scan_slot.as_ref().is_none_or(|s| s.capacity() < n + 1) {
             if let Some(old) = scan_slot.take() {
@@ -502,82 +556,141 @@ impl GpuRasterizer {
             *scan_slot = Some(GpuScan::new(ctx, grown(n + 1))?);
         }
         let scan = scan_slot.as_ref().ok_or_else(|| poisoned("scan"))?;
-        let project_push =
-            push_u32s(&[n as u32, prims.bands as u32, tiles_x as u32, tiles_y as u32]);
-        let b = &*binned;
-        let first = self.submit(ctx, |rec| {
-            if let Some((buffer, bytes)) = resident {
-                rec.copy_buffer(buffer, b.get(b.params), bytes)?;
-            }
-            rec.dispatch(
-                &self.project,
-                &[
-                    b.get(b.cam),
-                    b.get(b.params),
-                    b.get(b.views),
-                    b.get(counts),
-                    b.get(b.bands),
-                    b.get(band_count),
-                ],
-                &project_push,
-                [n.div_ceil(PROJECT_WG) as u32, 1, 1],
-            )?;
-            rec.compute_barrier();
-            scan.record(rec, b.get(counts), n + 1)
-        });
+        let totals_buf = ctx.create_buffer(
+            "raster.key_totals",
+            (4 * cams.len()) as u64,
+            MemoryLocation::Readback,
+        )?;
+        let first = (|| -> Result<Vec<u32>, GpuError> {
+            self.submit(ctx, |rec| {
+                for (v, out) in outs.iter().enumerate() {
+                    let b = out.view()?;
+                    let c = counts[v].ok_or_else(|| poisoned("tile counts"))?;
+                    let bc = b.band_count_buf.ok_or_else(|| poisoned("band counts"))?;
+                    let [tiles_x, tiles_y] = b.tiles;
+                    if let Some((buffer, bytes)) = copies[v] {
+                        rec.copy_buffer(buffer, b.get(b.params), bytes)?;
+                    }
+                    rec.dispatch(
+                        &self.project,
+                        &[
+                            b.get(b.cam),
+                            b.get(b.params),
+                            b.get(b.views),
+                            b.get(c),
+                            b.get(b.bands),
+                            b.get(bc),
+                        ],
+                        &push_u32s(&[n as u32, prims.bands as u32, tiles_x as u32, tiles_y as u32]),
+                        [n.div_ceil(PROJECT_WG) as u32, 1, 1],
+                    )?;
+                    rec.compute_barrier();
+                    scan.record(rec, b.get(c), n + 1)?;
+                    rec.copy_region(b.get(c), (4 * n) as u64, &totals_buf, (4 * v) as u64, 4)?;
+                }
+                Ok(())
+            })?;
+            ctx.read::<u32>(&totals_buf, cams.len())
+        })();
         drop(scan_slot);
-        first?;
-        let total = ctx
-            .read_at::<u32>(binned.get(counts), n, 1)?
-            .first()
-            .copied()
-            .unwrap_or(0) as usize;
-        if total == 0 {
-            return Ok(out);
+        ctx.destroy_buffer(totals_buf);
+        let totals = first?;
+
+        // Keys, lists and planes of every covered view.
+        let mut max_total = 0;
+        for (v, out) in outs.iter_mut().enumerate() {
+            let total = totals[v] as usize;
+            if total == 0 {
+                continue;
+            }
+            max_total = max_total.max(total);
+            let binned = out.view_mut()?;
+            let tiles = binned.tiles[0] * binned.tiles[1];
+            let keys = binned.keep(ctx.create_buffer(
+                "raster.keys",
+                (total * 8) as u64,
+                MemoryLocation::DeviceOnly,
+            )?);
+            let values = binned.keep(ctx.create_buffer(
+                "raster.values",
+                (total * 4) as u64,
+                MemoryLocation::DeviceOnly,
+            )?);
+            let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
+            let npix = cams[v].width * cams[v].height;
+            let planes = binned.keep(ctx.create_buffer(
+                "raster.planes",
+                (FORWARD_PLANES * npix * 4) as u64,
+                MemoryLocation::Readback,
+            )?);
+            binned.keys = Some(keys);
+            binned.lists = Some((values, ranges));
+            binned.planes = Some(planes);
         }
-        let keys = binned.keep(ctx.create_buffer(
-            "raster.keys",
-            (total * 8) as u64,
-            MemoryLocation::DeviceOnly,
-        )?);
-        let values = binned.keep(ctx.create_buffer(
-            "raster.values",
-            (total * 4) as u64,
-            MemoryLocation::DeviceOnly,
-        )?);
-        let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
-        let key_bits = 32 + (usize::BITS - (tiles.max(2) - 1).leading_zeros());
+        if max_total == 0 {
+            return Ok(outs);
+        }
         let mut sort_slot = lock(&self.sort)?;
-        if sort_slot.as_ref().is_none_or(|s| s.capacity() < total) {
+        if sort_slot.as_ref().is_none_or(|s| s.capacity() < max_total) {
             if let Some(old) = sort_slot.take() {
                 old.destroy(ctx);
             }
-            *sort_slot = Some(GpuRadixSort::new(ctx, grown(total))?);
+            *sort_slot = Some(GpuRadixSort::new(ctx, grown(max_total))?);
         }
         let sort = sort_slot.as_ref().ok_or_else(|| poisoned("sort"))?;
-        let b = &*binned;
         let second = self.submit(ctx, |rec| {
-            rec.dispatch(
-                &self.emit,
-                &[b.get(b.views), b.get(counts), b.get(keys), b.get(values)],
-                &push_u32s(&[n as u32, tiles_x as u32]),
-                [n.div_ceil(PROJECT_WG) as u32, 1, 1],
-            )?;
-            rec.compute_barrier();
-            sort.record(rec, b.get(keys), b.get(values), total, key_bits)?;
-            rec.dispatch(
-                &self.ranges,
-                &[b.get(keys), b.get(ranges)],
-                &push_u32s(&[total as u32]),
-                [total.div_ceil(RANGES_WG) as u32, 1, 1],
-            )?;
-            rec.compute_barrier();
+            for (v, out) in outs.iter().enumerate() {
+                let b = out.view()?;
+                let (Some(keys), Some((values, ranges)), Some(planes), Some(c)) =
+                    (b.keys, b.lists, b.planes, counts[v])
+                else {
+                    continue;
+                };
+                let total = totals[v] as usize;
+                let [tiles_x, tiles_y] = b.tiles;
+                let tiles = tiles_x * tiles_y;
+                let key_bits = 32 + (usize::BITS - (tiles.max(2) - 1).leading_zeros());
+                rec.dispatch(
+                    &self.emit,
+                    &[b.get(b.views), b.get(c), b.get(keys), b.get(values)],
+                    &push_u32s(&[n as u32, tiles_x as u32]),
+                    [n.div_ceil(PROJECT_WG) as u32, 1, 1],
+                )?;
+                rec.compute_barrier();
+                sort.record(rec, b.get(keys), b.get(values), total, key_bits)?;
+                rec.dispatch(
+                    &self.ranges,
+                    &[b.get(keys), b.get(ranges)],
+                    &push_u32s(&[total as u32]),
+                    [total.div_ceil(RANGES_WG) as u32, 1, 1],
+                )?;
+                rec.compute_barrier();
+                rec.dispatch(
+                    &self.forward,
+                    &[
+                        b.get(b.cam),
+                        b.get(b.views),
+                        b.get(b.bands),
+                        b.get(values),
+                        b.get(ranges),
+                        b.get(planes),
+                    ],
+                    &push_u32s(&[
+                        n as u32,
+                        prims.bands as u32,
+                        cams[v].width as u32,
+                        cams[v].height as u32,
+                        tiles_x as u32,
+                    ]),
+                    [tiles_x as u32, tiles_y as u32, 1],
+                )?;
+                rec.compute_barrier();
+            }
             Ok(())
         });
         drop(sort_slot);
         second?;
-        binned.lists = Some((values, ranges));
-        Ok(out)
+        Ok(outs)
     }
 
     /// Bins `prims` for `cam` and runs the forward kernel; the planes stay on the GPU.
@@ -589,42 +702,9 @@ impl GpuRasterizer {
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<Transient<'a>, GpuError> {
-        let mut out = self.bin_view(ctx, prims, src, cam, settings)?;
-        let binned = out.view_mut()?;
-        let Some((values, ranges)) = binned.lists else {
-            return Ok(out);
-        };
-        let npix = cam.width * cam.height;
-        let planes = binned.keep(ctx.create_buffer(
-            "raster.planes",
-            (FORWARD_PLANES * npix * 4) as u64,
-            MemoryLocation::Readback,
-        )?);
-        binned.planes = Some(planes);
-        let b = &*binned;
-        let [tiles_x, tiles_y] = b.tiles;
-        self.submit(ctx, |rec| {
-            rec.dispatch(
-                &self.forward,
-                &[
-                    b.get(b.cam),
-                    b.get(b.views),
-                    b.get(b.bands),
-                    b.get(values),
-                    b.get(ranges),
-                    b.get(planes),
-                ],
-                &push_u32s(&[
-                    prims.len() as u32,
-                    prims.bands as u32,
-                    cam.width as u32,
-                    cam.height as u32,
-                    tiles_x as u32,
-                ]),
-                [tiles_x as u32, tiles_y as u32, 1],
-            )
-        })?;
-        Ok(out)
+        self.bin_and_render_views(ctx, prims, src, &[cam], settings)?
+            .pop()
+            .ok_or_else(|| poisoned("rendered view"))
     }
 
     /// Keeps a rendered view for the backward pass of the same view and parameters.
@@ -671,20 +751,29 @@ impl GpuRasterizer {
         Ok(out)
     }
 
-    /// Renders `prims` seen by `cam` and keeps the planes on the GPU for
-    /// [`GpuRasterizer::submit_with_views`] and the backward pass: nothing is read back but the
-    /// key count.
+    /// Renders `prims` seen by each camera of `cams` (at most [`KEPT_VIEWS`]) and keeps the
+    /// planes on the GPU for [`GpuRasterizer::submit_with_views`] and the backward pass: two
+    /// submissions for all the views, and nothing read back but their key totals (one read).
     pub fn render_kept(
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
-        cam: &PinholeCamera,
+        cams: &[&PinholeCamera],
         settings: &RenderSettings,
     ) -> Result<(), GpuError> {
-        let rendered = self.bin_and_render(ctx, prims, src, cam, settings)?;
-        if let Some(view) = rendered.take() {
-            self.keep_view(ctx, view)?;
+        if cams.len() > KEPT_VIEWS {
+            return Err(GpuError::InvalidInput {
+                reason: format!(
+                    "render_kept: {} views, the rasteriser keeps {KEPT_VIEWS}",
+                    cams.len()
+                ),
+            });
+        }
+        for rendered in self.bin_and_render_views(ctx, prims, src, cams, settings)? {
+            if let Some(view) = rendered.take() {
+                self.keep_view(ctx, view)?;
+            }
         }
         Ok(())
     }
@@ -721,6 +810,7 @@ impl GpuRasterizer {
                 planes: v.planes.map(|h| v.get(h)),
                 width: cam.width,
                 height: cam.height,
+                view: v,
             });
         }
         self.submit(ctx, |rec| record(rec, &views))
@@ -874,61 +964,105 @@ impl GpuRasterizer {
                     .ok_or_else(|| poisoned("binned view"))?
             }
         };
-        let (Some((values, ranges)), Some(planes)) = (view.lists, view.planes) else {
+        if view.lists.is_none() || view.planes.is_none() {
+            return Ok(false);
+        }
+        // Per-step scratch, released at the end of this call.
+        let acc = ctx.create_buffer(
+            "raster.grad_acc",
+            Self::backward_scratch_floats(prims).max(1) as u64 * 4,
+            MemoryLocation::DeviceOnly,
+        )?;
+        let v = &*view;
+        let kept_view = KeptView {
+            camera: v.get(v.cam),
+            planes: v.planes.map(|h| v.get(h)),
+            width,
+            height,
+            view: v,
+        };
+        let recorded = self.submit(ctx, |rec| {
+            self.record_backward(rec, prims, &kept_view, up_buf, &acc, out)
+                .map(|_| ())
+        });
+        ctx.destroy_buffer(acc);
+        recorded?;
+        drop(kept);
+        drop(fresh);
+        Ok(true)
+    }
+
+    /// Floats of the view-space gradient sums [`Self::record_backward`] needs as scratch.
+    pub fn backward_scratch_floats(prims: &Primitives<f32>) -> usize {
+        acc_fields(prims.bands) * prims.len()
+    }
+
+    /// Records the backward pass of a kept view (inside [`Self::submit_with_views`]) with the
+    /// upstream planes in `up_buf`, writing the parameter gradients into `out` (the
+    /// parameter-block layout, [`parameter_count`] floats) and using `acc`
+    /// ([`Self::backward_scratch_floats`]) as scratch. Returns `false` when no primitive covers
+    /// the view: nothing is recorded and the caller treats the gradient as zero.
+    pub fn record_backward(
+        &self,
+        rec: &mut Recorder<'_>,
+        prims: &Primitives<f32>,
+        view: &KeptView<'_>,
+        up_buf: &GpuBuffer,
+        acc: &GpuBuffer,
+        out: &GpuBuffer,
+    ) -> Result<bool, GpuError> {
+        let (width, height) = (view.width, view.height);
+        let npix = width * height;
+        let need = [
+            (up_buf, (6 * npix * 4) as u64),
+            (acc, (Self::backward_scratch_floats(prims) * 4) as u64),
+            (out, (parameter_count(prims) * 4) as u64),
+        ];
+        for (b, bytes) in need {
+            if b.size_bytes() < bytes {
+                return Err(GpuError::BufferRange {
+                    name: b.name().to_owned(),
+                    requested_bytes: bytes,
+                    capacity_bytes: b.size_bytes(),
+                });
+            }
+        }
+        let v = view.view;
+        let (Some((values, ranges)), Some(planes)) = (v.lists, v.planes) else {
             return Ok(false);
         };
         let n = prims.len();
-        let fields = acc_fields(prims.bands);
-        // Per-step buffers, released at the end of this call.
-        let mut scratch = Transient::new(
-            ctx,
-            view.tiles,
-            [0.0; 32],
-            ParamKey::Values(Vec::new()),
-            Vec::new(),
-        );
-        let s = scratch.view_mut()?;
-        let acc = s.keep(ctx.create_buffer(
-            "raster.grad_acc",
-            (fields * n).max(1) as u64 * 4,
-            MemoryLocation::DeviceOnly,
-        )?);
-        let s = &*s;
-        let v = &*view;
         let [tiles_x, tiles_y] = v.tiles;
-        self.submit(ctx, |rec| {
-            rec.fill_zero(s.get(acc));
-            rec.dispatch(
-                &self.backward,
-                &[
-                    v.get(v.cam),
-                    v.get(v.views),
-                    v.get(v.bands),
-                    v.get(values),
-                    v.get(ranges),
-                    up_buf,
-                    v.get(planes),
-                    s.get(acc),
-                ],
-                &push_u32s(&[
-                    n as u32,
-                    prims.bands as u32,
-                    width as u32,
-                    height as u32,
-                    tiles_x as u32,
-                ]),
-                [tiles_x as u32, tiles_y as u32, 1],
-            )?;
-            rec.compute_barrier();
-            rec.dispatch(
-                &self.finish,
-                &[v.get(v.cam), v.get(v.params), s.get(acc), out],
-                &push_u32s(&[n as u32, prims.bands as u32]),
-                [n.div_ceil(PROJECT_WG) as u32, 1, 1],
-            )
-        })?;
-        drop(kept);
-        drop(fresh);
+        rec.fill_zero(acc);
+        rec.dispatch(
+            &self.backward,
+            &[
+                v.get(v.cam),
+                v.get(v.views),
+                v.get(v.bands),
+                v.get(values),
+                v.get(ranges),
+                up_buf,
+                v.get(planes),
+                acc,
+            ],
+            &push_u32s(&[
+                n as u32,
+                prims.bands as u32,
+                width as u32,
+                height as u32,
+                tiles_x as u32,
+            ]),
+            [tiles_x as u32, tiles_y as u32, 1],
+        )?;
+        rec.compute_barrier();
+        rec.dispatch(
+            &self.finish,
+            &[v.get(v.cam), v.get(v.params), acc, out],
+            &push_u32s(&[n as u32, prims.bands as u32]),
+            [n.div_ceil(PROJECT_WG) as u32, 1, 1],
+        )?;
+        rec.compute_barrier();
         Ok(true)
     }
 
