@@ -15,16 +15,72 @@
 //! Takes ~50 s in the dev profile on a loaded 2-core machine (s3tir ~30 s, 3dgs ~16 s).
 //!
 //! Does NOT prove (the `#[ignore]`d test keeps the Ψ_β bounds and fails today): that Ψ_β
-//! is high on the edge and ≈ 2 on the smooth pipe. Measured with the settings below: box edge
-//! 3.43, pipe interior 4.07, floor stripe 3.18 — β rises on every surface, and most on bright
-//! plateaus. The Adam second moments in the checkpoint show why: the primitives at the box
-//! edge get the *smallest* β gradients (median √v 1e-6, against 1.6e-5 on the pipe), because at
-//! this resolution the primitives are about a pixel wide and already render the (PSF-blurred)
-//! edge sharply with β = 2, while flat-topped supports (β > 2) tile a uniform plateau with less
-//! ripple. Longer runs (1 200 iterations), a longer warm-up, faster opacity/scale learning,
-//! a higher initial opacity, pure L1 (no D-SSIM), or no regularisers change the figures but not
-//! the ordering. Nor does this test prove anything at the paper's scale (30 000 iterations, real
-//! data), or that the Vulkan backend agrees (its parity tests do that).
+//! is high on the edge and ≈ 2 on the smooth pipe; nor anything at the paper's scale (30 000
+//! iterations, real data), or that the Vulkan backend agrees (its parity tests do that).
+//!
+//! Why the Ψ_β criterion fails on this scene (study of 2026-11-21; every run is the s3tir run
+//! below — 64×48, 16 views, 400 iterations, warm-up 100, budget 300, β lr 0.05, consistency
+//! every 4, seed 1 — on the release build, with one change; masks as below, raw Ψ_β; reproduce
+//! with `cargo run -p s3tir-tests --example fwsim_psi_beta -- RUN_DIR 64 48 16`):
+//!
+//! | run                                | PSNR dB / MAE K | edge  | pipe  | stripe | rest of box |
+//! |------------------------------------|-----------------|-------|-------|--------|-------------|
+//! | as below                           | 27.66 / 0.879   | 3.435 | 4.073 | 3.185  | 3.566       |
+//! | `--beta-lr 1e-7` (β held ≈ 2)      | 26.47 / 1.073   | 2.000 | 2.000 | 2.000  | 2.000       |
+//! | `--no-smooth`                      | 27.70 / 0.861   | 3.794 | 4.597 | 3.277  | 4.257       |
+//! | `--no-consist`                     | 27.68 / 0.878   | 3.433 | 4.116 | 3.187  | 3.595       |
+//! | `--mode ges` (no bands)            | 25.07 / 1.280   | 4.083 | 4.441 | 4.559  | 4.121       |
+//! | 128×96 images                      | 26.75 / 0.906   | 4.101 | 4.477 | 3.342  | 4.382       |
+//! | + shape prior λb 0.003 (see below) | 27.58 / 0.891   | 2.897 | 3.449 | 2.528  | 2.966       |
+//! | + shape prior λb 0.01              | 27.19 / 0.967   | 2.437 | 2.729 | 2.051  | 2.426       |
+//! | + shape prior λb 0.03              | 26.75 / 1.031   | 2.105 | 2.094 | 2.000  | 2.101       |
+//! | + shape prior λb 0.1               | 26.50 / 1.070   | 2.004 | 2.000 | 2.000  | 2.001       |
+//! | + λb 0.01, budget 1000             | 29.30 / 0.719   | 2.158 | 2.382 | 2.025  | 2.146       |
+//! | + λb 0.01, 128×96                  | 26.30 / 0.997   | 2.660 | 2.782 | 2.136  | 2.766       |
+//! | `--mode 3dgs`                      | 23.90 / 1.539   | 2     | 2     | 2      | 2           |
+//!
+//! - β does not mark the emissivity edge here: the primitives centred within 3 cm of it have
+//!   the *lowest* β of the box (median 2.90, against 3.59 on the painted half and 3.07 on the
+//!   bare half; 2.03 / 4.55 / 3.26 at 128×96). β rises on bright objects against the dark
+//!   floor and background — pipe hot third 4.20, middle 3.46, cool 3.50; radiator 4.28;
+//!   floor 2.94, but the floor stripe, brighter than the rest of the floor and far from any
+//!   outline, 2.64 — i.e. along high-contrast silhouettes. The pipe's outline is the sharpest
+//!   edge in the scene (21–25 K/px in the target images, against 10.5–12 K/px across the
+//!   emissivity edge and 8.5–12.5 K/px on the box outline).
+//! - "Pipe interior" is not away from that outline: at 64×48 every pixel of the mask is within
+//!   5.4 px of it, and the pipe's primitives (median largest scale 0.17 m ≈ 5.5 px; 11 px at
+//!   128×96) span the pipe's whole 0.3 m diameter, so every pipe primitive is a silhouette
+//!   primitive. Over all held-out pixels, Ψ_β within 5 px of a sharp edge (|∇T| > 2 K/px) is
+//!   3.63–3.82 and ≥ 6 px away 3.18–3.22 (those are mostly floor: dim as well as far from
+//!   edges, so this alone does not separate brightness from edges).
+//! - The training settings are not the difference, the scene is: the trainer's analytic scene
+//!   (`s3tir-train synth DIR --width 48 --height 36`: a wall filling every view, an emissivity
+//!   step and a pipe's warm band *inside* the wall, no silhouettes) trained with exactly the
+//!   settings below (no density control, budget 300, β lr 0.05) meets the bounds: edge 3.765,
+//!   pipe 2.186 (37.64 dB); and still does with this scene's sensor effects imitated (its
+//!   images blurred with σ 0.54 px and 0.05 K noise added): edge 3.162, pipe 2.136. There β
+//!   and the band amplitudes concentrate on the primitives within 10 cm of the step (median β
+//!   3.1–4.4, largest band amplitude 0.16–0.21, against β 2.4 and 0.02 beyond 40 cm): the
+//!   paper's mechanism (§3, Fig. 3). Here the largest band amplitude is 0.12–0.19 on every
+//!   surface, the edge's primitives included.
+//! - Higher resolution does not help because the primitives do not shrink: the CLI's density
+//!   control starts at iteration 500 (the default), so a 400-iteration run never densifies,
+//!   and the budget is full from the initial subsample anyway.
+//! - Adam normalises steps, so β drifts wherever its gradient is small but consistent. A
+//!   rendered shape-sparsity prior `λb·mean(Ψ_β − 2·alpha)` (tried, not kept) holds β at 2
+//!   where the data pay less than λb per unit of coverage: it brings the stripe and the pixels
+//!   far from edges to ≈ 2 (λb 0.01: 2.08–2.10 ≥ 6 px from an edge, 2.43–2.55 within 5 px) but
+//!   shrinks β everywhere alike — the pipe stays above the edge and no λb gives an edge more
+//!   than 0.5 above both smooth regions. With β held at 2 (`--beta-lr 1e-7`) the Adam second
+//!   moments show why: the edge's primitives get the smallest β gradient (median √v 3.2e-6,
+//!   box 9.1e-6, pipe 3.1e-5, radiator 3.5e-5, in β units).
+//! - The TV term lowers β everywhere (`--no-smooth` raises it by 0.1–0.7); the consistency term
+//!   changes nothing measurable. Raw Ψ_β also understates β where alpha < 1: divided by alpha
+//!   (as `pipeline_modes.rs` does) the three masks read 4.14 / 4.15 / 4.18.
+//!
+//! Earlier measurements (previous session): longer runs (1 200 iterations), a longer warm-up,
+//! faster opacity/scale learning, a higher initial opacity, pure L1 (no D-SSIM) or no
+//! regularisers change the figures but not the ordering.
 //! Needs the workspace's binaries (`make test` / `cargo test --workspace`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -266,7 +322,7 @@ fn s3tir_beats_3dgs_on_the_firmware_sim_scene() {
         f.gs_range.1
     );
     // The edge is a 6 cm band seen obliquely in the held-out views and counted only where the
-    // trained model covers it (alpha > 0.5): 15 px with the simulator's noise of this commit.
+    // trained model covers it (alpha > 0.5): 49 px (5 + 44) with this commit's simulator.
     assert!(
         f.edge.1 >= 8 && f.pipe.1 >= 100 && f.stripe.1 >= 20,
         "masks too small: {} edge px, {} pipe-interior px, {} stripe px",
@@ -279,7 +335,7 @@ fn s3tir_beats_3dgs_on_the_firmware_sim_scene() {
 /// The Ψ_β criterion on the same runs; fails today (see the module docs for the
 /// figures and the diagnosis). Run with `--ignored --nocapture`.
 #[test]
-#[ignore = "Ψ_β criterion not met on this scene: β rises on every surface (module docs)"]
+#[ignore = "Ψ_β criterion not met: β follows silhouettes, not the emissivity edge (module docs)"]
 fn psi_beta_is_high_on_the_edge_and_two_on_the_smooth_pipes() {
     let f = pipeline();
     let (edge, pipe, stripe) = (f.edge.0, f.pipe.0, f.stripe.0);
