@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use s3tir_firmware_sim::board::BoardSpec;
 use s3tir_firmware_sim::dataset::{BoardSetConfig, Polarity, write_board_set};
 use s3tir_firmware_sim::rig::Rig;
-use s3tir_firmware_sim::scene::{SceneConfig, write_scene_set};
+use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with_layout};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
 
@@ -67,6 +67,17 @@ enum PolarityArg {
     Heated,
 }
 
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum LayoutArg {
+    /// Heated pipe, box with an emissivity edge, radiator panel and a floor warmed by an
+    /// underfloor pipe, seen from an orbit.
+    Objects,
+    /// Wall inspection: one wall filling every view, painted on one side of a vertical line and
+    /// bare metal on the other (a sharp emissivity edge), warmed by an in-wall heating pipe (a
+    /// smooth warm band); cameras on an arc in front of it.
+    Wall,
+}
+
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Write a calibration set of the emissivity-coated board seen by the thermal and RGB
@@ -89,15 +100,19 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
-    /// Write a small thermal scene dataset for the trainer (heated pipe, box with an emissivity
-    /// edge, radiator panel, ground plane) seen from an orbit: COLMAP text model in
+    /// Write a small thermal scene dataset for the trainer (--layout objects: heated pipe, box
+    /// with an emissivity edge, radiator panel, ground plane, seen from an orbit; --layout wall:
+    /// a wall with an emissivity edge and an in-wall heating pipe): COLMAP text model in
     /// DIR/sparse/0/, 16-bit TLinear PNGs in DIR/images/, RGB in DIR/rgb/, ground-truth depth
     /// and temperature in DIR/depth/ and DIR/temperature/.
     Scene {
         /// Output directory (created).
         #[arg(long)]
         out: PathBuf,
-        /// Number of orbit views.
+        /// Which scene.
+        #[arg(long, value_enum, default_value = "objects")]
+        layout: LayoutArg,
+        /// Number of views (orbit or arc).
         #[arg(long, default_value_t = 24)]
         views: usize,
         /// Image width, pixels.
@@ -198,6 +213,7 @@ fn main() -> Result<()> {
         }
         Command::Scene {
             out,
+            layout,
             views,
             width,
             height,
@@ -212,7 +228,11 @@ fn main() -> Result<()> {
                 seed,
             };
             let bar = progress_bar(views, "scene views");
-            write_scene_set(&cfg, &mut |done, _| bar.set_position(done as u64))
+            let layout = match layout {
+                LayoutArg::Objects => SceneLayout::Objects,
+                LayoutArg::Wall => SceneLayout::Wall,
+            };
+            write_scene_set_with_layout(&cfg, layout, &mut |done, _| bar.set_position(done as u64))
                 .with_context(|| format!("writing the scene set to {}", out.display()))?;
             bar.finish();
             tracing::info!(

@@ -1,6 +1,10 @@
 //! Simple thermal scenes with ground truth for the trainer, written as a COLMAP text model.
+//! Two layouts ([`SceneLayout`]): `Objects` (the default, below) and `Wall` (further below).
 //!
 //! World frame: x east, y north, z up, metres; the ground is the plane z = 0.
+//!
+//! ## `Objects` layout
+//!
 //! Objects (all grey bodies reflecting surroundings at [`ENV_K`]):
 //! - ground plane, |x|, |y| ≤ 2 m, 291 K, ε 0.95 (RGB: two-tone 0.2 m tiles), with an
 //!   underfloor heating pipe along y at x = 0.7 m whose heat reaches the floor surface by
@@ -21,6 +25,37 @@
 //! Cameras: pinhole without distortion (COLMAP `PINHOLE`), on an orbit of radius 1.6 m at
 //! height 0.9 m around (0, 0, 0.15), all looking at that point, the first at azimuth
 //! π/2 + 0.1 rad (near the +y axis: the pipe side-on); 57° horizontal field of view.
+//!
+//! ## `Wall` layout: a wall inspection (an in-wall heating pipe)
+//!
+//! One vertical wall, the plane y = [`WALL_Y`] (facing −y), x ∈ [`WALL_X`], z ∈ [`WALL_Z`]:
+//! 6 m × 3 m, larger than any view of its camera set, so every pixel sees wall — no background,
+//! no silhouette. A grey body reflecting [`ENV_K`] like every surface here:
+//! - the cold exterior wall of a heated room in winter, seen from inside: [`WALL_BASE_K`] =
+//!   280 K, 10 K below the 290 K room it reflects, so emissivity matters;
+//! - painted (ε [`WALL_PAINT_EMISSIVITY`] = 0.95) for x < [`WALL_EDGE_X`] = 0 and bare metal
+//!   (ε [`WALL_METAL_EMISSIVITY`] = 0.12) for x ≥ 0: the **sharp emissivity edge**, a vertical
+//!   line; apparent temperature ≈ 280.5 K on the paint, ≈ 289 K on the metal (which mostly
+//!   mirrors the room);
+//! - a heating pipe inside the wall, horizontal at height [`WALL_PIPE_Z`] = 0.75 m, whose heat
+//!   reaches the surface by conduction as a smooth warm band (no edge of any kind):
+//!   `WALL_PIPE_PEAK_K · exp(−((z − 0.75 m)/0.2 m)²) · exp(−((x + 0.6 m)/1.0 m)²)`
+//!   ([`WALL_PIPE_PEAK_K`] = 12 K, σ [`WALL_PIPE_SIGMA`] = 0.2 m across, hottest at
+//!   x = [`WALL_PIPE_HOT_X`] = −0.6 m where its hot water enters, slowly cooling along x over
+//!   [`WALL_PIPE_LENGTH`] = 1 m: [`wall_temp_k`]), the **smooth heated pipe**: up to ≈ 291.5 K
+//!   apparent on the paint; behind the bare metal it barely shows (ε 0.12: the classic
+//!   thermography pitfall).
+//!
+//! Why a cold wall rather than a heated one: with the trainer (`s3tir-train`, 400 iterations),
+//! β drifts up on bright flat regions, and the data are normalised to the scene's range; at
+//! 305 K the painted side, where the pipe shows, is the bright side (Ψ_β on the pipe band
+//! 2.54, measured as in `tests/tests/train_fwsim.rs`), at 280 K the dark one (2.07).
+//!
+//! RGB: blue-grey paint, metal grey; the pipe is invisible in RGB.
+//! Cameras ([`wall_arc`]): the same pinhole, on an arc of radius 1.6 m around the point
+//! (0, 0, 0.95) of the edge line, yaw from −25° to +25° (view 0 at −25°, evenly spaced),
+//! heights 0.95 m + (−0.15, 0, +0.15 m) in turn, all looking at that point: every view sees
+//! both sides of the edge and the pipe's band, and every pair of views overlaps.
 
 use std::fs;
 use std::io::Write;
@@ -44,6 +79,16 @@ pub const ENV_K: f64 = 290.0;
 /// Apparent temperature of rays that hit nothing, kelvin.
 pub const BACKGROUND_K: f64 = 285.0;
 const BACKGROUND_RGB: [f64; 3] = [0.30, 0.34, 0.40];
+
+/// Which scene [`write_scene_set_with_layout`] and friends render (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SceneLayout {
+    /// Box, free-standing pipe, floor with an underfloor pipe, radiator, seen from an orbit.
+    #[default]
+    Objects,
+    /// A wall with an emissivity edge and an in-wall heating pipe, filling every view.
+    Wall,
+}
 
 /// Parameters of a scene dataset.
 #[derive(Debug, Clone)]
@@ -80,6 +125,8 @@ pub enum SceneObject {
     /// The box: painted (x < [`BOX_C`].x) or bare metal.
     Box,
     Radiator,
+    /// The wall of the `Wall` layout: painted (x < [`WALL_EDGE_X`]) or bare metal.
+    Wall,
 }
 
 /// Pipe extent along x, metres.
@@ -103,6 +150,47 @@ pub const FLOOR_PIPE_PEAK_K: f64 = 9.0;
 pub fn floor_temp_k(x: f64) -> f64 {
     291.0 + FLOOR_PIPE_PEAK_K * (-((x - FLOOR_PIPE_X) / FLOOR_PIPE_SIGMA).powi(2)).exp()
 }
+/// Wall layout: the wall is the plane y = `WALL_Y`, metres.
+pub const WALL_Y: f64 = 0.0;
+/// Wall layout: the wall's extent along x, metres.
+pub const WALL_X: (f64, f64) = (-3.0, 3.0);
+/// Wall layout: the wall's extent along z, metres.
+pub const WALL_Z: (f64, f64) = (0.0, 3.0);
+/// Wall layout: temperature of the wall away from the pipe, kelvin.
+pub const WALL_BASE_K: f64 = 280.0;
+/// Wall layout: the emissivity edge is the vertical line x = `WALL_EDGE_X` (painted for x below).
+pub const WALL_EDGE_X: f64 = 0.0;
+/// Wall layout: emissivity of the painted part.
+pub const WALL_PAINT_EMISSIVITY: f64 = 0.95;
+/// Wall layout: emissivity of the bare-metal part.
+pub const WALL_METAL_EMISSIVITY: f64 = 0.12;
+/// Wall layout: height of the in-wall pipe's axis (the warm band's centre line), metres.
+pub const WALL_PIPE_Z: f64 = 0.75;
+/// Wall layout: width parameter σ of the warm band across the pipe, metres.
+pub const WALL_PIPE_SIGMA: f64 = 0.2;
+/// Wall layout: peak warming of the wall surface above the pipe, kelvin.
+pub const WALL_PIPE_PEAK_K: f64 = 12.0;
+/// Wall layout: where along x the pipe is hottest, metres.
+pub const WALL_PIPE_HOT_X: f64 = -0.6;
+/// Wall layout: length scale of the band's slow cooling along x, metres.
+pub const WALL_PIPE_LENGTH: f64 = 1.0;
+
+/// Wall surface temperature at `(x, z)`: [`WALL_BASE_K`] plus the in-wall pipe's warm band.
+pub fn wall_temp_k(x: f64, z: f64) -> f64 {
+    let across = (z - WALL_PIPE_Z) / WALL_PIPE_SIGMA;
+    let along = (x - WALL_PIPE_HOT_X) / WALL_PIPE_LENGTH;
+    WALL_BASE_K + WALL_PIPE_PEAK_K * (-across * across - along * along).exp()
+}
+
+/// Wall layout: emissivity and RGB albedo at `x`.
+fn wall_material(x: f64) -> (f64, [f64; 3]) {
+    if x < WALL_EDGE_X {
+        (WALL_PAINT_EMISSIVITY, [0.30, 0.38, 0.55])
+    } else {
+        (WALL_METAL_EMISSIVITY, [0.62, 0.62, 0.64])
+    }
+}
+
 // The radiator stands off the pipe's hot end (plane x = RAD_X, facing +x), clear of the lines
 // of sight of the views from ±y that see the pipe side-on.
 const RAD_X: f64 = -0.9;
@@ -122,8 +210,35 @@ fn face(n: DVec3, d: DVec3) -> DVec3 {
     if n.dot(d) > 0.0 { -n } else { n }
 }
 
-/// Nearest surface along the ray `o + t d` (t > 1e-9), world frame.
-pub fn trace(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+/// Nearest surface of `layout` along the ray `o + t d` (t > 1e-9), world frame.
+pub fn trace(layout: SceneLayout, o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    match layout {
+        SceneLayout::Objects => trace_objects(o, d),
+        SceneLayout::Wall => trace_wall(o, d),
+    }
+}
+
+fn trace_wall(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    if d.y.abs() <= 1e-12 {
+        return None;
+    }
+    let t = (WALL_Y - o.y) / d.y;
+    let p = o + d * t;
+    let inside = p.x >= WALL_X.0 && p.x <= WALL_X.1 && p.z >= WALL_Z.0 && p.z <= WALL_Z.1;
+    (t > 1e-9 && inside).then(|| {
+        let (emissivity, albedo) = wall_material(p.x);
+        SurfaceHit {
+            t,
+            temp_k: wall_temp_k(p.x, p.z),
+            emissivity,
+            albedo,
+            normal: face(DVec3::Y, d),
+            object: SceneObject::Wall,
+        }
+    })
+}
+
+fn trace_objects(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
     let mut best: Option<SurfaceHit> = None;
     let mut consider = |h: SurfaceHit| {
         if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
@@ -278,6 +393,32 @@ pub fn orbit(n: usize) -> Vec<Rigid3> {
         .collect()
 }
 
+/// The wall layout's cameras: `n` poses on an arc in front of the wall (module docs).
+pub fn wall_arc(n: usize) -> Vec<Rigid3> {
+    let target = DVec3::new(WALL_EDGE_X, WALL_Y, 0.95);
+    (0..n)
+        .map(|k| {
+            let f = if n > 1 {
+                k as f64 / (n - 1) as f64
+            } else {
+                0.5
+            };
+            let yaw = (-25.0 + 50.0 * f).to_radians();
+            let dz = 0.15 * ((k % 3) as f64 - 1.0);
+            let eye = target + DVec3::new(1.6 * yaw.sin(), -1.6 * yaw.cos(), dz);
+            look_at(eye, target)
+        })
+        .collect()
+}
+
+/// The `n` camera poses (`cam_from_world`) of `layout`: [`orbit`] or [`wall_arc`].
+pub fn poses(layout: SceneLayout, n: usize) -> Vec<Rigid3> {
+    match layout {
+        SceneLayout::Objects => orbit(n),
+        SceneLayout::Wall => wall_arc(n),
+    }
+}
+
 /// The pinhole camera of a `width × height` scene image (57° horizontal field of view).
 pub fn scene_camera(width_px: u32, height_px: u32) -> CameraModel {
     let f = f64::from(width_px) / 2.0 / (28.5f64.to_radians()).tan();
@@ -310,8 +451,9 @@ pub struct SceneRender {
 /// Sub-samples per pixel axis.
 pub const SCENE_SUBPIXELS: usize = 4;
 
-/// Renders one view of the scene.
+/// Renders one view of the scene `layout`.
 pub fn render_scene(
+    layout: SceneLayout,
     grid: &RayGrid,
     cam_from_world: &Rigid3,
     radiometry: &Radiometry,
@@ -342,7 +484,7 @@ pub fn render_scene(
                         (j as f64 + 0.5) / n as f64,
                     );
                     let d = world_from_cam.transform_vector(ray);
-                    match trace(eye, d) {
+                    match trace(layout, eye, d) {
                         Some(s) => {
                             l_acc += s.emissivity * radiometry.radiance(s.temp_k)
                                 + (1.0 - s.emissivity) * l_env;
@@ -366,7 +508,7 @@ pub fn render_scene(
                 ch[k] = c / nn;
             }
             let centre = grid.centre_ray(u, v);
-            if let Some(s) = trace(eye, world_from_cam.transform_vector(centre)) {
+            if let Some(s) = trace(layout, eye, world_from_cam.transform_vector(centre)) {
                 // The ray has camera z = 1, so t is the depth.
                 out.depth_m[k] = s.t;
                 out.temp_k[k] = s.temp_k;
@@ -376,10 +518,36 @@ pub fn render_scene(
     out
 }
 
-/// `count` points sampled on the object surfaces (not the ground's far field), with colour.
-pub fn sample_surface_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, [u8; 3])> {
+fn albedo_to_srgb8(a: [f64; 3]) -> [u8; 3] {
+    a.map(|c| (crate::sensor::srgb_encode(c) * 255.0).round() as u8)
+}
+
+/// `count` points sampled on the surfaces of `layout` (Objects: the objects and the near
+/// ground; Wall: the part of the wall the cameras see, x ∈ ±1.5 m, z ∈ [0.1, 1.8] m), with
+/// colour.
+pub fn sample_surface_points(
+    layout: SceneLayout,
+    count: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<(DVec3, [u8; 3])> {
+    match layout {
+        SceneLayout::Objects => sample_object_points(count, rng),
+        SceneLayout::Wall => (0..count)
+            .map(|_| {
+                let x = rng.random_range(-1.5..1.5);
+                let z = rng.random_range(0.1..1.8);
+                (
+                    DVec3::new(x, WALL_Y, z),
+                    albedo_to_srgb8(wall_material(x).1),
+                )
+            })
+            .collect(),
+    }
+}
+
+fn sample_object_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, [u8; 3])> {
     let mut pts = Vec::with_capacity(count);
-    let to8 = |a: [f64; 3]| a.map(|c| (crate::sensor::srgb_encode(c) * 255.0).round() as u8);
+    let to8 = albedo_to_srgb8;
     while pts.len() < count {
         let kind = rng.random_range(0..4);
         let (p, albedo) = match kind {
@@ -389,7 +557,7 @@ pub fn sample_surface_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, 
                     rng.random_range(-1.2..1.2),
                     0.0,
                 );
-                let h = trace(p + DVec3::Z * 1e-3, DVec3::NEG_Z);
+                let h = trace_objects(p + DVec3::Z * 1e-3, DVec3::NEG_Z);
                 (p, h.map_or([0.3; 3], |h| h.albedo))
             }
             1 => {
@@ -441,6 +609,7 @@ pub fn sample_surface_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, 
 
 #[derive(Debug, Serialize)]
 struct SceneJson {
+    layout: &'static str,
     world_frame: &'static str,
     env_k: f64,
     background_k: f64,
@@ -474,9 +643,20 @@ fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError>
     })
 }
 
-/// Writes the scene dataset (layout in firmware-sim/README.md).
+/// Writes the `Objects` scene dataset (files in firmware-sim/README.md).
 pub fn write_scene_set(
     cfg: &SceneConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(), SimError> {
+    write_scene_set_with_layout(cfg, SceneLayout::Objects, progress)
+}
+
+/// Writes the scene dataset of `layout` (files in firmware-sim/README.md).
+// The layout is an argument rather than a `SceneConfig` field so that `SceneConfig` literals
+// elsewhere (firmware-sim/tests/scene_set.rs) keep compiling unchanged.
+pub fn write_scene_set_with_layout(
+    cfg: &SceneConfig,
+    layout: SceneLayout,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(), SimError> {
     if cfg.width_px < 2 || cfg.height_px < 2 || cfg.views == 0 {
@@ -506,7 +686,7 @@ pub fn write_scene_set(
         ..RgbProfile::hd720()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5C3E);
-    let poses = orbit(cfg.views);
+    let poses = poses(layout, cfg.views);
     let (w, h) = (cfg.width_px, cfg.height_px);
     let mut images_txt = String::from(
         "# Image list with two lines of data per image:\n\
@@ -518,7 +698,7 @@ pub fn write_scene_set(
         cfg.views
     ));
     for (k, cam_from_world) in poses.iter().enumerate() {
-        let r = render_scene(&grid, cam_from_world, &radiometry);
+        let r = render_scene(layout, &grid, cam_from_world, &radiometry);
         let blurred = gaussian_blur(&r.radiance, w as usize, h as usize, profile.psf_sigma_px);
         let words = match sensor.next_frame(&blurred) {
             ThermalOutput::Frame(f) => f.words,
@@ -596,7 +776,7 @@ pub fn write_scene_set(
         i.cx + 0.5,
         i.cy + 0.5
     );
-    let points = sample_surface_points(2000, &mut rng);
+    let points = sample_surface_points(layout, 2000, &mut rng);
     let mut points_txt = String::from(
         "# 3D point list with one line of data per point:\n\
          #   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n",
@@ -627,7 +807,14 @@ pub fn write_scene_set(
         f.write_all(text.as_bytes()).map_err(io(&p, "write"))?;
     }
     let meta = SceneJson {
-        world_frame: "x east, y north, z up, metres; ground plane z = 0",
+        layout: match layout {
+            SceneLayout::Objects => "objects",
+            SceneLayout::Wall => "wall",
+        },
+        world_frame: match layout {
+            SceneLayout::Objects => "x east, y north, z up, metres; ground plane z = 0",
+            SceneLayout::Wall => "x east, y north, z up, metres; wall plane y = 0, facing -y",
+        },
         env_k: ENV_K,
         background_k: BACKGROUND_K,
         camera: cam,
@@ -651,7 +838,11 @@ pub fn write_scene_set(
 
 /// What the centre ray of each pixel of a scene view hits (row-major, `None`: background), with
 /// the world point hit: the ground truth tests build object masks from.
-pub fn pixel_hits(cam: &CameraModel, cam_from_world: &Rigid3) -> Vec<Option<(SceneObject, DVec3)>> {
+pub fn pixel_hits(
+    layout: SceneLayout,
+    cam: &CameraModel,
+    cam_from_world: &Rigid3,
+) -> Vec<Option<(SceneObject, DVec3)>> {
     let grid = RayGrid::new(cam);
     let world_from_cam = cam_from_world.inverse();
     let eye = world_from_cam.translation_m;
@@ -660,7 +851,7 @@ pub fn pixel_hits(cam: &CameraModel, cam_from_world: &Rigid3) -> Vec<Option<(Sce
     for v in 0..h {
         for u in 0..w {
             let d = world_from_cam.transform_vector(grid.centre_ray(u, v));
-            out.push(trace(eye, d).map(|s| (s.object, eye + d * s.t)));
+            out.push(trace(layout, eye, d).map(|s| (s.object, eye + d * s.t)));
         }
     }
     out
@@ -702,8 +893,8 @@ mod tests {
     fn held_out_views_see_the_pipe_interior_and_the_box_edge() {
         let cam = scene_camera(64, 48);
         let poses = orbit(16);
-        let v0 = pixel_hits(&cam, &poses[0]);
-        let v8 = pixel_hits(&cam, &poses[8]);
+        let v0 = pixel_hits(SceneLayout::Objects, &cam, &poses[0]);
+        let v8 = pixel_hits(SceneLayout::Objects, &cam, &poses[8]);
         let (n0, n8) = (pipe_interior(&v0, 64, 48), pipe_interior(&v8, 64, 48));
         assert!(
             n0 >= 150 && n8 >= 40,
@@ -729,6 +920,91 @@ mod tests {
                     p.x
                 );
             }
+        }
+    }
+
+    /// Proves the wall layout's geometry the trainer's Ψ_β test relies on: at 64×48 with 16
+    /// views, every view (the held-out 0 and 8 included) sees only wall, even at the corner
+    /// sub-samples of its corner pixels (no background, no silhouette); views 0 and 8 hold
+    /// many pixels within 3 cm of the emissivity line and within σ/2 of the pipe's band on the
+    /// paint > 0.3 m from the line; and the rendered radiance shows the emissivity edge (metal
+    /// mirrors the warmer room, paint shows the cold wall) and the warm band on the paint.
+    #[test]
+    fn wall_views_see_only_wall_with_the_edge_and_the_pipe_band() {
+        let cam = scene_camera(64, 48);
+        let grid = RayGrid::new(&cam);
+        let poses = poses(SceneLayout::Wall, 16);
+        assert_eq!(poses.len(), 16, "wall poses");
+        for (k, pose) in poses.iter().enumerate() {
+            let hits = pixel_hits(SceneLayout::Wall, &cam, pose);
+            let not_wall = hits
+                .iter()
+                .filter(|h| !matches!(h, Some((SceneObject::Wall, _))))
+                .count();
+            assert_eq!(not_wall, 0, "view {k}: {not_wall} px are not wall");
+            let world_from_cam = pose.inverse();
+            for (u, v, a, b) in [
+                (0, 0, 0.0, 0.0),
+                (63, 0, 1.0, 0.0),
+                (0, 47, 0.0, 1.0),
+                (63, 47, 1.0, 1.0),
+            ] {
+                let d = world_from_cam.transform_vector(grid.sub_ray(u, v, a, b));
+                let hit = trace(SceneLayout::Wall, world_from_cam.translation_m, d);
+                assert!(
+                    matches!(
+                        hit,
+                        Some(SurfaceHit {
+                            object: SceneObject::Wall,
+                            ..
+                        })
+                    ),
+                    "view {k}: corner ray of pixel ({u}, {v}) misses the wall: {hit:?}"
+                );
+            }
+        }
+        let radiometry = Radiometry::new();
+        for k in [0, 8] {
+            let hits = pixel_hits(SceneLayout::Wall, &cam, &poses[k]);
+            let edge = hits
+                .iter()
+                .flatten()
+                .filter(|(_, p)| (p.x - WALL_EDGE_X).abs() < 0.03)
+                .count();
+            let band = |(_, p): &&(SceneObject, DVec3)| {
+                (p.z - WALL_PIPE_Z).abs() < 0.5 * WALL_PIPE_SIGMA && p.x < WALL_EDGE_X - 0.3
+            };
+            let pipe = hits.iter().flatten().filter(band).count();
+            assert!(
+                edge >= 60 && pipe >= 100,
+                "view {k}: expected >= 60 edge px and >= 100 pipe-band px, got {edge} and {pipe}"
+            );
+            // Apparent temperature per pixel, from the rendered (area-averaged) radiance.
+            let r = render_scene(SceneLayout::Wall, &grid, &poses[k], &radiometry);
+            let mean_k = |f: &dyn Fn(&DVec3) -> bool| {
+                let v: Vec<f64> = hits
+                    .iter()
+                    .zip(&r.radiance)
+                    .filter(|(h, _)| h.is_some_and(|(_, p)| f(&p)))
+                    .map(|(_, &l)| radiometry.temperature_k(l))
+                    .collect();
+                v.iter().sum::<f64>() / v.len().max(1) as f64
+            };
+            let far = |p: &DVec3| (p.z - WALL_PIPE_Z).abs() > 0.5;
+            let paint = mean_k(&|p| p.x < WALL_EDGE_X - 0.1 && far(p));
+            let metal = mean_k(&|p| p.x > WALL_EDGE_X + 0.1 && far(p));
+            let on_band = mean_k(&|p| {
+                (p.z - WALL_PIPE_Z).abs() < 0.05 && (p.x - WALL_PIPE_HOT_X).abs() < 0.1
+            });
+            assert!(
+                (paint - 280.5).abs() < 0.5 && (metal - 289.0).abs() < 0.5,
+                "view {k}: apparent paint {paint:.2} K (expected ≈ 280.5), metal {metal:.2} K \
+                 (expected ≈ 289)"
+            );
+            assert!(
+                on_band > paint + 9.0,
+                "view {k}: pipe band {on_band:.2} K should be > 9 K above the paint's {paint:.2} K"
+            );
         }
     }
 }

@@ -7,7 +7,12 @@
 //! painted half, within 3 cm of the emissivity edge, bare half; pipe hot, middle and cool
 //! thirds; floor stripe; rest of the floor; radiator).
 //!
-//! `cargo run -p s3tir-tests --example fwsim_psi_beta -- RUN_DIR WIDTH HEIGHT VIEWS`
+//! With `wall` as fifth argument (a `scene --layout wall` dataset), the masks are the wall
+//! layout's instead: emissivity edge (wall within 3 cm of the line x = `WALL_EDGE_X`), pipe
+//! band (wall within σ/2 of the in-wall pipe's axis, on the paint, > 0.3 m from the line) and
+//! the rest of the wall; the per-primitive table then groups by distance from the line and the band.
+//!
+//! `cargo run -p s3tir-tests --example fwsim_psi_beta -- RUN_DIR WIDTH HEIGHT VIEWS [wall]`
 //! (`VIEWS`: the `--views` the scene was written with; the views are read from the G-buffer
 //! names in `RUN_DIR/gbuffers`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -15,7 +20,8 @@
 use std::path::PathBuf;
 
 use s3tir_firmware_sim::scene::{
-    self, BOX_C, BOX_H, FLOOR_PIPE_X, PIPE_R, PIPE_X, PIPE_YZ, SceneObject,
+    self, BOX_C, BOX_H, FLOOR_PIPE_X, PIPE_R, PIPE_X, PIPE_YZ, SceneLayout, SceneObject,
+    WALL_EDGE_X, WALL_PIPE_SIGMA, WALL_PIPE_Z,
 };
 use s3tir_trainer::checkpoint;
 use s3tir_trainer::primitive::Primitives;
@@ -25,6 +31,8 @@ use s3tir_trainer::report::read_npy_f32;
 const EDGE_HALF_WIDTH_M: f64 = 0.03;
 const STRIPE_HALF_WIDTH_M: f64 = 0.06;
 const ERODE_PX: i64 = 2;
+/// Same wall-layout mask parameters as `tests/tests/train_fwsim.rs`.
+const WALL_PIPE_AWAY_FROM_EDGE_M: f64 = 0.3;
 
 #[derive(Default)]
 struct Acc {
@@ -53,9 +61,14 @@ impl Acc {
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     assert!(
-        args.len() == 4,
-        "usage: fwsim_psi_beta RUN_DIR WIDTH HEIGHT VIEWS (got {args:?})"
+        args.len() == 4 || (args.len() == 5 && args[4] == "wall"),
+        "usage: fwsim_psi_beta RUN_DIR WIDTH HEIGHT VIEWS [wall] (got {args:?})"
     );
+    let layout = if args.len() == 5 {
+        SceneLayout::Wall
+    } else {
+        SceneLayout::Objects
+    };
     let run = PathBuf::from(&args[0]);
     let (width, height, views): (u32, u32, usize) = (
         args[1].parse().unwrap(),
@@ -63,7 +76,7 @@ fn main() {
         args[3].parse().unwrap(),
     );
     let cam = scene::scene_camera(width, height);
-    let poses = scene::orbit(views);
+    let poses = scene::poses(layout, views);
     let (w, h) = (width as usize, height as usize);
     let gb = run.join("gbuffers");
     let mut stems: Vec<String> = std::fs::read_dir(&gb)
@@ -74,11 +87,14 @@ fn main() {
         })
         .collect();
     stems.sort();
-    let names = ["box edge", "pipe interior", "floor stripe", "box off-edge"];
+    let names = match layout {
+        SceneLayout::Objects => ["box edge", "pipe interior", "floor stripe", "box off-edge"],
+        SceneLayout::Wall => ["wall edge", "pipe band", "(unused)", "rest of the wall"],
+    };
     let mut total: [Acc; 4] = Default::default();
     for stem in &stems {
         let k: usize = stem.parse().unwrap();
-        let hits = scene::pixel_hits(&cam, &poses[k]);
+        let hits = scene::pixel_hits(layout, &cam, &poses[k]);
         let object_at = |x: i64, y: i64| {
             (x >= 0 && y >= 0 && x < w as i64 && y < h as i64)
                 .then(|| hits[y as usize * w + x as usize].map(|(o, _)| o))
@@ -100,6 +116,18 @@ fn main() {
                     continue;
                 }
                 let slot = match hits[i] {
+                    Some((SceneObject::Wall, pt)) => {
+                        let from_edge = (pt.x - WALL_EDGE_X).abs();
+                        if from_edge < EDGE_HALF_WIDTH_M {
+                            0
+                        } else if (pt.z - WALL_PIPE_Z).abs() < 0.5 * WALL_PIPE_SIGMA
+                            && pt.x < WALL_EDGE_X - WALL_PIPE_AWAY_FROM_EDGE_M
+                        {
+                            1
+                        } else {
+                            3
+                        }
+                    }
                     Some((SceneObject::Box, pt)) if (pt.x - BOX_C.x).abs() < EDGE_HALF_WIDTH_M => 0,
                     Some((SceneObject::Box, _)) => 3,
                     Some((SceneObject::PipeSide, _)) if interior(x, y, SceneObject::PipeSide) => 1,
@@ -128,7 +156,22 @@ fn main() {
         .map(|(n, a)| format!("{n} {}", a.show()))
         .collect();
     println!("all held-out views: {}", line.join(", "));
-    primitives_by_place(&run);
+    primitives_by_place(&run, layout);
+}
+
+/// Where a primitive's centre lies on the wall layout (world metres).
+fn place_on_wall(p: [f64; 3]) -> &'static str {
+    let [x, _, z] = p;
+    let from_edge = (x - WALL_EDGE_X).abs();
+    let on_band = (z - WALL_PIPE_Z).abs() < 0.5 * WALL_PIPE_SIGMA;
+    match (from_edge, on_band) {
+        (d, _) if d < 0.1 => "wall, within 10 cm of the emissivity edge",
+        (d, true) if d > WALL_PIPE_AWAY_FROM_EDGE_M && x < WALL_EDGE_X => {
+            "wall, pipe band on the paint > 0.3 m from the edge"
+        }
+        (d, false) if d > 0.4 => "wall, off the band, > 0.4 m from the edge",
+        _ => "wall, elsewhere",
+    }
 }
 
 /// Where a primitive's centre lies (world metres), for the per-primitive table.
@@ -175,7 +218,11 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 /// Median β and ω_low of the run's primitives by [`place`].
-fn primitives_by_place(run: &std::path::Path) {
+fn primitives_by_place(run: &std::path::Path, layout: SceneLayout) {
+    let place = match layout {
+        SceneLayout::Objects => place,
+        SceneLayout::Wall => place_on_wall,
+    };
     let ck = checkpoint::load(&run.join("checkpoint.json")).unwrap();
     let prims: Primitives<f32> = ck.primitives.into();
     let mut by: std::collections::BTreeMap<&str, (Vec<f64>, Vec<f64>)> = Default::default();

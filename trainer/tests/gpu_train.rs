@@ -35,6 +35,28 @@ fn config(data: &std::path::Path) -> TrainConfig {
     c
 }
 
+/// The synthetic scene every test here trains on (40×30), in a temporary folder.
+fn small_scene() -> (tempfile::TempDir, std::path::PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    let scfg = SynthConfig {
+        width: 40,
+        height: 30,
+        f_px: 34.0,
+        points: 300,
+        ..SynthConfig::default()
+    };
+    synth::write_scene(&data_dir, &scfg).unwrap();
+    (tmp, data_dir)
+}
+
+fn lavapipe(disable_float_atomics: bool) -> ContextOptions {
+    ContextOptions {
+        device: DeviceChoice::NameContains("llvmpipe".into()),
+        disable_float_atomics,
+    }
+}
+
 fn train<B: Backend>(data_dir: &std::path::Path, run: &std::path::Path, backend: B) -> f64 {
     let data = Dataset::load(data_dir, &LoadOptions::default()).unwrap();
     let mut t = Trainer::new(config(data_dir), data, backend, run).unwrap();
@@ -46,22 +68,10 @@ fn train<B: Backend>(data_dir: &std::path::Path, run: &std::path::Path, backend:
 
 #[test]
 fn vulkan_backend_reaches_cpu_psnr_within_0_3_db() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data_dir = tmp.path().join("scene");
-    let scfg = SynthConfig {
-        width: 40,
-        height: 30,
-        f_px: 34.0,
-        points: 300,
-        ..SynthConfig::default()
-    };
-    synth::write_scene(&data_dir, &scfg).unwrap();
+    let (tmp, data_dir) = small_scene();
     let cpu = train(&data_dir, &tmp.path().join("cpu"), CpuBackend::default());
     for disable_float_atomics in [false, true] {
-        let options = ContextOptions {
-            device: DeviceChoice::NameContains("llvmpipe".into()),
-            disable_float_atomics,
-        };
+        let options = lavapipe(disable_float_atomics);
         let backend = VulkanBackend::new(&options, RenderSettings::default())
             .expect("lavapipe must be available");
         let vk = train(
@@ -88,20 +98,8 @@ fn vulkan_backend_reaches_cpu_psnr_within_0_3_db() {
 /// relative above 1).
 #[test]
 fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data_dir = tmp.path().join("scene");
-    let scfg = SynthConfig {
-        width: 40,
-        height: 30,
-        f_px: 34.0,
-        points: 300,
-        ..SynthConfig::default()
-    };
-    synth::write_scene(&data_dir, &scfg).unwrap();
-    let options = ContextOptions {
-        device: DeviceChoice::NameContains("llvmpipe".into()),
-        disable_float_atomics: false,
-    };
+    let (tmp, data_dir) = small_scene();
+    let options = lavapipe(false);
     let mut losses = Vec::new();
     let mut finals = Vec::new();
     for (name, device_losses, resident) in [
@@ -202,20 +200,8 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
 /// checks, no evaluation), from the context's traffic counters.
 #[test]
 fn vulkan_resident_step_reads_two_small_results() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data_dir = tmp.path().join("scene");
-    let scfg = SynthConfig {
-        width: 40,
-        height: 30,
-        f_px: 34.0,
-        points: 300,
-        ..SynthConfig::default()
-    };
-    synth::write_scene(&data_dir, &scfg).unwrap();
-    let options = ContextOptions {
-        device: DeviceChoice::NameContains("llvmpipe".into()),
-        disable_float_atomics: false,
-    };
+    let (tmp, data_dir) = small_scene();
+    let options = lavapipe(false);
     let backend = VulkanBackend::new(&options, RenderSettings::default())
         .expect("lavapipe must be available");
     let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();

@@ -234,32 +234,24 @@ impl GpuOptimiser {
                 }
             }
         }
-        let mut it = made.into_iter();
-        let (
-            Some(params),
-            Some(m),
-            Some(v),
-            Some(grads_i),
-            Some(grads_j),
-            Some(band_count),
-            Some(stats_accum),
-            Some(stats_count),
-            Some(acc_i),
-            Some(acc_j),
-        ) = (
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-            it.next(),
-        )
-        else {
-            return Err(invalid("optimiser buffer list incomplete".to_owned()));
+        let [
+            params,
+            m,
+            v,
+            grads_i,
+            grads_j,
+            band_count,
+            stats_accum,
+            stats_count,
+            acc_i,
+            acc_j,
+        ]: [GpuBuffer; 10] = match made.try_into() {
+            Ok(all) => all,
+            Err(partial) => {
+                let partial: Vec<GpuBuffer> = partial;
+                partial.into_iter().for_each(|b| ctx.destroy_buffer(b));
+                return Err(invalid("optimiser buffer list incomplete".to_owned()));
+            }
         };
         self.state = Some(Resident {
             n,

@@ -574,16 +574,12 @@ impl<B: Backend> Trainer<B> {
         let lrs = self.lrs();
         let cam_i = self.data.views[vi].camera;
         let mut resident_loss = None;
-        if let (Some(target), true) = (&self.data.views[vi].thermal, self.resident) {
+        if let (Some(losses), true) = (
+            thermal_step(&self.data, vi, pair, weights, &cam_i),
+            self.resident,
+        ) {
             let step = ResidentStep {
-                losses: DeviceStep {
-                    view: vi,
-                    cam: &cam_i,
-                    target,
-                    pair: pair.map(|vj| &self.data.views[vj].camera),
-                    weights,
-                    consistency: ConsistencyOptions::default(),
-                },
+                losses,
                 lrs,
                 hp: AdamParams::default(),
                 adam_step: self.adam.step + 1,
@@ -645,18 +641,8 @@ impl<B: Backend> Trainer<B> {
         let has_rgb = !self.prims.sh.is_empty();
         // The backend's device path when it has one (images stay on the device), else the
         // host path below: render, losses on the host, backward.
-        let device = match (&self.data.views[vi].thermal, has_rgb) {
-            (Some(target), false) => {
-                let step = DeviceStep {
-                    view: vi,
-                    cam: &cam_i,
-                    target,
-                    pair: pair.map(|vj| &self.data.views[vj].camera),
-                    weights,
-                    consistency: ConsistencyOptions::default(),
-                };
-                self.backend.device_step(&self.prims, &step).transpose()?
-            }
+        let device = match (thermal_step(&self.data, vi, pair, weights, &cam_i), has_rgb) {
+            (Some(step), false) => self.backend.device_step(&self.prims, &step).transpose()?,
             _ => None,
         };
         let (loss, grads) = match device {
@@ -1106,6 +1092,26 @@ impl<B: Backend> Trainer<B> {
         };
         Ok(Some((time(&prep), time(&general))))
     }
+}
+
+/// The thermal losses of a step on view `vi` (and its consistency partner `pair`) for a
+/// backend's device ([`Backend::device_step`], [`Backend::resident_step`]); `None` when the view
+/// has no thermal image.
+fn thermal_step<'a>(
+    data: &'a Dataset,
+    vi: usize,
+    pair: Option<usize>,
+    weights: LossWeights,
+    cam: &'a PinholeCamera,
+) -> Option<DeviceStep<'a>> {
+    data.views[vi].thermal.as_ref().map(|target| DeviceStep {
+        view: vi,
+        cam,
+        target,
+        pair: pair.map(|vj| &data.views[vj].camera),
+        weights,
+        consistency: ConsistencyOptions::default(),
+    })
 }
 
 fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainError> {
