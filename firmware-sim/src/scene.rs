@@ -836,6 +836,27 @@ pub fn write_scene_set_with_layout(
     Ok(())
 }
 
+/// Whether pixel `(x, y)` of a `width`-wide [`pixel_hits`] map and every pixel within
+/// `margin_px` of it (a square neighbourhood) see `object`: the interior of its mask.
+pub fn is_interior(
+    hits: &[Option<(SceneObject, DVec3)>],
+    width: usize,
+    x: usize,
+    y: usize,
+    object: SceneObject,
+    margin_px: i64,
+) -> bool {
+    let height = hits.len() / width.max(1);
+    let object_at = |x: i64, y: i64| {
+        (x >= 0 && y >= 0 && x < width as i64 && y < height as i64)
+            .then(|| hits[y as usize * width + x as usize].map(|(o, _)| o))
+            .flatten()
+    };
+    (-margin_px..=margin_px).all(|dy| {
+        (-margin_px..=margin_px).all(|dx| object_at(x as i64 + dx, y as i64 + dy) == Some(object))
+    })
+}
+
 /// What the centre ray of each pixel of a scene view hits (row-major, `None`: background), with
 /// the world point hit: the ground truth tests build object masks from.
 pub fn pixel_hits(

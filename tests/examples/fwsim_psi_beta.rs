@@ -95,16 +95,8 @@ fn main() {
     for stem in &stems {
         let k: usize = stem.parse().unwrap();
         let hits = scene::pixel_hits(layout, &cam, &poses[k]);
-        let object_at = |x: i64, y: i64| {
-            (x >= 0 && y >= 0 && x < w as i64 && y < h as i64)
-                .then(|| hits[y as usize * w + x as usize].map(|(o, _)| o))
-                .flatten()
-        };
         let interior = |x: usize, y: usize, obj: SceneObject| {
-            (-ERODE_PX..=ERODE_PX).all(|dy| {
-                (-ERODE_PX..=ERODE_PX)
-                    .all(|dx| object_at(x as i64 + dx, y as i64 + dy) == Some(obj))
-            })
+            scene::is_interior(&hits, w, x, y, obj, ERODE_PX)
         };
         let (_, _, beta) = read_npy_f32(&gb.join(format!("{stem}_psi_beta.npy"))).unwrap();
         let (_, _, alpha) = read_npy_f32(&gb.join(format!("{stem}_alpha.npy"))).unwrap();
