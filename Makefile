@@ -32,6 +32,8 @@ demo: build
 	@echo "== 4/5 Train S3-TIR on the simulated thermal scene ($(DEMO_ITERS) iterations, CPU backend;"
 	@echo "        short warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
 	$(BIN)/s3tir-firmware-sim scene --out $(DEMO_DIR)/scene
+	@# A previous demo's run would make s3tir-train refuse the folder (it never overwrites a run).
+	@if [ -e $(DEMO_DIR)/run ]; then echo "   (replacing the previous demo run in $(DEMO_DIR)/run)"; rm -rf $(DEMO_DIR)/run; fi
 	$(BIN)/s3tir-train $(DEMO_DIR)/scene --out $(DEMO_DIR)/run --iters $(DEMO_ITERS) \
 	  --warmup 100 --budget 1000 --beta-lr 0.05 --eval-every-s 5
 	@echo "== 5/5 Evaluate the held-out views"
