@@ -420,14 +420,6 @@ impl GpuRasterizer {
         }
     }
 
-    /// Submits `record` (timed with the rasteriser's kernels when profiling).
-    pub fn submit_recorded<F>(&self, ctx: &GpuContext, record: F) -> Result<(), GpuError>
-    where
-        F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,
-    {
-        self.submit(ctx, record)
-    }
-
     /// The gradient-accumulation path in use.
     pub fn variant(&self) -> AccumulateVariant {
         self.variant
