@@ -45,6 +45,26 @@ pub fn capture_info_json(path: &Path) -> Value {
         .unwrap_or_else(|e| panic!("info --json printed no JSON object: {e}"))
 }
 
+/// `s3tir-capture replay --json SESSION [--out OUT]`, parsed; panics with the tool's stderr
+/// when it fails.
+pub fn capture_replay_json(session: &Path, out: Option<&Path>) -> Value {
+    let mut cmd = Command::new(bin("s3tir-capture"));
+    cmd.args(["replay", "--json"]).arg(session);
+    if let Some(out) = out {
+        cmd.arg("--out").arg(out);
+    }
+    let r = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run s3tir-capture replay: {e}"));
+    assert!(
+        r.status.success(),
+        "replay failed: {}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    serde_json::from_slice(&r.stdout)
+        .unwrap_or_else(|e| panic!("replay --json printed no JSON object: {e}"))
+}
+
 fn field<'a>(v: &'a Value, path: &[&str]) -> &'a Value {
     path.iter().fold(v, |x, k| &x[*k])
 }

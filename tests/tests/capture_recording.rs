@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig};
 use s3tir_capture::synth::{Script, ThermalSynth};
-use s3tir_tests::{bin, capture_info_json as info_json, json_u64 as u};
+use s3tir_tests::{bin, capture_info_json as info_json, capture_replay_json, json_u64 as u};
 use serde_json::Value;
 
 #[test]
@@ -90,19 +90,7 @@ fn ten_second_boson_rgb_recording_is_complete_and_replays_byte_exact() {
 
     // Replay: same frames (digest), same pairs, and a re-recorded session identical in content.
     let replayed = dir.path().join("replayed.mcap");
-    let r = Command::new(bin("s3tir-capture"))
-        .args(["replay", "--json"])
-        .arg(&out)
-        .arg("--out")
-        .arg(&replayed)
-        .output()
-        .unwrap();
-    assert!(
-        r.status.success(),
-        "replay: {}",
-        String::from_utf8_lossy(&r.stderr)
-    );
-    let rep: Value = serde_json::from_slice(&r.stdout).unwrap();
+    let rep = capture_replay_json(&out, Some(&replayed));
     assert_eq!(
         rep["frame_digest"], info["frame_digest"],
         "replayed frames differ"

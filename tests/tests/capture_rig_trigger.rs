@@ -24,7 +24,7 @@
 
 use std::process::{Command, Stdio};
 
-use s3tir_tests::{bin, json_f64 as f};
+use s3tir_tests::{bin, capture_replay_json, json_f64 as f};
 use serde_json::Value;
 
 #[test]
@@ -109,17 +109,7 @@ fn triggered_recording_maps_the_controller_clock_and_pairs_by_pulse() {
          max {max_us} µs (want ≤ 280: ± 25 µs jitter each)"
     );
 
-    let r = Command::new(bin("s3tir-capture"))
-        .args(["replay", "--json"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        r.status.success(),
-        "replay: {}",
-        String::from_utf8_lossy(&r.stderr)
-    );
-    let rep: Value = serde_json::from_slice(&r.stdout).unwrap();
+    let rep = capture_replay_json(&out, None);
     assert_eq!(
         rep["frame_digest"], info["frame_digest"],
         "replayed frames differ"

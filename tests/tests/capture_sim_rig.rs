@@ -30,7 +30,9 @@
 
 use std::process::{Command, Stdio};
 
-use s3tir_tests::{bin, capture_info_json as info_json, json_f64 as f, json_u64 as u};
+use s3tir_tests::{
+    bin, capture_info_json as info_json, capture_replay_json, json_f64 as f, json_u64 as u,
+};
 use serde_json::Value;
 
 const DURATION_S: f64 = 10.0;
@@ -125,19 +127,7 @@ fn ten_seconds_of_the_simulated_boson_and_rgb_are_complete_and_replay_byte_exact
 
     // Replay: same frames (digest), same pairs, and a re-recorded session identical in content.
     let replayed = dir.path().join("replayed.mcap");
-    let r = Command::new(bin("s3tir-capture"))
-        .args(["replay", "--json"])
-        .arg(&out)
-        .arg("--out")
-        .arg(&replayed)
-        .output()
-        .unwrap();
-    assert!(
-        r.status.success(),
-        "replay: {}",
-        String::from_utf8_lossy(&r.stderr)
-    );
-    let rep: Value = serde_json::from_slice(&r.stdout).unwrap();
+    let rep = capture_replay_json(&out, Some(&replayed));
     assert_eq!(
         rep["frame_digest"], info["frame_digest"],
         "replayed frames differ from the recording"
