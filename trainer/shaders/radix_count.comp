@@ -14,20 +14,24 @@ layout(push_constant) uniform Push {
     uint num_blocks;
 } pc;
 
-shared uint counts[RADIX_BINS];
+shared uvec4 packed_counts[RADIX_WG];
 
 void main() {
     uint lid = gl_LocalInvocationID.x;
-    if (lid < RADIX_BINS) {
-        counts[lid] = 0u;
+    uint base = gl_WorkGroupID.x * RADIX_BLOCK + lid * RADIX_PER;
+    uvec4 mine = uvec4(0u);
+    for (uint j = 0u; j < RADIX_PER; ++j) {
+        if (base + j < pc.count) {
+            mine += radix_flag(radix_digit(keys[base + j], pc.shift));
+        }
     }
-    barrier();
-    uint i = gl_WorkGroupID.x * RADIX_WG + lid;
-    if (i < pc.count) {
-        atomicAdd(counts[radix_digit(keys[i], pc.shift)], 1u);
-    }
+    packed_counts[lid] = mine;
     barrier();
     if (lid < RADIX_BINS) {
-        hist[lid * pc.num_blocks + gl_WorkGroupID.x] = counts[lid];
+        uint total = 0u;
+        for (uint k = 0u; k < RADIX_WG; ++k) {
+            total += radix_unpack(packed_counts[k], lid);
+        }
+        hist[lid * pc.num_blocks + gl_WorkGroupID.x] = total;
     }
 }

@@ -1,7 +1,8 @@
-// Radix sort, pass step 2: stable scatter. Each item's rank among the items of its block with
-// the same digit comes from one Hillis–Steele scan of packed counters: 16 digits x 8 bits in a
-// uvec4 (a block has 128 items, so no field overflows). Output position = scanned histogram
-// offset of (digit, block) + rank. Uses only u32 shared memory: runs on every Vulkan 1.2 device.
+// Radix sort, pass step 2: stable scatter. An item's rank among the items of its block with the
+// same digit = the count of that digit in the invocations before its own (invocation 0 scans
+// the invocations' packed counters serially in shared memory) + the count before it among its
+// invocation's RADIX_PER items. Output position = scanned histogram offset of (digit, block) +
+// rank. Uses only u32 shared memory: runs on every Vulkan 1.2 device.
 #version 450
 #include "radix_common.glsl"
 
@@ -19,35 +20,40 @@ layout(push_constant) uniform Push {
     uint num_blocks;
 } pc;
 
-shared uvec4 packed_counts[2][RADIX_WG];
+shared uvec4 packed_counts[RADIX_WG];
 
 void main() {
     uint lid = gl_LocalInvocationID.x;
-    uint i = gl_WorkGroupID.x * RADIX_WG + lid;
-    bool valid = i < pc.count;
-    uvec2 key = valid ? keys_in[i] : uvec2(0u);
-    uint digit = radix_digit(key, pc.shift);
-    uvec4 flag = uvec4(0u);
-    if (valid) {
-        flag[digit >> 2] = 1u << ((digit & 3u) * 8u);
+    uint base = gl_WorkGroupID.x * RADIX_BLOCK + lid * RADIX_PER;
+    uvec2 key[RADIX_PER];
+    uint digit[RADIX_PER];
+    uint before[RADIX_PER];  // same-digit items before this one in this invocation
+    uvec4 mine = uvec4(0u);
+    for (uint j = 0u; j < RADIX_PER; ++j) {
+        bool valid = base + j < pc.count;
+        key[j] = valid ? keys_in[base + j] : uvec2(0u);
+        digit[j] = radix_digit(key[j], pc.shift);
+        before[j] = radix_unpack(mine, digit[j]);
+        mine += valid ? radix_flag(digit[j]) : uvec4(0u);
     }
-    packed_counts[0][lid] = flag;
+    packed_counts[lid] = mine;
     barrier();
-    uint src = 0u;
-    for (uint off = 1u; off < RADIX_WG; off <<= 1) {
-        uvec4 v = packed_counts[src][lid];
-        if (lid >= off) {
-            v += packed_counts[src][lid - off];
+    if (lid == 0u) {
+        uvec4 run = uvec4(0u);
+        for (uint k = 0u; k < RADIX_WG; ++k) {
+            uvec4 c = packed_counts[k];
+            packed_counts[k] = run;
+            run += c;
         }
-        packed_counts[1u - src][lid] = v;
-        src = 1u - src;
-        barrier();
     }
-    if (valid) {
-        uvec4 inclusive = packed_counts[src][lid];
-        uint rank = ((inclusive[digit >> 2] >> ((digit & 3u) * 8u)) & 255u) - 1u;
-        uint pos = offsets[digit * pc.num_blocks + gl_WorkGroupID.x] + rank;
-        keys_out[pos] = key;
-        values_out[pos] = values_in[i];
+    barrier();
+    uvec4 earlier = packed_counts[lid];
+    for (uint j = 0u; j < RADIX_PER; ++j) {
+        if (base + j < pc.count) {
+            uint rank = radix_unpack(earlier, digit[j]) + before[j];
+            uint pos = offsets[digit[j] * pc.num_blocks + gl_WorkGroupID.x] + rank;
+            keys_out[pos] = key[j];
+            values_out[pos] = values_in[base + j];
+        }
     }
 }

@@ -31,7 +31,8 @@
 // PIX. The per-pixel arithmetic is unchanged.
 #define PIX 8u
 #define ROW_STEP (16u / PIX)
-#define CACHED_BANDS 4u
+// Samples per batch of the walk: one bit each in a uint.
+#define BWD_BATCH 32u
 layout(local_size_x = 16, local_size_y = 2) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
@@ -73,21 +74,43 @@ layout(push_constant) uniform Push {
     uint tiles_x;
 } pc;
 
-// Where put() sends a field of the current sample (set per sample in main).
+// Where the current sample's sums go: fields [g_prim * g_fields, (g_prim + 1) * g_fields).
 uint g_fields;  // acc_fields(m)
 uint g_prim;    // primitive of the current sample
 #ifdef USE_SUBGROUP_REDUCE
-void put(uint f, float v) {
-    float total = subgroupAdd(v);
-    if (subgroupElect()) {
-        global_add(g_prim * g_fields + f, total);
+// The subgroup sums of N fields are dealt out one per invocation (invocation l holds field
+// first + l), so one atomic instruction adds up to gl_SubgroupSize fields. SIMD implementations
+// run every atomic instruction as a loop over the lanes (lavapipe's gallivm does), so adding 8
+// fields per instruction instead of 1 cuts that loop 8-fold.
+#define PUT_FIELDS(N)                                                                        \
+    float tot[N];                                                                            \
+    for (uint f = 0u; f < N; ++f) {                                                          \
+        tot[f] = subgroupAdd(v[f]);                                                          \
+    }                                                                                        \
+    uint lane = gl_SubgroupInvocationID;                                                     \
+    for (uint first = 0u; first < N; first += gl_SubgroupSize) {                             \
+        float mine = 0.0;                                                                    \
+        for (uint f = 0u; f < N; ++f) {                                                      \
+            mine = f == first + lane ? tot[f] : mine;                                        \
+        }                                                                                    \
+        if (first + lane < N) {                                                              \
+            global_add(g_prim * g_fields + base + first + lane, mine);                       \
+        }                                                                                    \
     }
-}
 #else
-void put(uint f, float v) {
-    global_add(g_prim * g_fields + f, v);
-}
+#define PUT_FIELDS(N)                                                                        \
+    for (uint f = 0u; f < N; ++f) {                                                          \
+        global_add(g_prim * g_fields + base + f, v[f]);                                      \
+    }
 #endif
+// The ACC_GEOM geometry/spectrum-base fields, and the ACC_BAND fields of one band at `base`.
+void put_geom(float v[ACC_GEOM]) {
+    uint base = 0u;
+    PUT_FIELDS(ACC_GEOM)
+}
+void put_band(uint base, float v[ACC_BAND]) {
+    PUT_FIELDS(ACC_BAND)
+}
 
 void main() {
     uint x = gl_GlobalInvocationID.x;
@@ -138,7 +161,34 @@ void main() {
         trans[r] = 1.0;
         w_upto[r] = 0.0;
     }
-    for (uint k = range.x; k < walk_end; ++k) {
+    // The walk goes in batches of BWD_BATCH samples, in two phases (see raster_forward.comp):
+    // phase 1 screens every sample of the batch with the cheap test (in front of the near plane,
+    // q <= q_max) at this invocation's pixels and keeps a bit per sample that any of them may
+    // use; phase 2 runs the full gradient evaluation only for those samples. With subgroup sums
+    // the bits are OR-ed over the subgroup, so its invocations walk the same samples.
+    for (uint start = range.x; start < walk_end; start += BWD_BATCH) {
+    uint stop = min(start + BWD_BATCH, walk_end);
+    uint todo = 0u;
+    for (uint k = start; k < stop; ++k) {
+        uint i = sorted_prims[k];
+        vec4 a_o = views[i].a_opacity;
+        vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
+        float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+        bool hit = false;
+        for (uint r = 0u; r < PIX; ++r) {
+            vec3 b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
+            float tt = -dot(a_o.xyz, b) / dot(b, b);
+            vec3 rr = a_o.xyz + tt * b;
+            hit = hit || (k < end[r] && tt > near_m && dot(rr, rr) <= q_cut);
+        }
+        todo |= hit ? 1u << (k - start) : 0u;
+    }
+#ifdef USE_SUBGROUP_REDUCE
+    todo = subgroupOr(todo);
+#endif
+    while (todo != 0u) {
+        uint k = start + uint(findLSB(todo));
+        todo &= todo - 1u;
         uint i = sorted_prims[k];
         g_prim = i;
         vec4 a_o = views[i].a_opacity;
@@ -149,16 +199,14 @@ void main() {
         float half_beta = 0.5 * beta;
         uint live = uint(views[i].b1.w);
         bool frozen = views[i].b2.w != 0.0;
-        vec4 bbox = views[i].bbox;
-        bool in_cols = float(x) >= bbox.x && float(x) <= bbox.z;
 
         // The sample of each pixel, as raster_forward evaluates it (same decisions).
         bool valid[PIX];
-        float t[PIX], q[PIX], sv[PIX], mb[PIX], alpha[PIX], pre[PIX];
+        float t[PIX], q[PIX], log2_q[PIX], sv[PIX], mb[PIX], alpha[PIX], pre[PIX];
         vec3 rv[PIX], bv3[PIX];
         bool clamped[PIX];
         for (uint r = 0u; r < PIX; ++r) {
-            bool ok = k < end[r] && in_cols && p[r].y >= bbox.y && p[r].y <= bbox.w;
+            bool ok = k < end[r];
             vec3 b = vec3(0.0, 0.0, 1.0);
             float tt = 0.0;
             vec3 rr = vec3(0.0);
@@ -170,10 +218,11 @@ void main() {
                 qq = dot(rr, rr);
                 ok = tt > near_m && qq <= misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
             }
-            float mbb = 0.0, ss = 0.0, al = 0.0;
+            float mbb = 0.0, ss = 0.0, al = 0.0, lq = 0.0;
             bool cl = true;
             if (ok) {
-                mbb = beta == 2.0 ? qq : pow(qq, half_beta);
+                lq = log2(qq);
+                mbb = support_power(qq, lq, beta);
                 ss = exp(-mbb);
                 float os = a_o.w * ss;
                 cl = os > ALPHA_MAX;
@@ -183,6 +232,7 @@ void main() {
             valid[r] = ok;
             t[r] = ok ? tt : 0.0;
             q[r] = qq;
+            log2_q[r] = lq;
             rv[r] = rr;
             bv3[r] = b;
             mb[r] = mbb;
@@ -202,21 +252,14 @@ void main() {
         if (!any_valid) {
             continue;
         }
-        // cos and sin of the first CACHED_BANDS bands' phases, reused by the gradients.
-        float c_th[PIX * CACHED_BANDS];
-        float s_th[PIX * CACHED_BANDS];
+        // The spectrum at each pixel's sample. The band phases' cosines are evaluated again with
+        // their sines for the gradients below: caching them in an array indexed by the band is
+        // slower on lavapipe, whose indexed register access costs a gather per lane.
         for (uint j = 0u; j < live; ++j) {
             BandView bv = bands[m * i + j];
             for (uint r = 0u; r < PIX; ++r) {
-                if (valid[r]) {
-                    float theta = bv.g_theta0.w + t[r] * dot(bv.g_theta0.xyz, p[r]);
-                    float c = cos(theta);
-                    pre[r] += bv.amp.x * c;
-                    if (j < CACHED_BANDS) {
-                        c_th[CACHED_BANDS * r + j] = c;
-                        s_th[CACHED_BANDS * r + j] = sin(theta);
-                    }
-                }
+                float theta = bv.g_theta0.w + t[r] * dot(bv.g_theta0.xyz, p[r]);
+                pre[r] += valid[r] ? bv.amp.x * cos(theta) : 0.0;
             }
         }
         float wt[PIX], d_alpha[PIX], g_f[PIX], g_t[PIX];
@@ -239,7 +282,6 @@ void main() {
         }
 
         // Spectrum: omega_low, then per band amplitude, theta0 and sum g_theta t p.
-        put(14u, sum_omega);
         for (uint j = 0u; j < live; ++j) {
             BandView bv = bands[m * i + j];
             float amp = bv.amp.x;
@@ -250,27 +292,15 @@ void main() {
                     continue;
                 }
                 float gp = dot(bv.g_theta0.xyz, p[r]);
-                float c, sn;
-                if (j < CACHED_BANDS) {
-                    c = c_th[CACHED_BANDS * r + j];
-                    sn = s_th[CACHED_BANDS * r + j];
-                } else {
-                    float theta = bv.g_theta0.w + t[r] * gp;
-                    c = cos(theta);
-                    sn = sin(theta);
-                }
+                vec2 sc = sin_cos(bv.g_theta0.w + t[r] * gp);
+                float sn = sc.x, c = sc.y;
                 float g_theta = -g_f[r] * amp * sn;
                 g_amp += wt[r] * g[6u * r + 2u] * sign(amp) + g_f[r] * c;
                 g_th += g_theta;
                 g_tp += g_theta * t[r] * p[r];
                 g_t[r] += g_theta * gp;
             }
-            uint f = ACC_GEOM + ACC_BAND * j;
-            put(f, g_amp);
-            put(f + 1u, g_th);
-            put(f + 2u, g_tp.x);
-            put(f + 3u, g_tp.y);
-            put(f + 4u, g_tp.z);
+            put_band(ACC_GEOM + ACC_BAND * j, float[ACC_BAND](g_amp, g_th, g_tp.x, g_tp.y, g_tp.z));
         }
         // Support and opacity (no gradient through a clamped alpha), then (q*, t*) -> (a, b).
         float g_o = 0.0, g_beta = 0.0;
@@ -286,7 +316,7 @@ void main() {
                 float dmb_dq = q[r] > 0.0 ? half_beta * mb[r] / q[r] : (half_beta == 1.0 ? 1.0 : 0.0);
                 g_q = -g_s * sv[r] * dmb_dq;
                 if (q[r] > 0.0 && !frozen) {
-                    g_beta += -g_s * sv[r] * mb[r] * 0.5 * log(q[r]);
+                    g_beta += -g_s * sv[r] * mb[r] * (0.5 * LN_2) * log2_q[r];
                 }
             }
             if (valid[r]) {
@@ -299,13 +329,9 @@ void main() {
                 g_bp[2] += gb.z * p[r];
             }
         }
-        put(12u, g_o);
-        put(13u, g_beta);
-        for (uint c = 0u; c < 3u; ++c) {
-            put(c, g_a[c]);
-            put(3u + 3u * c, g_bp[c].x);
-            put(3u + 3u * c + 1u, g_bp[c].y);
-            put(3u + 3u * c + 2u, g_bp[c].z);
-        }
+        put_geom(float[ACC_GEOM](g_a.x, g_a.y, g_a.z, g_bp[0].x, g_bp[0].y, g_bp[0].z, g_bp[1].x,
+                                 g_bp[1].y, g_bp[1].z, g_bp[2].x, g_bp[2].y, g_bp[2].z, g_o, g_beta,
+                                 sum_omega));
     }
+}
 }

@@ -81,3 +81,27 @@ struct BandView {
 #define ACC_GEOM 15u
 #define ACC_BAND 5u
 uint acc_fields(uint m) { return ACC_GEOM + ACC_BAND * m; }
+
+#define LN_2 0.69314718055994531
+
+// q^(beta/2) from q and log2(q), as pow() computes it (exp2 of the product of the logarithm), so
+// the backward pass reuses log2(q) for dL/dbeta; beta == 2 (Gaussian) gives q exactly.
+float support_power(float q, float log2_q, float beta) {
+    return beta == 2.0 ? q : exp2(0.5 * beta * log2_q);
+}
+
+// (sin x, cos x) from one argument reduction: x = y + j pi/2 with |y| <= pi/4 (pi/2 split in
+// three parts, Cody & Waite, so y is exact to f32 for |x| < 2^16), then the minimax polynomials
+// of Cephes' sinf and cosf on y (about 1 ulp) and the quadrant j mod 4. On SIMD implementations
+// sin() and cos() each repeat the reduction and both polynomials, so this costs about one of them.
+vec2 sin_cos(float x) {
+    float j = floor(x * 0.63661977236758134 + 0.5);
+    float y = ((x - j * 1.5703125) - j * 4.837512969970703125e-4) - j * 7.54978995489188216e-8;
+    float z = y * y;
+    float s = ((-1.9515295891e-4 * z + 8.3321608736e-3) * z - 1.6666654611e-1) * z * y + y;
+    float c = ((2.443315711809948e-5 * z - 1.388731625493765e-3) * z + 4.166664568298827e-2) * z * z -
+              0.5 * z + 1.0;
+    uint quadrant = uint(int(j)) & 3u;
+    vec2 sc = (quadrant & 1u) == 0u ? vec2(s, c) : vec2(c, -s);
+    return quadrant >= 2u ? -sc : sc;
+}

@@ -6,16 +6,22 @@
 // Output planes (each width*height floats, row-major): thermal, psi_low, psi_high, psi_beta,
 // depth (alpha-weighted camera depth), alpha, and the end plane (see raster_common.glsl).
 //
-// The walk over the tile's list is uniform across the workgroup (a finished pixel idles rather
-// than leaving the loop), so the primitive index and its view data are the same for every
-// invocation: one scalar load each, not a gather, on SIMD implementations such as lavapipe.
-// Every FWD_BATCH samples the workgroup checks whether any pixel is still open and stops when
-// none is.
+// The tile's list is walked in batches of FWD_BATCH samples, in two phases per batch:
+//   1. screen: every pixel tests every sample of the batch with the cheap part of the
+//      evaluation (ray point in front of the near plane, q <= q_max) and keeps a bit per sample
+//      that passes;
+//   2. blend: every pixel walks only its own bits, in order, through the expensive part (pow,
+//      exp, the band cosines, the blend).
+// Why: SIMD implementations run both sides of every branch with lanes masked off (lavapipe's
+// gallivm in Mesa 22.3 never skips an `if`), so a test-and-skip inside one loop still pays the
+// expensive part for every (pixel, sample); only a loop's trip count skips work. Most samples
+// of a tile's list miss most of its pixels, so phase 2 runs a fraction of the iterations.
+// Both phases make exactly the decisions of the single-loop evaluation, so results are unchanged.
+// Every batch the workgroup checks whether any pixel is still open and stops when none is.
 #version 450
 #include "raster_common.glsl"
 
-// Each invocation renders PIX pixels of its tile column (rows ly, ly + ROW_STEP, ...), loading
-// the primitive's view data once for all of them.
+// Each invocation renders PIX pixels of its tile column (rows ly, ly + ROW_STEP, ...).
 #define PIX 8u
 #define ROW_STEP (16u / PIX)
 layout(local_size_x = 16, local_size_y = 2) in;
@@ -35,10 +41,73 @@ layout(push_constant) uniform Push {
     uint tiles_x;
 } pc;
 
-#define FWD_BATCH 64u
+// Samples per batch: one bit each in a uint.
+#define FWD_BATCH 32u
 
 // Open-pixel counters, used round-robin (see the loop) so one barrier per batch suffices.
 shared uint s_open[3];
+
+// The state of one pixel.
+struct Pixel {
+    vec3 p;        // (x, y, 1)
+    bool open;     // still blending (inside the image, T not yet below T_MIN)
+    float trans;   // T
+    uint end;      // one past the last sample blended
+    float acc[6];  // thermal, psi_low, psi_high, psi_beta, depth, alpha
+};
+
+// Phase 1 for one sample: its ray point (t, q) at pixel p, and whether it can be blended there.
+bool screen(vec3 p, vec4 a_o, vec3 b0, vec3 b1, vec3 b2, float q_cut, float near_m,
+            out float t, out float q) {
+    vec3 b = vec3(dot(b0, p), dot(b1, p), dot(b2, p));
+    t = -dot(a_o.xyz, b) / dot(b, b);
+    vec3 rr = a_o.xyz + t * b;
+    q = dot(rr, rr);
+    return t > near_m && q <= q_cut;
+}
+
+// Phase 2 for one pixel: blends the batch's samples whose bits are set, front to back.
+void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
+    while (bits != 0u) {
+        uint k = start + uint(findLSB(bits));
+        bits &= bits - 1u;
+        uint i = sorted_prims[k];
+        vec4 a_o = views[i].a_opacity;
+        vec4 b0 = views[i].b0, b1 = views[i].b1, b2 = views[i].b2;
+        vec4 misc = views[i].misc;
+        float t, q;
+        screen(px.p, a_o, b0.xyz, b1.xyz, b2.xyz, 0.0, near_m, t, q);
+        float beta = views[i].cmm_beta.w;
+        // beta == 2 (Gaussian): q^1 exactly, no pow.
+        float mb = support_power(q, log2(q), beta);
+        float alpha = min(a_o.w * exp(-mb), ALPHA_MAX);
+        if (!(alpha >= ALPHA_MIN)) {
+            continue;
+        }
+        float next = px.trans * (1.0 - alpha);
+        if (next < T_MIN) {
+            px.open = false;
+            bits = 0u;
+            continue;
+        }
+        float omega = b0.w;
+        uint live = uint(b1.w);
+        float pre = omega;
+        for (uint j = 0u; j < live; ++j) {
+            BandView bv = bands[m * i + j];
+            pre += bv.amp.x * cos(bv.g_theta0.w + t * dot(bv.g_theta0.xyz, px.p));
+        }
+        float w = px.trans * alpha;
+        px.acc[0] += w * max(pre, 0.0);
+        px.acc[1] += w * omega;
+        px.acc[2] += w * misc.x;
+        px.acc[3] += w * beta;
+        px.acc[4] += w * t;
+        px.acc[5] += w;
+        px.trans = next;
+        px.end = k + 1u;
+    }
+}
 
 void main() {
     uint x = gl_GlobalInvocationID.x;
@@ -55,21 +124,17 @@ void main() {
     }
     barrier();
 
-    vec3 p[PIX];
-    bool open[PIX];
-    float trans[PIX];
-    uint end[PIX];
-    float acc[PIX * 6u];
+    Pixel px[PIX];
     bool any_open = false;
     for (uint r = 0u; r < PIX; ++r) {
         uint y = y0 + r * ROW_STEP;
-        p[r] = vec3(float(x), float(y), 1.0);
-        open[r] = x < pc.width && y < pc.height;
-        any_open = any_open || open[r];
-        trans[r] = 1.0;
-        end[r] = range.x;
+        px[r].p = vec3(float(x), float(y), 1.0);
+        px[r].open = x < pc.width && y < pc.height;
+        any_open = any_open || px[r].open;
+        px[r].trans = 1.0;
+        px[r].end = range.x;
         for (uint c = 0u; c < 6u; ++c) {
-            acc[6u * r + c] = 0.0;
+            px[r].acc[c] = 0.0;
         }
     }
     uint batch_no = 0u;
@@ -90,58 +155,36 @@ void main() {
         }
         ++batch_no;
         uint stop = min(start + FWD_BATCH, range.y);
+
+        // Phase 1: the bits of the samples each pixel may blend.
+        uint cand[PIX];
+        for (uint r = 0u; r < PIX; ++r) {
+            cand[r] = 0u;
+        }
         for (uint k = start; k < stop; ++k) {
             uint i = sorted_prims[k];
-            // Fields are read as needed: most samples are rejected after the first 64 bytes.
             vec4 a_o = views[i].a_opacity;
             vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
             float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
-            vec4 bbox = views[i].bbox;
-            bool in_cols = float(x) >= bbox.x && float(x) <= bbox.z;
+            uint bit = 1u << (k - start);
             for (uint r = 0u; r < PIX; ++r) {
-                if (!open[r] || !in_cols || !(p[r].y >= bbox.y && p[r].y <= bbox.w)) {
-                    continue;
-                }
-                vec3 b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
-                float t = -dot(a_o.xyz, b) / dot(b, b);
-                vec3 rr = a_o.xyz + t * b;
-                float q = dot(rr, rr);
-                if (!(t > near_m && q <= q_cut)) {
-                    continue;
-                }
-                float beta = views[i].cmm_beta.w;
-                // beta == 2 (Gaussian): q^1 exactly, no pow.
-                float mb = beta == 2.0 ? q : pow(q, 0.5 * beta);
-                float alpha = min(a_o.w * exp(-mb), ALPHA_MAX);
-                if (!(alpha >= ALPHA_MIN)) {
-                    continue;
-                }
-                float next = trans[r] * (1.0 - alpha);
-                if (next < T_MIN) {
-                    open[r] = false;
-                    continue;
-                }
-                float omega = views[i].b0.w;
-                uint live = uint(views[i].b1.w);
-                float pre = omega;
-                for (uint j = 0u; j < live; ++j) {
-                    BandView bv = bands[m * i + j];
-                    pre += bv.amp.x * cos(bv.g_theta0.w + t * dot(bv.g_theta0.xyz, p[r]));
-                }
-                float w = trans[r] * alpha;
-                acc[6u * r] += w * max(pre, 0.0);
-                acc[6u * r + 1u] += w * omega;
-                acc[6u * r + 2u] += w * views[i].misc.x;
-                acc[6u * r + 3u] += w * beta;
-                acc[6u * r + 4u] += w * t;
-                acc[6u * r + 5u] += w;
-                trans[r] = next;
-                end[r] = k + 1u;
+                float t, q;
+                bool hit = screen(px[r].p, a_o, b0, b1, b2, q_cut, near_m, t, q);
+                cand[r] |= (hit && px[r].open) ? bit : 0u;
             }
         }
+        // Phase 2, one row at a time (constant indices: no indexed register access).
+        blend(px[0], cand[0], start, near_m, m);
+        blend(px[1], cand[1], start, near_m, m);
+        blend(px[2], cand[2], start, near_m, m);
+        blend(px[3], cand[3], start, near_m, m);
+        blend(px[4], cand[4], start, near_m, m);
+        blend(px[5], cand[5], start, near_m, m);
+        blend(px[6], cand[6], start, near_m, m);
+        blend(px[7], cand[7], start, near_m, m);
         any_open = false;
         for (uint r = 0u; r < PIX; ++r) {
-            any_open = any_open || open[r];
+            any_open = any_open || px[r].open;
         }
     }
     uint npix = pc.width * pc.height;
@@ -150,9 +193,9 @@ void main() {
         if (x < pc.width && y < pc.height) {
             uint pidx = y * pc.width + x;
             for (uint c = 0u; c < 6u; ++c) {
-                planes[c * npix + pidx] = acc[6u * r + c];
+                planes[c * npix + pidx] = px[r].acc[c];
             }
-            planes[END_PLANE * npix + pidx] = uintBitsToFloat(end[r]);
+            planes[END_PLANE * npix + pidx] = uintBitsToFloat(px[r].end);
         }
     }
 }

@@ -8,7 +8,8 @@ use super::error::GpuError;
 use super::scan::GpuScan;
 use super::shaders::{self, push_u32s};
 
-const WG: usize = 128;
+/// Items per workgroup block (RADIX_BLOCK in radix_common.glsl).
+const BLOCK: usize = 128;
 const BINS: usize = 16;
 
 /// A reusable GPU radix sort for up to `max_count` items.
@@ -25,7 +26,7 @@ pub struct GpuRadixSort {
 
 impl GpuRadixSort {
     pub fn new(ctx: &GpuContext, max_count: usize) -> Result<Self, GpuError> {
-        let max_blocks = max_count.div_ceil(WG).max(1);
+        let max_blocks = max_count.div_ceil(BLOCK).max(1);
         let count_kernel = shaders::build(ctx, "radix_count")?;
         let scatter_kernel = shaders::build(ctx, "radix_scatter");
         let scan =
@@ -113,7 +114,7 @@ impl GpuRadixSort {
             return Ok(());
         }
         let passes = key_bits.clamp(1, 64).div_ceil(8) * 2; // even: ends in the caller's buffers
-        let blocks = count.div_ceil(WG);
+        let blocks = count.div_ceil(BLOCK);
         for pass in 0..passes {
             let shift = pass * 4;
             let (k_in, v_in, k_out, v_out) = if pass % 2 == 0 {
