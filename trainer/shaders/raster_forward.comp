@@ -1,4 +1,5 @@
-// Rasteriser step 4, one workgroup per 16x16 tile, one invocation per PIX pixels: evaluates each
+// Rasteriser step 4, one workgroup per 8-column half of a 16x16 tile, one invocation per
+// column of it: evaluates each
 // primitive of the tile (front to back) at the point of the pixel ray where its support peaks,
 // and blends the thermal image and the G-buffers exactly as the CPU reference's forward pass
 // (trainer/src/render/forward.rs): alpha = min(0.99, o exp(-q^(beta/2))), samples below 1/255 or
@@ -17,14 +18,16 @@
 // expensive part for every (pixel, sample); only a loop's trip count skips work. Most samples
 // of a tile's list miss most of its pixels, so phase 2 runs a fraction of the iterations.
 // Both phases make exactly the decisions of the single-loop evaluation, so results are unchanged.
-// Every batch the workgroup checks whether any pixel is still open and stops when none is.
+// A column stops when all its pixels are done.
 #version 450
 #include "raster_common.glsl"
 
-// Each invocation renders PIX pixels of its tile column (rows ly, ly + ROW_STEP, ...).
-#define PIX 8u
-#define ROW_STEP (16u / PIX)
-layout(local_size_x = 16, local_size_y = 2) in;
+// Each invocation renders the PIX = 16 pixels of its tile column. A workgroup of 8 invocations
+// is one SIMD batch on lavapipe (its barriers are free) and its screening loads serve 16 rows;
+// two workgroups per tile split a tile's work between threads.
+#define PIX 16u
+#define HALF_TILE 8u
+layout(local_size_x = HALF_TILE) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Views { PrimView views[]; };
@@ -43,9 +46,6 @@ layout(push_constant) uniform Push {
 
 // Samples per batch: one bit each in a uint.
 #define FWD_BATCH 32u
-
-// Open-pixel counters, used round-robin (see the loop) so one barrier per batch suffices.
-shared uint s_open[3];
 
 // The state of one pixel.
 struct Pixel {
@@ -111,23 +111,16 @@ void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
 
 void main() {
     uint x = gl_GlobalInvocationID.x;
-    uint y0 = gl_WorkGroupID.y * 16u + gl_LocalInvocationID.y;
-    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x;
+    uint y0 = gl_WorkGroupID.y * TILE_SIZE;
+    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x / 2u;
     uvec2 range = ranges[tile];
     float near_m = cam[CAM_NEAR];
     uint m = pc.m;
 
-    if (gl_LocalInvocationIndex == 0u) {
-        s_open[0] = 0u;
-        s_open[1] = 0u;
-        s_open[2] = 0u;
-    }
-    barrier();
-
     Pixel px[PIX];
     bool any_open = false;
     for (uint r = 0u; r < PIX; ++r) {
-        uint y = y0 + r * ROW_STEP;
+        uint y = y0 + r;
         px[r].p = vec3(float(x), float(y), 1.0);
         px[r].open = x < pc.width && y < pc.height;
         any_open = any_open || px[r].open;
@@ -137,23 +130,11 @@ void main() {
             px[r].acc[c] = 0.0;
         }
     }
-    uint batch_no = 0u;
     for (uint start = range.x; start < range.y; start += FWD_BATCH) {
-        // Counter `batch_no % 3` is read after this barrier; counter `(batch_no + 1) % 3` is
-        // cleared now: it was last read before this barrier and is next incremented after the
-        // next one.
-        uint cur = batch_no % 3u;
-        if (any_open) {
-            atomicAdd(s_open[cur], 1u);
-        }
-        barrier();
-        if (s_open[cur] == 0u) {
+        // A column whose pixels are all done stops (all of them: its SIMD batch stops).
+        if (!any_open) {
             break;
         }
-        if (gl_LocalInvocationIndex == 0u) {
-            s_open[(batch_no + 1u) % 3u] = 0u;
-        }
-        ++batch_no;
         uint stop = min(start + FWD_BATCH, range.y);
 
         // Phase 1: the bits of the samples each pixel may blend.
@@ -182,6 +163,14 @@ void main() {
         blend(px[5], cand[5], start, near_m, m);
         blend(px[6], cand[6], start, near_m, m);
         blend(px[7], cand[7], start, near_m, m);
+        blend(px[8], cand[8], start, near_m, m);
+        blend(px[9], cand[9], start, near_m, m);
+        blend(px[10], cand[10], start, near_m, m);
+        blend(px[11], cand[11], start, near_m, m);
+        blend(px[12], cand[12], start, near_m, m);
+        blend(px[13], cand[13], start, near_m, m);
+        blend(px[14], cand[14], start, near_m, m);
+        blend(px[15], cand[15], start, near_m, m);
         any_open = false;
         for (uint r = 0u; r < PIX; ++r) {
             any_open = any_open || px[r].open;
@@ -189,7 +178,7 @@ void main() {
     }
     uint npix = pc.width * pc.height;
     for (uint r = 0u; r < PIX; ++r) {
-        uint y = y0 + r * ROW_STEP;
+        uint y = y0 + r;
         if (x < pc.width && y < pc.height) {
             uint pidx = y * pc.width + x;
             for (uint c = 0u; c < 6u; ++c) {

@@ -674,7 +674,7 @@ impl GpuRasterizer {
                         cams[v].height as u32,
                         tiles_x as u32,
                     ]),
-                    [tiles_x as u32, tiles_y as u32, 1],
+                    [2 * tiles_x as u32, tiles_y as u32, 1],
                 )?;
                 rec.compute_barrier();
             }
