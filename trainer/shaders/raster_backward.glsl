@@ -5,7 +5,7 @@
 //                      invocation adds the sum to global memory; without it every pixel adds
 //                      its own. (Batching the subgroup sums in shared memory and adding them per
 //                      tile was measured 2.8x slower on lavapipe: its barriers are expensive.)
-// One workgroup per 16x16 tile, one invocation per PIX pixels of a column.
+// One workgroup per 8-column half of a 16x16 tile, one invocation per column of it.
 //
 // Mirrors the CPU reference (trainer/src/render/backward.rs) sample by sample. The CPU walks the
 // samples back to front with S_after; here each pixel walks them front to back using what the
@@ -25,15 +25,15 @@
 
 #include "raster_common.glsl"
 
-// Each invocation handles PIX pixels of its tile column (rows ly, ly + ROW_STEP, ...): the
+// Each invocation handles the PIX = 16 pixels of its tile column: the
 // primitive's view data is loaded once for all of them and their contributions are summed in
 // registers before the subgroup sum, so the global adds per (primitive, field) and tile drop by
 // PIX. The per-pixel arithmetic is unchanged.
-#define PIX 8u
-#define ROW_STEP (16u / PIX)
+#define PIX 16u
+#define HALF_TILE 8u
 // Samples per batch of the walk: one bit each in a uint.
 #define BWD_BATCH 32u
-layout(local_size_x = 16, local_size_y = 2) in;
+layout(local_size_x = HALF_TILE) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Views { PrimView views[]; };
@@ -114,8 +114,8 @@ void put_band(uint base, float v[ACC_BAND]) {
 
 void main() {
     uint x = gl_GlobalInvocationID.x;
-    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x;
-    uint y0 = gl_WorkGroupID.y * 16u + gl_LocalInvocationID.y;
+    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x / 2u;
+    uint y0 = gl_WorkGroupID.y * TILE_SIZE;
     uint npix = pc.width * pc.height;
     uvec2 range = ranges[tile];
     float near_m = cam[CAM_NEAR];
@@ -129,7 +129,7 @@ void main() {
     vec3 p[PIX];
     uint walk_end = range.x;
     for (uint r = 0u; r < PIX; ++r) {
-        uint y = y0 + r * ROW_STEP;
+        uint y = y0 + r;
         p[r] = vec3(float(x), float(y), 1.0);
         w_total[r] = 0.0;
         end[r] = range.x;

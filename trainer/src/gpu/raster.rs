@@ -1045,7 +1045,7 @@ impl GpuRasterizer {
                 height as u32,
                 tiles_x as u32,
             ]),
-            [tiles_x as u32, tiles_y as u32, 1],
+            [2 * tiles_x as u32, tiles_y as u32, 1],
         )?;
         rec.compute_barrier();
         rec.dispatch(
