@@ -27,11 +27,17 @@ void main() {
     }
     packed_counts[lid] = mine;
     barrier();
-    if (lid < RADIX_BINS) {
-        uint total = 0u;
+    // Invocation 0 adds the packed counters (the fields cannot overflow: 128 items per block),
+    // then RADIX_BINS invocations unpack and write one digit each.
+    if (lid == 0u) {
+        uvec4 total = uvec4(0u);
         for (uint k = 0u; k < RADIX_WG; ++k) {
-            total += radix_unpack(packed_counts[k], lid);
+            total += packed_counts[k];
         }
-        hist[lid * pc.num_blocks + gl_WorkGroupID.x] = total;
+        packed_counts[0] = total;
+    }
+    barrier();
+    if (lid < RADIX_BINS) {
+        hist[lid * pc.num_blocks + gl_WorkGroupID.x] = radix_unpack(packed_counts[0], lid);
     }
 }
