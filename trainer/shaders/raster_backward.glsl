@@ -31,6 +31,9 @@
 // PIX. The per-pixel arithmetic is unchanged.
 #define PIX 16u
 #define HALF_TILE 8u
+// Rows per group of the walk's phase 2 (see main), and groups per column.
+#define ROWS 4u
+#define GROUPS (PIX / ROWS)
 // Samples per batch of the walk: one bit each in a uint.
 #define BWD_BATCH 32u
 layout(local_size_x = HALF_TILE) in;
@@ -112,80 +115,19 @@ void put_band(uint base, float v[ACC_BAND]) {
     PUT_FIELDS(ACC_BAND)
 }
 
-void main() {
-    uint x = gl_GlobalInvocationID.x;
-    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x / 2u;
-    uint y0 = gl_WorkGroupID.y * TILE_SIZE;
-    uint npix = pc.width * pc.height;
-    uvec2 range = ranges[tile];
-    float near_m = cam[CAM_NEAR];
-    uint m = pc.m;
-    g_fields = acc_fields(m);
+// Per pixel of this invocation's column (private to the invocation): upstream gradients, W =
+// sum_c g_c plane_c (see the top), end of its samples, ray, and the walk's running T and W.
+float g[PIX * 6u];
+float w_total[PIX];
+uint end[PIX];
+vec3 p[PIX];
+float trans[PIX];
+float w_upto[PIX];
 
-    // Per pixel: upstream gradients, W = sum_c g_c plane_c (see the top), end of its samples.
-    float g[PIX * 6u];
-    float w_total[PIX];
-    uint end[PIX];
-    vec3 p[PIX];
-    uint walk_end = range.x;
-    for (uint r = 0u; r < PIX; ++r) {
-        uint y = y0 + r;
-        p[r] = vec3(float(x), float(y), 1.0);
-        w_total[r] = 0.0;
-        end[r] = range.x;
-        bool any_g = false;
-        for (uint c = 0u; c < 6u; ++c) {
-            g[6u * r + c] = 0.0;
-        }
-        if (x < pc.width && y < pc.height) {
-            uint pidx = y * pc.width + x;
-            for (uint c = 0u; c < 6u; ++c) {
-                float gc = upstream[c * npix + pidx];
-                g[6u * r + c] = gc;
-                any_g = any_g || gc != 0.0;
-                w_total[r] += gc * planes[c * npix + pidx];
-            }
-            // A pixel without upstream gradient contributes nothing: give it an empty walk.
-            end[r] = any_g ? floatBitsToUint(planes[END_PLANE * npix + pidx]) : range.x;
-        }
-        walk_end = max(walk_end, end[r]);
-    }
-    // The walk ends at the last sample of any pixel of the subgroup.
-#ifdef USE_SUBGROUP_REDUCE
-    walk_end = subgroupMax(walk_end);
-#endif
-
-    float trans[PIX];
-    float w_upto[PIX];
-    for (uint r = 0u; r < PIX; ++r) {
-        trans[r] = 1.0;
-        w_upto[r] = 0.0;
-    }
-    // The walk goes in batches of BWD_BATCH samples, in two phases (see raster_forward.comp):
-    // phase 1 screens every sample of the batch with the cheap test (in front of the near plane,
-    // q <= q_max) at this invocation's pixels and keeps a bit per sample that any of them may
-    // use; phase 2 runs the full gradient evaluation only for those samples. With subgroup sums
-    // the bits are OR-ed over the subgroup, so its invocations walk the same samples.
-    for (uint start = range.x; start < walk_end; start += BWD_BATCH) {
-    uint stop = min(start + BWD_BATCH, walk_end);
-    uint todo = 0u;
-    for (uint k = start; k < stop; ++k) {
-        uint i = sorted_prims[k];
-        vec4 a_o = views[i].a_opacity;
-        vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-        float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
-        bool hit = false;
-        for (uint r = 0u; r < PIX; ++r) {
-            vec3 b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
-            float tt = -dot(a_o.xyz, b) / dot(b, b);
-            vec3 rr = a_o.xyz + tt * b;
-            hit = hit || (k < end[r] && tt > near_m && dot(rr, rr) <= q_cut);
-        }
-        todo |= hit ? 1u << (k - start) : 0u;
-    }
-#ifdef USE_SUBGROUP_REDUCE
-    todo = subgroupOr(todo);
-#endif
+// Phase 2 for rows [rows, rows + ROWS) of this invocation's column: the full gradient
+// evaluation of the batch's samples whose bits are set, front to back. Called with constant
+// `rows`, so every row index is a constant (no indexed register access).
+void walk(uint rows, uint todo, uint start, float near_m, uint m) {
     while (todo != 0u) {
         uint k = start + uint(findLSB(todo));
         todo &= todo - 1u;
@@ -205,7 +147,7 @@ void main() {
         float t[PIX], q[PIX], log2_q[PIX], sv[PIX], mb[PIX], alpha[PIX], pre[PIX];
         vec3 rv[PIX], bv3[PIX];
         bool clamped[PIX];
-        for (uint r = 0u; r < PIX; ++r) {
+        for (uint r = rows; r < rows + ROWS; ++r) {
             bool ok = k < end[r];
             vec3 b = vec3(0.0, 0.0, 1.0);
             float tt = 0.0;
@@ -243,7 +185,7 @@ void main() {
         }
         // Nothing to add when no pixel of the subgroup (invocation) has this sample.
         bool any_valid = false;
-        for (uint r = 0u; r < PIX; ++r) {
+        for (uint r = rows; r < rows + ROWS; ++r) {
             any_valid = any_valid || valid[r];
         }
 #ifdef USE_SUBGROUP_REDUCE
@@ -257,14 +199,14 @@ void main() {
         // slower on lavapipe, whose indexed register access costs a gather per lane.
         for (uint j = 0u; j < live; ++j) {
             BandView bv = bands[m * i + j];
-            for (uint r = 0u; r < PIX; ++r) {
+            for (uint r = rows; r < rows + ROWS; ++r) {
                 float theta = bv.g_theta0.w + t[r] * dot(bv.g_theta0.xyz, p[r]);
                 pre[r] += valid[r] ? bv.amp.x * cos(theta) : 0.0;
             }
         }
         float wt[PIX], d_alpha[PIX], g_f[PIX], g_t[PIX];
         float sum_omega = 0.0;
-        for (uint r = 0u; r < PIX; ++r) {
+        for (uint r = rows; r < rows + ROWS; ++r) {
             wt[r] = 0.0;
             d_alpha[r] = 0.0;
             g_f[r] = 0.0;
@@ -287,7 +229,7 @@ void main() {
             float amp = bv.amp.x;
             float g_amp = 0.0, g_th = 0.0;
             vec3 g_tp = vec3(0.0);
-            for (uint r = 0u; r < PIX; ++r) {
+            for (uint r = rows; r < rows + ROWS; ++r) {
                 if (!valid[r]) {
                     continue;
                 }
@@ -306,7 +248,7 @@ void main() {
         float g_o = 0.0, g_beta = 0.0;
         vec3 g_a = vec3(0.0);
         vec3 g_bp[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
-        for (uint r = 0u; r < PIX; ++r) {
+        for (uint r = rows; r < rows + ROWS; ++r) {
             g_beta += wt[r] * g[6u * r + 3u];
             float g_q = 0.0;
             if (!clamped[r]) {
@@ -334,4 +276,83 @@ void main() {
                                  sum_omega));
     }
 }
+
+void main() {
+    uint x = gl_GlobalInvocationID.x;
+    uint tile = gl_WorkGroupID.y * pc.tiles_x + gl_WorkGroupID.x / 2u;
+    uint y0 = gl_WorkGroupID.y * TILE_SIZE;
+    uint npix = pc.width * pc.height;
+    uvec2 range = ranges[tile];
+    float near_m = cam[CAM_NEAR];
+    uint m = pc.m;
+    g_fields = acc_fields(m);
+
+    uint walk_end = range.x;
+    for (uint r = 0u; r < PIX; ++r) {
+        uint y = y0 + r;
+        p[r] = vec3(float(x), float(y), 1.0);
+        w_total[r] = 0.0;
+        end[r] = range.x;
+        bool any_g = false;
+        for (uint c = 0u; c < 6u; ++c) {
+            g[6u * r + c] = 0.0;
+        }
+        if (x < pc.width && y < pc.height) {
+            uint pidx = y * pc.width + x;
+            for (uint c = 0u; c < 6u; ++c) {
+                float gc = upstream[c * npix + pidx];
+                g[6u * r + c] = gc;
+                any_g = any_g || gc != 0.0;
+                w_total[r] += gc * planes[c * npix + pidx];
+            }
+            // A pixel without upstream gradient contributes nothing: give it an empty walk.
+            end[r] = any_g ? floatBitsToUint(planes[END_PLANE * npix + pidx]) : range.x;
+        }
+        walk_end = max(walk_end, end[r]);
+    }
+    // The walk ends at the last sample of any pixel of the subgroup.
+#ifdef USE_SUBGROUP_REDUCE
+    walk_end = subgroupMax(walk_end);
+#endif
+
+    for (uint r = 0u; r < PIX; ++r) {
+        trans[r] = 1.0;
+        w_upto[r] = 0.0;
+    }
+    // The walk goes in batches of BWD_BATCH samples, in two phases (see raster_forward.comp):
+    // phase 1 screens every sample of the batch with the cheap test (in front of the near plane,
+    // q <= q_max) at this invocation's pixels and keeps a bit per sample and group of ROWS rows
+    // that any of the group's pixels may use; phase 2 runs the full gradient evaluation of each
+    // group's samples for that group's rows only. With subgroup sums the bits are OR-ed over
+    // the subgroup, so its invocations walk the same samples.
+    for (uint start = range.x; start < walk_end; start += BWD_BATCH) {
+        uint stop = min(start + BWD_BATCH, walk_end);
+        uint todo[GROUPS];
+        for (uint grp = 0u; grp < GROUPS; ++grp) {
+            todo[grp] = 0u;
+        }
+        for (uint k = start; k < stop; ++k) {
+            uint i = sorted_prims[k];
+            vec4 a_o = views[i].a_opacity;
+            vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
+            float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+            uint bit = 1u << (k - start);
+            for (uint r = 0u; r < PIX; ++r) {
+                vec3 b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
+                float tt = -dot(a_o.xyz, b) / dot(b, b);
+                vec3 rr = a_o.xyz + tt * b;
+                bool hit = k < end[r] && tt > near_m && dot(rr, rr) <= q_cut;
+                todo[r / ROWS] |= hit ? bit : 0u;
+            }
+        }
+#ifdef USE_SUBGROUP_REDUCE
+        for (uint grp = 0u; grp < GROUPS; ++grp) {
+            todo[grp] = subgroupOr(todo[grp]);
+        }
+#endif
+        walk(0u, todo[0], start, near_m, m);
+        walk(4u, todo[1], start, near_m, m);
+        walk(8u, todo[2], start, near_m, m);
+        walk(12u, todo[3], start, near_m, m);
+    }
 }
