@@ -13,7 +13,9 @@
 //   clamped to [2, BETA_MAX] and mapped back to beta_raw as primitive.rs beta_raw_from_beta.
 //   In f32 the excess beta - 2 (down to 4.5e-5 at beta_raw = -10) is carried separately from the
 //   2, so it keeps its relative precision;
-// - log-scales are clamped from below to min_log_scale after the update.
+// - log-scales are clamped from below to min_log_scale after the update;
+// - nothing at all when a view's key total exceeds the key buffers' capacity (its render was
+//   incomplete: the host grows the buffers and repeats the step).
 // The host computes the bias corrections in f64: step[g] = lr_g / (1 - b1^t), bc2s =
 // sqrt(1 - b2^t).
 #version 450
@@ -29,12 +31,13 @@ layout(std430, set = 0, binding = 4) readonly buffer GradsJ { float grads_j[]; }
 layout(std430, set = 0, binding = 5) readonly buffer BandCount { uint band_count[]; };
 layout(std430, set = 0, binding = 6) buffer StatsAccum { float stats_accum[]; };
 layout(std430, set = 0, binding = 7) buffer StatsCount { uint stats_count[]; };
+layout(std430, set = 0, binding = 8) readonly buffer KeyTotals { uint key_totals[]; };
 
 layout(push_constant) uniform Push {
     uint n;
     uint m;
-    uint pad0;
-    uint pad1;
+    uint key_capacity;  // gate: no step if key_totals[v] > key_capacity for a v < gate_views
+    uint gate_views;
     // means, log_scales, quats, opacity, beta, omega_low, band_amp, band_freq, band_phase
     float step_means;
     float step_log_scales;
@@ -105,6 +108,11 @@ void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= pc.n) {
         return;
+    }
+    for (uint v = 0u; v < pc.gate_views; ++v) {
+        if (key_totals[v] > pc.key_capacity) {
+            return;
+        }
     }
     uint n = pc.n, m = pc.m;
     uint live = min(band_count[i], m);

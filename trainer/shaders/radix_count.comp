@@ -7,11 +7,13 @@ layout(local_size_x = RADIX_WG) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Keys { uvec2 keys[]; };
 layout(std430, set = 0, binding = 1) writeonly buffer Hist { uint hist[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Count { uint counts[]; };
 
 layout(push_constant) uniform Push {
-    uint count;
+    uint max_count;  // the items: min(counts[count_at], max_count)
     uint shift;
     uint num_blocks;
+    uint count_at;
 } pc;
 
 shared uvec4 packed_counts[RADIX_WG];
@@ -19,9 +21,10 @@ shared uvec4 packed_counts[RADIX_WG];
 void main() {
     uint lid = gl_LocalInvocationID.x;
     uint base = gl_WorkGroupID.x * RADIX_BLOCK + lid * RADIX_PER;
+    uint count = min(counts[pc.count_at], pc.max_count);
     uvec4 mine = uvec4(0u);
     for (uint j = 0u; j < RADIX_PER; ++j) {
-        if (base + j < pc.count) {
+        if (base + j < count) {
             mine += radix_flag(radix_digit(keys[base + j], pc.shift));
         }
     }

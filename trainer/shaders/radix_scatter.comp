@@ -13,11 +13,13 @@ layout(std430, set = 0, binding = 1) readonly buffer ValuesIn { uint values_in[]
 layout(std430, set = 0, binding = 2) readonly buffer Offsets { uint offsets[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer KeysOut { uvec2 keys_out[]; };
 layout(std430, set = 0, binding = 4) writeonly buffer ValuesOut { uint values_out[]; };
+layout(std430, set = 0, binding = 5) readonly buffer Count { uint counts[]; };
 
 layout(push_constant) uniform Push {
-    uint count;
+    uint max_count;  // the items: min(counts[count_at], max_count)
     uint shift;
     uint num_blocks;
+    uint count_at;
 } pc;
 
 shared uvec4 packed_counts[RADIX_WG];
@@ -25,12 +27,13 @@ shared uvec4 packed_counts[RADIX_WG];
 void main() {
     uint lid = gl_LocalInvocationID.x;
     uint base = gl_WorkGroupID.x * RADIX_BLOCK + lid * RADIX_PER;
+    uint count = min(counts[pc.count_at], pc.max_count);
     uvec2 key[RADIX_PER];
     uint digit[RADIX_PER];
     uint before[RADIX_PER];  // same-digit items before this one in this invocation
     uvec4 mine = uvec4(0u);
     for (uint j = 0u; j < RADIX_PER; ++j) {
-        bool valid = base + j < pc.count;
+        bool valid = base + j < count;
         key[j] = valid ? keys_in[base + j] : uvec2(0u);
         digit[j] = radix_digit(key[j], pc.shift);
         before[j] = radix_unpack(mine, digit[j]);
@@ -49,7 +52,7 @@ void main() {
     barrier();
     uvec4 earlier = packed_counts[lid];
     for (uint j = 0u; j < RADIX_PER; ++j) {
-        if (base + j < pc.count) {
+        if (base + j < count) {
             uint rank = radix_unpack(earlier, digit[j]) + before[j];
             uint pos = offsets[digit[j] * pc.num_blocks + gl_WorkGroupID.x] + rank;
             keys_out[pos] = key[j];

@@ -2,7 +2,8 @@
 // index for every tile of its rectangle, at the offset the exclusive scan of tile counts gave.
 // Keys are uvec2(depth bits, tile): camera depth is > near > 0, so its float bits order like
 // the floats; the stable radix sort then orders by tile, depth, and primitive index for ties
-// (the CPU reference's order).
+// (the CPU reference's order). Keys past `capacity` (the key buffers' size) are not written:
+// the host sized the buffers from an earlier step and checks the total afterwards.
 #version 450
 #include "raster_common.glsl"
 
@@ -16,6 +17,7 @@ layout(std430, set = 0, binding = 3) writeonly buffer Values { uint values[]; };
 layout(push_constant) uniform Push {
     uint n;
     uint tiles_x;
+    uint capacity;
 } pc;
 
 void main() {
@@ -28,8 +30,10 @@ void main() {
     uint k = offsets[i];
     for (uint ty = r.y; ty < r.w; ++ty) {
         for (uint tx = r.x; tx < r.z; ++tx) {
-            keys[k] = uvec2(depth_bits, ty * pc.tiles_x + tx);
-            values[k] = i;
+            if (k < pc.capacity) {
+                keys[k] = uvec2(depth_bits, ty * pc.tiles_x + tx);
+                values[k] = i;
+            }
             ++k;
         }
     }

@@ -14,7 +14,7 @@ mod common;
 
 use rand::Rng;
 use s3tir_trainer::gpu::GpuContext;
-use s3tir_trainer::gpu::optimiser::{AdamStep, GpuOptimiser};
+use s3tir_trainer::gpu::optimiser::{AdamStep, GpuOptimiser, KeyGate};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{
     BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw,
@@ -143,8 +143,24 @@ fn adam_kernel_takes_the_host_optimiser_step() {
         step: 7,
         min_log_scale,
     };
-    ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true))
+    // A step gated by a key total over the lists' room changes nothing: it runs first, and
+    // the real step after it must still match the host's single step.
+    let totals = ctx.upload("adam.key_totals", &[100u32, 101]).unwrap();
+    let gate = KeyGate {
+        totals: &totals,
+        capacity: 100,
+        views: 2,
+    };
+    ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true, Some(&gate)))
         .unwrap();
+    let open = KeyGate {
+        totals: &totals,
+        capacity: 101,
+        views: 2,
+    };
+    ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true, Some(&open)))
+        .unwrap();
+    ctx.destroy_buffer(totals);
     let (mut p_d, mut adam_d) = (p.clone(), adam.clone());
     let (mut accum_d, mut count_d) = (vec![0.0; N], vec![0; N]);
     opt.download(&ctx, &mut p_d, &mut adam_d, &mut accum_d, &mut count_d)

@@ -148,10 +148,24 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
         c.densify.every = 3;
         c.capacity.every = 4;
         let mut t = Trainer::new(c, data, backend, &tmp.path().join(name)).unwrap();
-        losses.push((
-            name,
-            (0..12).map(|_| t.step().unwrap()).collect::<Vec<f64>>(),
-        ));
+        // The resident path starts three steps with key lists too small for their views:
+        // each runs twice, the first run changing nothing (the Adam step is gated).
+        let l: Vec<f64> = (0..12)
+            .map(|step| {
+                if resident && step % 4 == 1 {
+                    t.backend.set_key_room(64);
+                }
+                t.step().unwrap()
+            })
+            .collect();
+        losses.push((name, l));
+        if resident {
+            assert_eq!(
+                t.backend.repeated_steps(),
+                3,
+                "resident path: steps repeated after their key lists ran out of room"
+            );
+        }
         let expected = if resident { 12 } else { 0 };
         assert_eq!(
             t.backend.resident_steps(),
@@ -229,12 +243,14 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
     }
 }
 
-/// A resident step waits for the GPU twice and reads 32 bytes: the key totals of both views
-/// (8 bytes, they size the sort) and the loss sums (24 bytes); no parameters, gradients or
-/// images. Counted over steps with no host work in between (no density control, no capacity
-/// checks, no evaluation), from the context's traffic counters.
+/// A resident step reads the GPU once, 32 bytes: the key totals of both views (8 bytes) and
+/// the loss sums (24 bytes); no parameters, gradients or images, and no read in the middle of
+/// the step (the key lists have the room earlier steps measured). A step whose views need more
+/// room runs again (one more read); that is counted and bounded. Counted over steps with no
+/// host work in between (no density control, no capacity checks, no evaluation), from the
+/// context's traffic counters.
 #[test]
-fn vulkan_resident_step_reads_two_small_results() {
+fn vulkan_resident_step_reads_once() {
     let (tmp, data_dir) = small_scene();
     let options = lavapipe(false);
     let backend = VulkanBackend::new(&options, RenderSettings::default())
@@ -254,9 +270,17 @@ fn vulkan_resident_step_reads_two_small_results() {
     }
     let (r1, b1, _) = t.backend.context().traffic();
     assert_eq!(t.backend.resident_steps(), steps + 1, "every step resident");
+    let repeated = t.backend.repeated_steps();
+    assert!(
+        repeated <= 1,
+        "{repeated} of {steps} steps repeated: the measured room (+25 %) should fit this scene's \
+         views"
+    );
+    let reads = steps + repeated;
     assert_eq!(
         (r1 - r0, b1 - b0),
-        (2 * steps, 32 * steps),
-        "host reads and bytes over {steps} resident steps (expected 2 reads, 32 bytes per step)"
+        (reads, 32 * reads),
+        "host reads and bytes over {steps} resident steps, {repeated} repeated (expected 1 read, \
+         32 bytes per run)"
     );
 }

@@ -7,8 +7,11 @@
 //! consistency term ([`super::consistency`]) write the upstream gradient planes, both backward
 //! passes write the parameter gradients into the optimiser's buffers and the `adam` kernel
 //! steps the state. A step is three submissions (binning of both views, sorting and forward
-//! passes, then losses + backward passes + Adam) and two small reads: the key totals of both
-//! views (they size the sort) and the loss sums. With [`VulkanBackend::set_resident_optimiser`] off, steps take the device
+//! passes, then losses + backward passes + Adam) and one small read at the end: the loss sums
+//! and the views' key totals. The key lists have the room earlier steps measured, so the sort
+//! reads its count on the GPU; a step whose views need more room is gated (the `adam` kernel
+//! changes nothing) and runs again with room for them. With
+//! [`VulkanBackend::set_resident_optimiser`] off, steps take the device
 //! path ([`Backend::device_step`]: the same, with the gradients read back for the host's
 //! Adam); with [`VulkanBackend::set_device_losses`] off, the host path (images read back).
 //! Targets are uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
@@ -20,13 +23,19 @@ use super::consistency::{ConsistencyViews, GpuConsistency};
 use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;
 use super::loss::GpuViewLoss;
-use super::optimiser::{AdamStep, GpuOptimiser};
-use super::raster::{GpuRasterizer, KeptView, ParamSource};
+use super::optimiser::{AdamStep, GpuOptimiser, KeyGate};
+use super::raster::{GpuRasterizer, KeySizing, KeptView, ParamSource};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
 use crate::train::backend::{Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep};
+
+/// Least room of a resident step's key lists (keys; 8 + 4 bytes each).
+const KEY_ROOM_MIN: usize = 1024;
+
+/// Leading u32 of `DeviceLosses::step_out`: the key totals of the step's (up to) two views.
+const STEP_OUT_TOTALS: u64 = 2;
 
 /// Work recorded after the losses, in the same submission, with the kept views.
 type RecordAfterLosses<'r> =
@@ -46,7 +55,8 @@ struct DeviceLosses {
     up_j: GpuBuffer,
     /// Zero planes standing in for a view no primitive covers (the rasteriser keeps none).
     zeros: GpuBuffer,
-    /// The step's loss sums (view loss 4, consistency 2), copied here to be read at once.
+    /// What a step reads back, in one read: the key totals of its two views (u32; 0 for a
+    /// missing pair), then its loss sums (view loss 4, consistency 2).
     step_out: GpuBuffer,
 }
 
@@ -71,7 +81,7 @@ impl DeviceLosses {
             ("device_step.up_i", bytes),
             ("device_step.up_j", bytes),
             ("device_step.zeros", (7 * width * height * 4) as u64),
-            ("device_step.loss_sums", 6 * 4),
+            ("device_step.loss_sums", (STEP_OUT_TOTALS + 6) * 4),
         ] {
             let location = if name.ends_with("loss_sums") {
                 MemoryLocation::Readback
@@ -138,6 +148,11 @@ pub struct VulkanBackend {
     resident: bool,
     /// Steps taken with the optimiser state on the GPU.
     resident_steps: u64,
+    /// Room of resident steps' key lists (0 until a step has measured it; see
+    /// [`KeySizing::Capacity`]), and the primitive count it was measured with.
+    key_room: (usize, usize),
+    /// Resident steps repeated because a key list had no room (see `resident_step_inner`).
+    repeated_steps: u64,
     ctx: GpuContext,
     pub settings: RenderSettings,
 }
@@ -156,6 +171,8 @@ impl VulkanBackend {
             device_losses: true,
             resident: true,
             resident_steps: 0,
+            key_room: (0, 0),
+            repeated_steps: 0,
             ctx,
             settings,
         })
@@ -177,6 +194,20 @@ impl VulkanBackend {
     /// Steps taken so far with the optimiser state resident on the GPU.
     pub fn resident_steps(&self) -> u64 {
         self.resident_steps
+    }
+
+    /// Gives the next resident step's key lists room for `keys` keys per view, as if an
+    /// earlier step had measured that (for tests: too little room makes the step run twice,
+    /// the first run gated; see [`Self::repeated_steps`]).
+    pub fn set_key_room(&mut self, keys: usize) {
+        self.key_room = (keys.max(1), 0);
+    }
+
+    /// Resident steps run twice because a view's key list outgrew its room (the first run
+    /// changed nothing): after density control, or when a view covers more tiles than any
+    /// before.
+    pub fn repeated_steps(&self) -> u64 {
+        self.repeated_steps
     }
 
     /// Creates the loss buffers for the size of `step`'s views and uploads its target once.
@@ -214,16 +245,19 @@ impl VulkanBackend {
         Ok(())
     }
 
-    /// Renders the views of `step` (kept on the GPU) from the parameters of `src`, records
-    /// the losses, which write the upstream planes `up_i` / `up_j`, then `after` in the same
-    /// submission; returns the weighted loss (one read for all the loss values).
+    /// Renders the views of `step` (kept on the GPU, key lists sized by `sizing`) from the
+    /// parameters of `src`, records the losses, which write the upstream planes `up_i` /
+    /// `up_j`, then `after` in the same submission; returns the weighted loss and the views'
+    /// key totals, from one read. `after` finds the key totals in the first
+    /// [`STEP_OUT_TOTALS`] u32 of `step_out` (for [`KeyGate`]).
     fn forward_losses(
         &self,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
         step: &DeviceStep<'_>,
+        sizing: KeySizing,
         after: &RecordAfterLosses<'_>,
-    ) -> Result<f64, GpuError> {
+    ) -> Result<(f64, [u32; 2]), GpuError> {
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -239,7 +273,7 @@ impl VulkanBackend {
         let pair = step.pair;
         let mut cams: Vec<&PinholeCamera> = vec![step.cam];
         cams.extend(pair);
-        raster.render_kept(ctx, prims, src, &cams, &self.settings)?;
+        raster.render_kept(ctx, prims, src, &cams, &self.settings, sizing)?;
         let zeros = &losses.zeros;
         raster.submit_with_views(ctx, prims, src, &cams, &self.settings, |rec, views| {
             fn planes_of<'a>(v: &KeptView<'a>, zeros: &'a GpuBuffer) -> &'a GpuBuffer {
@@ -248,6 +282,12 @@ impl VulkanBackend {
             let view_i = &views[0];
             rec.fill_zero(zeros);
             rec.fill_zero(&losses.up_j);
+            rec.fill_zero(&losses.step_out);
+            for (v, view) in views.iter().enumerate() {
+                if let Some(total) = view.key_total {
+                    rec.copy_region(total, 0, &losses.step_out, 4 * v as u64, 4)?;
+                }
+            }
             losses.view_loss.record(
                 rec,
                 planes_of(view_i, zeros),
@@ -274,13 +314,16 @@ impl VulkanBackend {
                 )?;
             }
             after(rec, views)?;
-            rec.copy_buffer(losses.view_loss.sums_buffer(), &losses.step_out, 16)?;
+            let sums_at = 4 * STEP_OUT_TOTALS;
+            rec.copy_region(losses.view_loss.sums_buffer(), 0, &losses.step_out, sums_at, 16)?;
             if views.len() > 1 {
-                rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, 16, 8)?;
+                let at = sums_at + 16;
+                rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, at, 8)?;
             }
             Ok(())
         })?;
-        let sums: Vec<f32> = ctx.read(&losses.step_out, 6)?;
+        let out: Vec<f32> = ctx.read(&losses.step_out, STEP_OUT_TOTALS as usize + 6)?;
+        let (totals, sums) = out.split_at(STEP_OUT_TOTALS as usize);
         let mut loss = losses
             .view_loss
             .values_from(&sums[..4])
@@ -288,7 +331,7 @@ impl VulkanBackend {
         if pair.is_some() {
             loss += step.weights.lambda_consist * losses.consistency.values_from(&sums[4..]).loss;
         }
-        Ok(loss)
+        Ok((loss, [totals[0].to_bits(), totals[1].to_bits()]))
     }
 
     /// The device path of [`Backend::device_step`].
@@ -298,7 +341,8 @@ impl VulkanBackend {
         step: &DeviceStep<'_>,
     ) -> Result<DeviceStepResult, GpuError> {
         self.prepare_losses(step)?;
-        let loss = self.forward_losses(prims, ParamSource::Host, step, &|_, _| Ok(()))?;
+        let (loss, _) =
+            self.forward_losses(prims, ParamSource::Host, step, KeySizing::Exact, &|_, _| Ok(()))?;
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -320,7 +364,13 @@ impl VulkanBackend {
 
     /// The path of [`Backend::resident_step`]: as [`Self::device_step_inner`] from the
     /// resident parameters, with the gradients written to the optimiser's buffers and the Adam
-    /// step on the GPU. Host reads per step: the key count of each view and the loss values.
+    /// step on the GPU.
+    ///
+    /// Host reads per step: one, of the loss values and the views' key totals, at the end. The
+    /// key lists have the room the last steps measured ([`KeySizing::Capacity`]), scaled with
+    /// the primitive count; if a view needs more, the `adam` kernel's [`KeyGate`] leaves the
+    /// state untouched and the step runs again with room for it. The first step (nothing
+    /// measured yet) sizes its lists exactly from a second read.
     fn resident_step_inner(
         &mut self,
         prims: &Primitives<f32>,
@@ -328,6 +378,56 @@ impl VulkanBackend {
     ) -> Result<f64, GpuError> {
         let losses_step = &step.losses;
         self.prepare_losses(losses_step)?;
+        let n = prims.len();
+        let (room, room_n) = self.key_room;
+        let mut sizing = if room == 0 {
+            KeySizing::Exact
+        } else {
+            // Keys grow with the primitives (density control): scale the room with them.
+            let scaled = if room_n == 0 {
+                room
+            } else {
+                room.saturating_mul(n) / room_n
+            };
+            KeySizing::Capacity(room.max(scaled))
+        };
+        loop {
+            let (loss, totals) = self.resident_attempt(prims, step, sizing)?;
+            // A new generation either way: the views just kept must not stand in for the next
+            // run's (a repeated step renders the same parameters again).
+            if let Some(opt) = self.optimiser.as_mut() {
+                opt.advance();
+            }
+            let need = totals.into_iter().max().unwrap_or(0) as usize;
+            let fits = match sizing {
+                KeySizing::Exact => true,
+                KeySizing::Capacity(c) => need <= c,
+            };
+            let room = match sizing {
+                KeySizing::Capacity(c) if fits => c,
+                _ => (need + need / 4).max(KEY_ROOM_MIN),
+            };
+            self.key_room = (room, n);
+            if fits {
+                self.resident_steps += 1;
+                return Ok(loss);
+            }
+            // Nothing changed on the GPU (the Adam step was gated): run it again.
+            tracing::debug!(need, room, "key lists outgrew their room: step repeated");
+            self.repeated_steps += 1;
+            sizing = KeySizing::Capacity(room);
+        }
+    }
+
+    /// One run of a resident step with key lists sized by `sizing`; returns the loss and the
+    /// views' key totals. With [`KeySizing::Capacity`] the Adam step is gated on the totals.
+    fn resident_attempt(
+        &self,
+        prims: &Primitives<f32>,
+        step: &ResidentStep<'_>,
+        sizing: KeySizing,
+    ) -> Result<(f64, [u32; 2]), GpuError> {
+        let losses_step = &step.losses;
         let opt = self.optimiser.as_ref().ok_or_else(no_resident_state)?;
         let (params, generation) = opt.params().ok_or_else(no_resident_state)?;
         let src = ParamSource::Device {
@@ -346,8 +446,16 @@ impl VulkanBackend {
             step: step.adam_step,
             min_log_scale: step.min_log_scale,
         };
+        let gate = match sizing {
+            KeySizing::Exact => None,
+            KeySizing::Capacity(c) => Some(KeyGate {
+                totals: &losses.step_out,
+                capacity: u32::try_from(c).unwrap_or(u32::MAX),
+                views: STEP_OUT_TOTALS as u32,
+            }),
+        };
         // Losses, both backward passes and Adam in one submission.
-        let loss = self.forward_losses(prims, src, losses_step, &|rec, views| {
+        self.forward_losses(prims, src, losses_step, sizing, &|rec, views| {
             rec.compute_barrier();
             let written_i =
                 raster.record_backward(rec, prims, &views[0], &losses.up_i, acc_i, grads_i)?;
@@ -357,13 +465,15 @@ impl VulkanBackend {
                 }
                 None => false,
             };
-            opt.record_step(rec, &adam, losses_step.cam, written_i, written_j)
-        })?;
-        if let Some(opt) = self.optimiser.as_mut() {
-            opt.advance();
-        }
-        self.resident_steps += 1;
-        Ok(loss)
+            opt.record_step(
+                rec,
+                &adam,
+                losses_step.cam,
+                written_i,
+                written_j,
+                gate.as_ref(),
+            )
+        })
     }
 
     pub fn context(&self) -> &GpuContext {

@@ -65,6 +65,16 @@ pub struct AdamStep {
 }
 
 /// Parameters, moments and statistics on the GPU, and the kernel that steps them.
+/// Skips a recorded Adam step on the GPU when the step's render was incomplete: the first
+/// `views` u32 of `totals` are the key totals of the step's views, and a total above `capacity`
+/// (the key lists' room, [`super::raster::KeySizing::Capacity`]) leaves the whole state as it was.
+#[derive(Debug, Clone, Copy)]
+pub struct KeyGate<'a> {
+    pub totals: &'a GpuBuffer,
+    pub capacity: u32,
+    pub views: u32,
+}
+
 #[derive(Debug)]
 pub struct GpuOptimiser {
     kernel: ComputeKernel,
@@ -366,6 +376,7 @@ impl GpuOptimiser {
         cam_i: &PinholeCamera,
         grads_i_written: bool,
         grads_j_written: bool,
+        gate: Option<&KeyGate<'_>>,
     ) -> Result<(), GpuError> {
         let Some(s) = &self.state else {
             return Err(GpuError::InvalidInput {
@@ -389,7 +400,11 @@ impl GpuOptimiser {
         let r = cam_i.rotation_cam_from_world();
         let tz = cam_i.cam_from_world.translation_m.z;
         let mut push: Vec<u8> = Vec::with_capacity(92);
-        for u in [s.n as u32, s.bands as u32, 0, 0] {
+        let (gate_buffer, capacity, views) = match gate {
+            Some(g) => (g.totals, g.capacity, g.views),
+            None => (&s.band_count, u32::MAX, 0),
+        };
+        for u in [s.n as u32, s.bands as u32, capacity, views] {
             push.extend_from_slice(&u.to_le_bytes());
         }
         let floats = [
@@ -428,6 +443,7 @@ impl GpuOptimiser {
                 &s.band_count,
                 &s.stats_accum,
                 &s.stats_count,
+                gate_buffer,
             ],
             &push,
             [s.n.div_ceil(ADAM_WG) as u32, 1, 1],

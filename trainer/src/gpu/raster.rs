@@ -36,7 +36,7 @@ use super::context::{
 use super::error::GpuError;
 use super::scan::GpuScan;
 use super::shaders::{self, push_u32s};
-use super::sort::GpuRadixSort;
+use super::sort::{GpuRadixSort, ItemCount};
 use crate::camera::PinholeCamera;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings, TILE_SIZE};
@@ -127,6 +127,20 @@ pub fn parameter_count(prims: &Primitives<f32>) -> usize {
     prims.len() * (13 + 5 * prims.bands)
 }
 
+/// How [`GpuRasterizer::render_kept`] sizes a view's key list (one key per primitive and tile
+/// it covers), whose length only the GPU knows after binning.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KeySizing {
+    /// The host reads the key totals of all views after binning (one small read) and sizes
+    /// every list exactly.
+    Exact,
+    /// Every list has room for this many keys and the host reads nothing: the sort and the
+    /// tile ranges read the total on the GPU. A view with more keys is cut to its first
+    /// `capacity` (an incomplete render); the caller finds out from the view's
+    /// [`KeptView::key_total`] and repeats the work with more room.
+    Capacity(usize),
+}
+
 /// A view binned (and, once rendered, with its forward planes) on the GPU. The buffers are
 /// owned here and released with [`BinnedView::destroy`]; [`Transient`] does that on drop.
 #[derive(Debug)]
@@ -138,6 +152,8 @@ struct BinnedView {
     bands: usize,
     /// Live band counts (absent without primitives).
     band_count_buf: Option<usize>,
+    /// The key total (u32) the GPU computed when binning (absent without primitives).
+    total: Option<usize>,
     /// The (tile, depth) keys (absent when no primitive covers the view).
     keys: Option<usize>,
     /// Sorted primitive indices and per-tile ranges; `None` when no primitive covers a tile.
@@ -197,6 +213,8 @@ pub struct KeptView<'a> {
     pub planes: Option<&'a GpuBuffer>,
     pub width: usize,
     pub height: usize,
+    /// The view's key total (one u32) as the GPU computed it; `None` without primitives.
+    pub key_total: Option<&'a GpuBuffer>,
     /// The kept view itself (for [`GpuRasterizer::record_backward`]).
     view: &'a BinnedView,
 }
@@ -234,6 +252,7 @@ impl<'a> Transient<'a> {
                 views: 0,
                 bands: 0,
                 band_count_buf: None,
+                total: None,
                 keys: None,
                 lists: None,
                 planes: None,
@@ -508,6 +527,11 @@ impl GpuRasterizer {
         binned.band_count_buf = Some(band_count);
         // n counts + 1 trailing zero: after the exclusive scan, element n is the key total.
         let counts = binned.keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
+        binned.total = Some(binned.keep(ctx.create_buffer(
+            "raster.key_total",
+            4,
+            MemoryLocation::DeviceOnly,
+        )?));
         Ok(AllocatedView {
             view: out,
             resident_copy: resident,
@@ -516,9 +540,11 @@ impl GpuRasterizer {
     }
 
     /// Bins and renders `prims` seen by each camera of `cams`: projection, culling, tile counts
-    /// and their scan for every view in one submission, ONE host read (the key totals of all
-    /// views), then key emission, sort, tile ranges and `raster_forward` for every view in a
-    /// second submission. The planes stay on the GPU.
+    /// and their scan for every view in one submission, then key emission, sort, tile ranges
+    /// and `raster_forward` for every view in a second submission. The planes stay on the GPU.
+    /// With [`KeySizing::Exact`] the host reads the key totals of all views between the two (one
+    /// read) and sizes the key lists exactly; with [`KeySizing::Capacity`] it reads nothing and
+    /// every list has room for that many keys (see [`KeySizing`]).
     fn bin_and_render_views<'a>(
         &self,
         ctx: &'a GpuContext,
@@ -526,6 +552,7 @@ impl GpuRasterizer {
         src: ParamSource<'_>,
         cams: &[&PinholeCamera],
         settings: &RenderSettings,
+        sizing: KeySizing,
     ) -> Result<Vec<Transient<'a>>, GpuError> {
         let n = prims.len();
         let mut outs = Vec::with_capacity(cams.len());
@@ -548,17 +575,21 @@ impl GpuRasterizer {
             *scan_slot = Some(GpuScan::new(ctx, grown(n + 1))?);
         }
         let scan = scan_slot.as_ref().ok_or_else(|| poisoned("scan"))?;
-        let totals_buf = ctx.create_buffer(
-            "raster.key_totals",
-            (4 * cams.len()) as u64,
-            MemoryLocation::Readback,
-        )?;
+        let totals_buf = match sizing {
+            KeySizing::Exact => Some(ctx.create_buffer(
+                "raster.key_totals",
+                (4 * cams.len()) as u64,
+                MemoryLocation::Readback,
+            )?),
+            KeySizing::Capacity(_) => None,
+        };
         let first = (|| -> Result<Vec<u32>, GpuError> {
             self.submit(ctx, |rec| {
                 for (v, out) in outs.iter().enumerate() {
                     let b = out.view()?;
                     let c = counts[v].ok_or_else(|| poisoned("tile counts"))?;
                     let bc = b.band_count_buf.ok_or_else(|| poisoned("band counts"))?;
+                    let total = b.total.ok_or_else(|| poisoned("key total"))?;
                     let [tiles_x, tiles_y] = b.tiles;
                     if let Some((buffer, bytes)) = copies[v] {
                         rec.copy_buffer(buffer, b.get(b.params), bytes)?;
@@ -578,34 +609,44 @@ impl GpuRasterizer {
                     )?;
                     rec.compute_barrier();
                     scan.record(rec, b.get(c), n + 1)?;
-                    rec.copy_region(b.get(c), (4 * n) as u64, &totals_buf, (4 * v) as u64, 4)?;
+                    rec.copy_region(b.get(c), (4 * n) as u64, b.get(total), 0, 4)?;
+                    if let Some(t) = &totals_buf {
+                        rec.copy_region(b.get(c), (4 * n) as u64, t, (4 * v) as u64, 4)?;
+                    }
                 }
                 Ok(())
             })?;
-            ctx.read::<u32>(&totals_buf, cams.len())
+            match (&totals_buf, sizing) {
+                (Some(t), _) => ctx.read::<u32>(t, cams.len()),
+                (None, KeySizing::Capacity(cap)) => Ok(vec![cap as u32; cams.len()]),
+                (None, KeySizing::Exact) => Err(poisoned("key totals")),
+            }
         })();
         drop(scan_slot);
-        ctx.destroy_buffer(totals_buf);
-        let totals = first?;
+        if let Some(t) = totals_buf {
+            ctx.destroy_buffer(t);
+        }
+        // Exact: the totals; Capacity: the room of every list (the totals stay on the GPU).
+        let room = first?;
 
         // Keys, lists and planes of every covered view.
-        let mut max_total = 0;
+        let mut max_room = 0;
         for (v, out) in outs.iter_mut().enumerate() {
-            let total = totals[v] as usize;
-            if total == 0 {
+            let room = room[v] as usize;
+            if room == 0 {
                 continue;
             }
-            max_total = max_total.max(total);
+            max_room = max_room.max(room);
             let binned = out.view_mut()?;
             let tiles = binned.tiles[0] * binned.tiles[1];
             let keys = binned.keep(ctx.create_buffer(
                 "raster.keys",
-                (total * 8) as u64,
+                (room * 8) as u64,
                 MemoryLocation::DeviceOnly,
             )?);
             let values = binned.keep(ctx.create_buffer(
                 "raster.values",
-                (total * 4) as u64,
+                (room * 4) as u64,
                 MemoryLocation::DeviceOnly,
             )?);
             let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
@@ -619,42 +660,47 @@ impl GpuRasterizer {
             binned.lists = Some((values, ranges));
             binned.planes = Some(planes);
         }
-        if max_total == 0 {
+        if max_room == 0 {
             return Ok(outs);
         }
         let mut sort_slot = lock(&self.sort)?;
-        if sort_slot.as_ref().is_none_or(|s| s.capacity() < max_total) {
+        if sort_slot.as_ref().is_none_or(|s| s.capacity() < max_room) {
             if let Some(old) = sort_slot.take() {
                 old.destroy(ctx);
             }
-            *sort_slot = Some(GpuRadixSort::new(ctx, grown(max_total))?);
+            *sort_slot = Some(GpuRadixSort::new(ctx, grown(max_room))?);
         }
         let sort = sort_slot.as_ref().ok_or_else(|| poisoned("sort"))?;
         let second = self.submit(ctx, |rec| {
             for (v, out) in outs.iter().enumerate() {
                 let b = out.view()?;
-                let (Some(keys), Some((values, ranges)), Some(planes), Some(c)) =
-                    (b.keys, b.lists, b.planes, counts[v])
+                let (Some(keys), Some((values, ranges)), Some(planes), Some(c), Some(total)) =
+                    (b.keys, b.lists, b.planes, counts[v], b.total)
                 else {
                     continue;
                 };
-                let total = totals[v] as usize;
+                let room = room[v] as usize;
                 let [tiles_x, tiles_y] = b.tiles;
                 let tiles = tiles_x * tiles_y;
                 let key_bits = 32 + (usize::BITS - (tiles.max(2) - 1).leading_zeros());
                 rec.dispatch(
                     &self.emit,
                     &[b.get(b.views), b.get(c), b.get(keys), b.get(values)],
-                    &push_u32s(&[n as u32, tiles_x as u32]),
+                    &push_u32s(&[n as u32, tiles_x as u32, room as u32]),
                     [n.div_ceil(PROJECT_WG) as u32, 1, 1],
                 )?;
                 rec.compute_barrier();
-                sort.record(rec, b.get(keys), b.get(values), total, key_bits)?;
+                let count = ItemCount {
+                    at_most: room,
+                    buffer: b.get(total),
+                    index: 0,
+                };
+                sort.record(rec, b.get(keys), b.get(values), count, key_bits)?;
                 rec.dispatch(
                     &self.ranges,
-                    &[b.get(keys), b.get(ranges)],
-                    &push_u32s(&[total as u32]),
-                    [total.div_ceil(RANGES_WG) as u32, 1, 1],
+                    &[b.get(keys), b.get(ranges), b.get(total)],
+                    &push_u32s(&[room as u32]),
+                    [room.div_ceil(RANGES_WG) as u32, 1, 1],
                 )?;
                 rec.compute_barrier();
                 rec.dispatch(
@@ -694,7 +740,7 @@ impl GpuRasterizer {
         cam: &PinholeCamera,
         settings: &RenderSettings,
     ) -> Result<Transient<'a>, GpuError> {
-        self.bin_and_render_views(ctx, prims, src, &[cam], settings)?
+        self.bin_and_render_views(ctx, prims, src, &[cam], settings, KeySizing::Exact)?
             .pop()
             .ok_or_else(|| poisoned("rendered view"))
     }
@@ -745,7 +791,8 @@ impl GpuRasterizer {
 
     /// Renders `prims` seen by each camera of `cams` (at most [`KEPT_VIEWS`]) and keeps the
     /// planes on the GPU for [`GpuRasterizer::submit_with_views`] and the backward pass: two
-    /// submissions for all the views, and nothing read back but their key totals (one read).
+    /// submissions for all the views, and nothing read back but their key totals (one read;
+    /// none with [`KeySizing::Capacity`]).
     pub fn render_kept(
         &self,
         ctx: &GpuContext,
@@ -753,6 +800,7 @@ impl GpuRasterizer {
         src: ParamSource<'_>,
         cams: &[&PinholeCamera],
         settings: &RenderSettings,
+        sizing: KeySizing,
     ) -> Result<(), GpuError> {
         if cams.len() > KEPT_VIEWS {
             return Err(GpuError::InvalidInput {
@@ -762,7 +810,7 @@ impl GpuRasterizer {
                 ),
             });
         }
-        for rendered in self.bin_and_render_views(ctx, prims, src, cams, settings)? {
+        for rendered in self.bin_and_render_views(ctx, prims, src, cams, settings, sizing)? {
             if let Some(view) = rendered.take() {
                 self.keep_view(ctx, view)?;
             }
@@ -800,6 +848,7 @@ impl GpuRasterizer {
             views.push(KeptView {
                 camera: v.get(v.cam),
                 planes: v.planes.map(|h| v.get(h)),
+                key_total: v.total.map(|h| v.get(h)),
                 width: cam.width,
                 height: cam.height,
                 view: v,
@@ -969,6 +1018,7 @@ impl GpuRasterizer {
         let kept_view = KeptView {
             camera: v.get(v.cam),
             planes: v.planes.map(|h| v.get(h)),
+            key_total: v.total.map(|h| v.get(h)),
             width,
             height,
             view: v,

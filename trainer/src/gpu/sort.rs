@@ -12,6 +12,15 @@ use super::shaders::{self, push_u32s};
 const BLOCK: usize = 128;
 const BINS: usize = 16;
 
+/// How many items a sort or a list kernel handles: `min(buffer[index], at_most)` (u32), read on
+/// the GPU. `at_most` sizes the recorded work; the buffer may hold a count the GPU computed.
+#[derive(Debug, Clone, Copy)]
+pub struct ItemCount<'a> {
+    pub at_most: usize,
+    pub buffer: &'a GpuBuffer,
+    pub index: u32,
+}
+
 /// A reusable GPU radix sort for up to `max_count` items.
 #[derive(Debug)]
 pub struct GpuRadixSort {
@@ -95,26 +104,29 @@ impl GpuRadixSort {
 
     /// Records a stable sort of the first `count` (key, value) pairs by the low `key_bits` bits of
     /// the keys, in place (`keys`: `count` × `[u32; 2]` low/high words; `values`: `count` × u32).
+    /// The count is read on the GPU ([`ItemCount`]), so it may come from earlier GPU work the
+    /// host never read; the work recorded is sized for `count.at_most` items.
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
         keys: &GpuBuffer,
         values: &GpuBuffer,
-        count: usize,
+        count: ItemCount<'_>,
         key_bits: u32,
     ) -> Result<(), GpuError> {
-        if count > self.max_count {
+        let at_most = count.at_most;
+        if at_most > self.max_count {
             return Err(GpuError::BufferRange {
                 name: keys.name().to_owned(),
-                requested_bytes: (count * 8) as u64,
+                requested_bytes: (at_most * 8) as u64,
                 capacity_bytes: (self.max_count * 8) as u64,
             });
         }
-        if count < 2 {
+        if at_most < 2 {
             return Ok(());
         }
         let passes = key_bits.clamp(1, 64).div_ceil(8) * 2; // even: ends in the caller's buffers
-        let blocks = count.div_ceil(BLOCK);
+        let blocks = at_most.div_ceil(BLOCK);
         for pass in 0..passes {
             let shift = pass * 4;
             let (k_in, v_in, k_out, v_out) = if pass % 2 == 0 {
@@ -122,10 +134,10 @@ impl GpuRadixSort {
             } else {
                 (&self.keys_alt, &self.values_alt, keys, values)
             };
-            let push = push_u32s(&[count as u32, shift, blocks as u32]);
+            let push = push_u32s(&[at_most as u32, shift, blocks as u32, count.index]);
             rec.dispatch(
                 &self.count_kernel,
-                &[k_in, &self.hist],
+                &[k_in, &self.hist, count.buffer],
                 &push,
                 [blocks as u32, 1, 1],
             )?;
@@ -133,7 +145,7 @@ impl GpuRadixSort {
             self.scan.record(rec, &self.hist, blocks * BINS)?;
             rec.dispatch(
                 &self.scatter_kernel,
-                &[k_in, v_in, &self.hist, k_out, v_out],
+                &[k_in, v_in, &self.hist, k_out, v_out, count.buffer],
                 &push,
                 [blocks as u32, 1, 1],
             )?;
