@@ -24,7 +24,7 @@ use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation, Reco
 use super::error::GpuError;
 use super::loss::GpuViewLoss;
 use super::optimiser::{AdamStep, GpuOptimiser, KeyGate};
-use super::raster::{GpuRasterizer, KeySizing, KeptView, ParamSource};
+use super::raster::{GpuRasterizer, KeptView, KeySizing, ParamSource};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
@@ -315,7 +315,13 @@ impl VulkanBackend {
             }
             after(rec, views)?;
             let sums_at = 4 * STEP_OUT_TOTALS;
-            rec.copy_region(losses.view_loss.sums_buffer(), 0, &losses.step_out, sums_at, 16)?;
+            rec.copy_region(
+                losses.view_loss.sums_buffer(),
+                0,
+                &losses.step_out,
+                sums_at,
+                16,
+            )?;
             if views.len() > 1 {
                 let at = sums_at + 16;
                 rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, at, 8)?;
@@ -342,7 +348,9 @@ impl VulkanBackend {
     ) -> Result<DeviceStepResult, GpuError> {
         self.prepare_losses(step)?;
         let (loss, _) =
-            self.forward_losses(prims, ParamSource::Host, step, KeySizing::Exact, &|_, _| Ok(()))?;
+            self.forward_losses(prims, ParamSource::Host, step, KeySizing::Exact, &|_, _| {
+                Ok(())
+            })?;
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -384,11 +392,7 @@ impl VulkanBackend {
             KeySizing::Exact
         } else {
             // Keys grow with the primitives (density control): scale the room with them.
-            let scaled = if room_n == 0 {
-                room
-            } else {
-                room.saturating_mul(n) / room_n
-            };
+            let scaled = room.saturating_mul(n).checked_div(room_n).unwrap_or(room);
             KeySizing::Capacity(room.max(scaled))
         };
         loop {
