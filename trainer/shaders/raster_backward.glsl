@@ -20,15 +20,15 @@
 // raster_backward_finish chains them to the primitive parameters.
 //
 // With subgroup sums, the walk over the tile's list is uniform across the subgroup (it runs to
-// the last sample of any of its pixels; a pixel past its own end contributes zeros), so every
-// subgroup operation sees all its invocations.
+// the last sample of any of its pixels; a pixel past its own end contributes zeros, and the
+// phase-1 bits are OR-ed over the subgroup), so every subgroup operation sees all its
+// invocations.
 
 #include "raster_common.glsl"
 
-// Each invocation handles the PIX = 16 pixels of its tile column: the
-// primitive's view data is loaded once for all of them and their contributions are summed in
-// registers before the subgroup sum, so the global adds per (primitive, field) and tile drop by
-// PIX. The per-pixel arithmetic is unchanged.
+// Each invocation handles the PIX = 16 pixels of its tile column: a sample's view data is
+// loaded once for a group of ROWS of them and their contributions are summed in registers
+// before the subgroup sum. The per-pixel arithmetic is the CPU reference's.
 #define PIX 16u
 #define HALF_TILE 8u
 // Rows per group of the walk's phase 2 (see main), and groups per column.

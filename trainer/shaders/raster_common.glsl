@@ -44,7 +44,7 @@ uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
 // a decision; it only skips pow/exp for the many samples far outside the support.
 #define QMAX_MARGIN 1e-3
 
-// One primitive as seen from the current view (128 bytes).
+// One primitive as seen from the current view (112 bytes).
 struct PrimView {
     vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p; b0.w = omega_low,
     vec4 b1;        // b1.w = live bands (the band loops run over j < live),
@@ -52,10 +52,8 @@ struct PrimView {
     vec4 a_opacity; // a = N (c - mu), opacity
     vec4 cmm_beta;  // c - mu, beta
     vec4 misc;      // psi_high, camera depth of mu, visible (0/1), q_max (see QMAX_MARGIN)
-    uvec4 rect;     // tiles [tx0, ty0, tx1, ty1)
-    vec4 bbox;      // pixels [u0, u1] x [v0, v1] as (u0, v0, u1, v1): the padded silhouette of
-                    // the culling ellipsoid (unbounded without culling). Every pixel outside
-                    // it fails the q <= q_max test, so the rasterisers skip it up front.
+    uvec4 rect;     // tiles [tx0, ty0, tx1, ty1): the tiles of the padded silhouette of the
+                    // culling ellipsoid (every tile without culling)
 };
 
 // Band j of primitive i as seen from the current view (32 bytes, at index m i + j), written by

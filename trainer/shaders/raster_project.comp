@@ -99,7 +99,6 @@ void main() {
     bool visible = finite && mu_cam.z > near_m && opacity >= ALPHA_MIN;
 
     uvec4 rect = uvec4(0u);
-    vec4 bbox = vec4(-3.0e38, -3.0e38, 3.0e38, 3.0e38);
     if (visible) {
         uint width = uint(cam[CAM_WIDTH]);
         uint height = uint(cam[CAM_HEIGHT]);
@@ -124,7 +123,6 @@ void main() {
                 float pad_u = CULL_PAD_PX + 1e-6 * max(abs(u0), abs(u1));
                 float pad_v = CULL_PAD_PX + 1e-6 * max(abs(v0), abs(v1));
                 u0 -= pad_u; u1 += pad_u; v0 -= pad_v; v1 += pad_v;
-                bbox = vec4(u0, v0, u1, v1);
                 float wmax = float(width - 1u), hmax = float(height - 1u);
                 if (u1 < 0.0 || v1 < 0.0 || u0 > wmax || v0 > hmax) {
                     rect = uvec4(0u);
@@ -148,7 +146,6 @@ void main() {
     float q_max = cut > 0.0 ? pow(cut, 2.0 / beta) : 0.0;
     v.misc = vec4(psi_high, mu_cam.z, visible ? 1.0 : 0.0, q_max);
     v.rect = rect;
-    v.bbox = bbox;
     views[i] = v;
     // Bands in view form (BandView): g = 2 pi W^T f, theta0 = 2 pi f . (c - mu) + phase.
     const float TWO_PI = 6.28318530717958647692;
