@@ -146,20 +146,15 @@ fn adam_kernel_takes_the_host_optimiser_step() {
     // A step gated by a key total over the lists' room changes nothing: it runs first, and
     // the real step after it must still match the host's single step.
     let totals = ctx.upload("adam.key_totals", &[100u32, 101]).unwrap();
-    let gate = KeyGate {
-        totals: &totals,
-        capacity: 100,
-        views: 2,
-    };
-    ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true, Some(&gate)))
-        .unwrap();
-    let open = KeyGate {
-        totals: &totals,
-        capacity: 101,
-        views: 2,
-    };
-    ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true, Some(&open)))
-        .unwrap();
+    for capacity in [100, 101] {
+        let gate = KeyGate {
+            totals: &totals,
+            capacity,
+            views: 2,
+        };
+        ctx.submit(|rec| opt.record_step(rec, &step, &cam, true, true, Some(&gate)))
+            .unwrap();
+    }
     ctx.destroy_buffer(totals);
     let (mut p_d, mut adam_d) = (p.clone(), adam.clone());
     let (mut accum_d, mut count_d) = (vec![0.0; N], vec![0; N]);
