@@ -413,7 +413,8 @@ struct BenchArgs {
     /// Primitives (constant: densification off).
     #[arg(long, default_value_t = 2000)]
     primitives: usize,
-    /// Timed training steps per configuration.
+    /// Timed training steps per configuration. They run in rounds of at most 5 steps, the
+    /// configurations taking turns, so a slow spell of the machine falls on all of them alike.
     #[arg(long, default_value_t = 20)]
     steps: usize,
     /// Untimed steps first (pipeline compilation, buffer growth).

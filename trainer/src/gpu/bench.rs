@@ -25,7 +25,7 @@ pub struct BenchOptions {
     pub views: usize,
     /// Primitives (initialised from as many sparse points; densification off, so constant).
     pub primitives: usize,
-    /// Timed steps per configuration.
+    /// Timed steps per configuration (in rounds of at most 5 per configuration, interleaved).
     pub steps: usize,
     /// Untimed steps before timing (pipeline compilation, buffer growth).
     pub warmup_steps: usize,
@@ -138,7 +138,7 @@ fn process_cpu_s() -> f64 {
         .unwrap_or(f64::NAN)
 }
 
-/// What [`measure`] found.
+/// What a [`Timed`] configuration measured.
 struct Measured<B> {
     steps_per_s: f64,
     cpu_ms_per_step: f64,
@@ -147,50 +147,90 @@ struct Measured<B> {
     backend: B,
 }
 
-/// Steps per second and process CPU time per step of `backend` in `mode`; `before_timing` runs
-/// once after the warm-up steps.
-fn measure<B: Backend>(
-    data_dir: &Path,
-    run_dir: &Path,
-    mode: Mode,
-    opts: &BenchOptions,
-    backend: B,
-    before_timing: &mut dyn FnMut(&mut B),
-    traffic: &dyn Fn(&B) -> (u64, u64, u64),
-) -> Result<Measured<B>, BenchError> {
-    let train = |source| BenchError::Train { source };
-    let data =
-        Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| BenchError::Scene {
-            path: data_dir.to_path_buf(),
-            source,
-        })?;
-    let mut t =
-        Trainer::new(config(data_dir, mode, opts), data, backend, run_dir).map_err(train)?;
-    for _ in 0..opts.warmup_steps {
-        t.step().map_err(train)?;
-    }
-    before_timing(&mut t.backend);
-    let traffic_start = traffic(&t.backend);
-    let start = Instant::now();
-    let cpu_start = process_cpu_s();
-    for _ in 0..opts.steps {
-        t.step().map_err(train)?;
-    }
-    let cpu_s = process_cpu_s() - cpu_start;
-    let seconds = start.elapsed().as_secs_f64();
-    let traffic_end = traffic(&t.backend);
-    t.sync_host().map_err(train)?;
-    Ok(Measured {
-        steps_per_s: opts.steps as f64 / seconds.max(1e-9),
-        cpu_ms_per_step: 1e3 * cpu_s / opts.steps as f64,
-        traffic: (
-            traffic_end.0 - traffic_start.0,
-            traffic_end.1 - traffic_start.1,
-            traffic_end.2 - traffic_start.2,
-        ),
-        backend: t.backend,
-    })
+/// One benchmark configuration: a training run on `backend` in `mode`, warmed up, timed in
+/// rounds ([`Timed::round`]) that [`run_in`] interleaves with the other configurations'.
+struct Timed<B: Backend> {
+    trainer: Trainer<B>,
+    steps: usize,
+    seconds: f64,
+    cpu_s: f64,
+    traffic_start: (u64, u64, u64),
 }
+
+impl<B: Backend> Timed<B> {
+    /// Loads the scene, builds the trainer and runs the untimed warm-up steps; `before_timing`
+    /// runs once after them, and `traffic` reads the backend's traffic counters.
+    fn start(
+        data_dir: &Path,
+        run_dir: &Path,
+        mode: Mode,
+        opts: &BenchOptions,
+        backend: B,
+        before_timing: &mut dyn FnMut(&mut B),
+        traffic: &dyn Fn(&B) -> (u64, u64, u64),
+    ) -> Result<Self, BenchError> {
+        let train = |source| BenchError::Train { source };
+        let data = Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| {
+            BenchError::Scene {
+                path: data_dir.to_path_buf(),
+                source,
+            }
+        })?;
+        let mut trainer =
+            Trainer::new(config(data_dir, mode, opts), data, backend, run_dir).map_err(train)?;
+        for _ in 0..opts.warmup_steps {
+            trainer.step().map_err(train)?;
+        }
+        before_timing(&mut trainer.backend);
+        let traffic_start = traffic(&trainer.backend);
+        Ok(Self {
+            trainer,
+            steps: 0,
+            seconds: 0.0,
+            cpu_s: 0.0,
+            traffic_start,
+        })
+    }
+
+    /// Times `steps` more training steps (wall clock and process CPU time).
+    fn round(&mut self, steps: usize) -> Result<(), BenchError> {
+        let start = Instant::now();
+        let cpu_start = process_cpu_s();
+        for _ in 0..steps {
+            self.trainer
+                .step()
+                .map_err(|source| BenchError::Train { source })?;
+        }
+        self.cpu_s += process_cpu_s() - cpu_start;
+        self.seconds += start.elapsed().as_secs_f64();
+        self.steps += steps;
+        Ok(())
+    }
+
+    fn finish(
+        mut self,
+        traffic: &dyn Fn(&B) -> (u64, u64, u64),
+    ) -> Result<Measured<B>, BenchError> {
+        let end = traffic(&self.trainer.backend);
+        self.trainer
+            .sync_host()
+            .map_err(|source| BenchError::Train { source })?;
+        let steps = self.steps.max(1) as f64;
+        Ok(Measured {
+            steps_per_s: self.steps as f64 / self.seconds.max(1e-9),
+            cpu_ms_per_step: 1e3 * self.cpu_s / steps,
+            traffic: (
+                end.0 - self.traffic_start.0,
+                end.1 - self.traffic_start.1,
+                end.2 - self.traffic_start.2,
+            ),
+            backend: self.trainer.backend,
+        })
+    }
+}
+
+/// The timed steps split into rounds of at most this many steps per configuration.
+const ROUND_STEPS: usize = 5;
 
 /// Runs the benchmark; `progress` gets one line per stage.
 pub fn run(opts: &BenchOptions, progress: &mut dyn FnMut(&str)) -> Result<BenchReport, BenchError> {
@@ -233,44 +273,67 @@ fn run_in(
     let settings = RenderSettings::default();
     let gpu = |source| BenchError::Gpu { source };
 
-    progress("CPU backend, s3tir mode");
-    let cpu = measure(
+    // The three configurations run side by side and are timed in interleaved rounds, so a
+    // slow spell of the machine (other tenants, frequency changes) falls on all of them alike
+    // and the ratios stay fair.
+    let vulkan_traffic = |b: &VulkanBackend| b.context().traffic();
+    let no_traffic = |_: &CpuBackend| (0, 0, 0);
+    progress("CPU backend, s3tir mode: warm-up");
+    let mut cpu = Timed::start(
         &data_dir,
         &root.join("cpu"),
         Mode::S3tir,
         opts,
         CpuBackend { settings },
         &mut |_| {},
-        &|_| (0, 0, 0),
+        &no_traffic,
     )?;
-
-    progress("Vulkan backend, 3dgs mode");
+    progress("Vulkan backend, 3dgs mode: warm-up");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let gaussian = measure(
+    let mut gaussian = Timed::start(
         &data_dir,
         &root.join("vk-3dgs"),
         Mode::Gaussian,
         opts,
         vk,
         &mut |_| {},
-        &|b: &VulkanBackend| b.context().traffic(),
+        &vulkan_traffic,
     )?;
-
-    progress("Vulkan backend, s3tir mode (with per-kernel timestamps in a second pass)");
+    progress("Vulkan backend, s3tir mode: warm-up");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
     let device = vk.context().report().name.clone();
-    let s3tir = measure(
+    let mut s3tir = Timed::start(
         &data_dir,
         &root.join("vk-s3tir"),
         Mode::S3tir,
         opts,
         vk,
         &mut |_| {},
-        &|b: &VulkanBackend| b.context().traffic(),
+        &vulkan_traffic,
     )?;
+    let rounds = opts.steps.div_ceil(ROUND_STEPS);
+    let mut left = opts.steps;
+    for r in 0..rounds {
+        let n = left.div_ceil(rounds - r);
+        left -= n;
+        progress(&format!(
+            "round {}/{rounds}: {n} steps of each configuration",
+            r + 1
+        ));
+        cpu.round(n)?;
+        gaussian.round(n)?;
+        s3tir.round(n)?;
+    }
+    let cpu = cpu.finish(&no_traffic)?;
+    let gaussian = gaussian.finish(&vulkan_traffic)?;
+    let s3tir = s3tir.finish(&vulkan_traffic)?;
+    drop(gaussian.backend);
+    drop(s3tir.backend);
+
     // Timestamps add work of their own: time the kernels in a separate pass.
+    progress("Vulkan backend, s3tir mode: per-kernel timestamps");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let vk = measure(
+    let mut profiled = Timed::start(
         &data_dir,
         &root.join("vk-prof"),
         Mode::S3tir,
@@ -280,9 +343,10 @@ fn run_in(
             b.set_profiling(true);
             let _ = b.take_timings();
         },
-        &|b: &VulkanBackend| b.context().traffic(),
-    )?
-    .backend;
+        &vulkan_traffic,
+    )?;
+    profiled.round(opts.steps)?;
+    let vk = profiled.finish(&vulkan_traffic)?.backend;
     let mut per_kernel: BTreeMap<String, f64> = BTreeMap::new();
     for t in vk.take_timings() {
         *per_kernel.entry(t.kernel).or_default() += t.duration_ns;
