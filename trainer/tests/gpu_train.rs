@@ -14,7 +14,7 @@ use s3tir_trainer::gpu::backend::VulkanBackend;
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{Primitives, beta_of_raw};
 use s3tir_trainer::render::RenderSettings;
-use s3tir_trainer::train::{Backend, CpuBackend, Mode, Outcome, TrainConfig, Trainer};
+use s3tir_trainer::train::{Backend, CpuBackend, Mode, Outcome, RunShape, TrainConfig, Trainer};
 
 fn config(data: &std::path::Path) -> TrainConfig {
     let mut c = TrainConfig::new(data.to_path_buf());
@@ -283,4 +283,49 @@ fn vulkan_resident_step_reads_once() {
         "host reads and bytes over {steps} resident steps, {repeated} repeated (expected 1 read, \
          32 bytes per run)"
     );
+}
+
+/// A run whose buffers would exceed the device's storage-buffer range is refused before the
+/// run folder is written, with an error naming the buffer, the budget and the limit (lavapipe:
+/// 128 MiB). The largest per-primitive buffer is the backward pass's scratch (15 + 5 · 4
+/// floats per primitive with 4 bands): the budget here makes it one primitive too large, and
+/// one primitive fewer passes the check.
+#[test]
+fn vulkan_run_too_large_for_the_device_is_refused_up_front() {
+    let (tmp, data_dir) = small_scene();
+    let backend = VulkanBackend::new(&lavapipe(false), RenderSettings::default())
+        .expect("lavapipe must be available");
+    let limit = backend.context().report().max_storage_buffer_range_bytes;
+    let fits = (limit / (35 * 4)) as usize;
+    let mut c = config(&data_dir);
+    c.bands = 4;
+    let shape = |budget| RunShape {
+        budget,
+        bands: 4,
+        width: 40,
+        height: 30,
+    };
+    assert!(
+        backend.check_run(&shape(fits)).is_ok(),
+        "the buffers of {fits} primitives fit {limit} bytes"
+    );
+    c.budget = fits + 1;
+    let run = tmp.path().join("too-large");
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let Err(err) = Trainer::new(c, data, backend, &run) else {
+        panic!(
+            "a budget of {} primitives must be refused on lavapipe",
+            fits + 1
+        );
+    };
+    let msg = err.to_string();
+    for part in [
+        "raster.grad_acc",
+        "maxStorageBufferRange",
+        &(fits + 1).to_string(),
+        "--budget",
+    ] {
+        assert!(msg.contains(part), "error must name {part:?}: {msg}");
+    }
+    assert!(!run.exists(), "nothing may be written for a refused run");
 }

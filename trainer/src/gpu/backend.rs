@@ -29,7 +29,9 @@ use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
-use crate::train::backend::{Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep};
+use crate::train::backend::{
+    Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep, RunShape,
+};
 
 /// Least room of a resident step's key lists (keys; 8 + 4 bytes each).
 const KEY_ROOM_MIN: usize = 1024;
@@ -535,6 +537,29 @@ fn no_resident_state() -> GpuError {
 impl Backend for VulkanBackend {
     fn name(&self) -> &'static str {
         "vulkan"
+    }
+
+    /// Every per-primitive and per-pixel buffer of the run ([`super::raster::run_buffers`])
+    /// within the device's storage-buffer range.
+    fn check_run(&self, shape: &RunShape) -> Result<(), TrainerError> {
+        let report = self.ctx.report();
+        let limit = report.max_storage_buffer_range_bytes;
+        let npix = shape.width * shape.height;
+        for (buffer, required) in super::raster::run_buffers(shape.budget, shape.bands, npix) {
+            if required > limit {
+                return Err(GpuError::BudgetTooLarge {
+                    device: report.name.clone(),
+                    buffer,
+                    budget: shape.budget,
+                    bands: shape.bands,
+                    limit: "maxStorageBufferRange",
+                    required,
+                    actual: limit,
+                }
+                .into());
+            }
+        }
+        Ok(())
     }
 
     fn render(

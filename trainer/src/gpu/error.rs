@@ -42,6 +42,22 @@ pub enum GpuError {
         required: u64,
         actual: u64,
     },
+    /// A buffer a run of this primitive budget needs exceeds a device limit (checked before
+    /// training starts).
+    #[error(
+        "Vulkan device {device:?}: a budget of {budget} primitives with {bands} bands needs \
+         buffer {buffer} of {required} bytes, above its {limit} of {actual}: lower --budget or \
+         --bands, or train on a device with a larger limit"
+    )]
+    BudgetTooLarge {
+        device: String,
+        buffer: &'static str,
+        budget: usize,
+        bands: usize,
+        limit: &'static str,
+        required: u64,
+        actual: u64,
+    },
     /// gpu-allocator could not provide memory.
     #[error("GPU memory for {name} ({bytes} bytes): {reason}")]
     Allocation {

@@ -133,6 +133,23 @@ pub fn parameter_count(prims: &Primitives<f32>) -> usize {
     prims.len() * (13 + 5 * prims.bands)
 }
 
+/// The largest per-primitive and per-pixel buffers a run with `budget` primitives of `bands`
+/// bands and views of `npix` pixels allocates, as (name, bytes): the parameter block (the
+/// optimiser's moments and gradients have its size), the view data, the backward pass's
+/// scratch, the tile counts and the forward planes. The key lists depend on the scene's
+/// coverage and are checked when created.
+pub fn run_buffers(budget: usize, bands: usize, npix: usize) -> [(&'static str, u64); 6] {
+    let n = budget as u64;
+    [
+        ("parameters", n * (13 + 5 * bands as u64) * 4),
+        ("raster.views", n * PRIM_VIEW_BYTES),
+        ("raster.bands", n * bands as u64 * BAND_VIEW_BYTES),
+        ("raster.grad_acc", n * acc_fields(bands) as u64 * 4),
+        ("raster.tile_counts", (n + 1) * 4),
+        ("raster.planes", (FORWARD_PLANES * npix * 4) as u64),
+    ]
+}
+
 /// How [`GpuRasterizer::render_kept`] sizes a view's key list (one key per primitive and tile
 /// it covers), whose length only the GPU knows after binning.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

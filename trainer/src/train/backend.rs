@@ -59,10 +59,25 @@ pub struct OptimiserState<'a> {
     pub grad_count: &'a mut [u32],
 }
 
+/// The largest work a training run can give a backend: the primitive budget, the bands per
+/// primitive, and the largest view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunShape {
+    pub budget: usize,
+    pub bands: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
 /// A renderer with gradients.
 pub trait Backend {
     /// Short name for logs and reports (`cpu`, `vulkan`).
     fn name(&self) -> &'static str;
+    /// Checks, before training starts, that a run of `shape` fits the backend (device limits);
+    /// an error names what does not fit.
+    fn check_run(&self, _shape: &RunShape) -> Result<(), TrainerError> {
+        Ok(())
+    }
     /// Image and G-buffers of `prims` seen by `cam`.
     fn render(
         &mut self,

@@ -51,7 +51,7 @@ use thiserror::Error;
 
 pub use adam::{AdamParams, AdamState, GroupLrs};
 pub use backend::{
-    Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep,
+    Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep, RunShape,
 };
 pub use config::{Capacity, Densify, Mode, TrainConfig, Weights};
 
@@ -214,6 +214,18 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     Some(v[v.len() / 2])
 }
 
+/// The largest work a run of `cfg` on `data` gives its backend ([`Backend::check_run`]).
+fn run_shape(cfg: &TrainConfig, data: &Dataset) -> RunShape {
+    let largest =
+        |f: fn(&PinholeCamera) -> usize| data.views.iter().map(|v| f(&v.camera)).max().unwrap_or(0);
+    RunShape {
+        budget: cfg.budget,
+        bands: if cfg.mode.has_bands() { cfg.bands } else { 0 },
+        width: largest(|c| c.width),
+        height: largest(|c| c.height),
+    }
+}
+
 impl<B: Backend> Trainer<B> {
     /// A new run: initial primitives from the dataset, run folder created, config written.
     pub fn new(
@@ -232,6 +244,8 @@ impl<B: Backend> Trainer<B> {
                 reason: "the dataset has neither thermal nor RGB views".into(),
             });
         }
+        // Before anything is written: the run must fit the backend (device limits).
+        backend.check_run(&run_shape(&cfg, &data))?;
         if run_dir.join(files::CHECKPOINT).exists() {
             return Err(TrainError::Run {
                 run_dir: run_dir.to_path_buf(),
@@ -266,6 +280,7 @@ impl<B: Backend> Trainer<B> {
         backend: B,
         run_dir: &Path,
     ) -> Result<Self, TrainError> {
+        backend.check_run(&run_shape(&cfg, &data))?;
         let ck = checkpoint::load(&run_dir.join(files::CHECKPOINT))?;
         let mut t = Self::bare(cfg, data, backend, run_dir);
         t.prims = ck.primitives.into();
