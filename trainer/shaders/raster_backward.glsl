@@ -154,11 +154,8 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m) {
             vec3 rr = vec3(0.0);
             float qq = 0.0;
             if (ok) {
-                b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
-                tt = -dot(a_o.xyz, b) / dot(b, b);
-                rr = a_o.xyz + tt * b;
-                qq = dot(rr, rr);
-                ok = tt > near_m && qq <= misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+                qq = ray_point(p[r], a_o.xyz, b0, b1, b2, b, tt, rr);
+                ok = tt > near_m && qq <= q_cut_of(misc.w);
             }
             float mbb = 0.0, ss = 0.0, al = 0.0, lq = 0.0;
             bool cl = true;
@@ -335,13 +332,13 @@ void main() {
             uint i = sorted_prims[k];
             vec4 a_o = views[i].a_opacity;
             vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-            float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+            float q_cut = q_cut_of(views[i].misc.w);
             uint bit = 1u << (k - start);
             for (uint r = 0u; r < PIX; ++r) {
-                vec3 b = vec3(dot(b0, p[r]), dot(b1, p[r]), dot(b2, p[r]));
-                float tt = -dot(a_o.xyz, b) / dot(b, b);
-                vec3 rr = a_o.xyz + tt * b;
-                bool hit = k < end[r] && tt > near_m && dot(rr, rr) <= q_cut;
+                vec3 b, rr;
+                float tt;
+                float qq = ray_point(p[r], a_o.xyz, b0, b1, b2, b, tt, rr);
+                bool hit = k < end[r] && tt > near_m && qq <= q_cut;
                 todo[r / ROWS] |= hit ? bit : 0u;
             }
         }

@@ -44,6 +44,22 @@ uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
 // a decision; it only skips pow/exp for the many samples far outside the support.
 #define QMAX_MARGIN 1e-3
 
+// The samples' cut on q* for a primitive's q_max (see QMAX_MARGIN).
+float q_cut_of(float q_max) {
+    return q_max * (1.0 + QMAX_MARGIN) + 1e-7;
+}
+
+// The point of pixel p's ray where a primitive's support peaks (see PrimView): whitened ray
+// direction b = B p (rows b0, b1, b2), depth t* = -a.b / b.b and whitened offset r = a + t* b;
+// returns q* = r.r. The rasterisers' screen and full evaluations share it, so both make the
+// same decisions.
+float ray_point(vec3 p, vec3 a, vec3 b0, vec3 b1, vec3 b2, out vec3 b, out float t, out vec3 r) {
+    b = vec3(dot(b0, p), dot(b1, p), dot(b2, p));
+    t = -dot(a, b) / dot(b, b);
+    r = a + t * b;
+    return dot(r, r);
+}
+
 // One primitive as seen from the current view (112 bytes).
 struct PrimView {
     vec4 b0;        // rows of B = N W: whitened ray direction of pixel p is B p; b0.w = omega_low,

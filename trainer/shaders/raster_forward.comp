@@ -56,16 +56,6 @@ struct Pixel {
     float acc[6];  // thermal, psi_low, psi_high, psi_beta, depth, alpha
 };
 
-// Phase 1 for one sample: its ray point (t, q) at pixel p, and whether it can be blended there.
-bool screen(vec3 p, vec4 a_o, vec3 b0, vec3 b1, vec3 b2, float q_cut, float near_m,
-            out float t, out float q) {
-    vec3 b = vec3(dot(b0, p), dot(b1, p), dot(b2, p));
-    t = -dot(a_o.xyz, b) / dot(b, b);
-    vec3 rr = a_o.xyz + t * b;
-    q = dot(rr, rr);
-    return t > near_m && q <= q_cut;
-}
-
 // Phase 2 for one pixel: blends the batch's samples whose bits are set, front to back.
 void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
     while (bits != 0u) {
@@ -75,8 +65,9 @@ void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
         vec4 a_o = views[i].a_opacity;
         vec4 b0 = views[i].b0, b1 = views[i].b1, b2 = views[i].b2;
         vec4 misc = views[i].misc;
-        float t, q;
-        screen(px.p, a_o, b0.xyz, b1.xyz, b2.xyz, 0.0, near_m, t, q);
+        vec3 b, rr;
+        float t;
+        float q = ray_point(px.p, a_o.xyz, b0.xyz, b1.xyz, b2.xyz, b, t, rr);
         float beta = views[i].cmm_beta.w;
         // beta == 2 (Gaussian): q^1 exactly, no pow.
         float mb = support_power(q, log2(q), beta);
@@ -146,11 +137,13 @@ void main() {
             uint i = sorted_prims[k];
             vec4 a_o = views[i].a_opacity;
             vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-            float q_cut = views[i].misc.w * (1.0 + QMAX_MARGIN) + 1e-7;
+            float q_cut = q_cut_of(views[i].misc.w);
             uint bit = 1u << (k - start);
             for (uint r = 0u; r < PIX; ++r) {
-                float t, q;
-                bool hit = screen(px[r].p, a_o, b0, b1, b2, q_cut, near_m, t, q);
+                vec3 b, rr;
+                float t;
+                float q = ray_point(px[r].p, a_o.xyz, b0, b1, b2, b, t, rr);
+                bool hit = t > near_m && q <= q_cut;
                 cand[r] |= (hit && px[r].open) ? bit : 0u;
             }
         }
