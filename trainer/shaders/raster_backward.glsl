@@ -39,9 +39,7 @@
 layout(local_size_x = HALF_TILE) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Views { PrimView views[]; };
-layout(std430, set = 0, binding = 2) readonly buffer Bands { BandView bands[]; };
-layout(std430, set = 0, binding = 3) readonly buffer Values { uint sorted_prims[]; };
+RASTER_TEXELS(1, 2, 3)
 layout(std430, set = 0, binding = 4) readonly buffer Ranges { uvec2 ranges[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Upstream { float upstream[]; };
 layout(std430, set = 0, binding = 6) readonly buffer Planes { float planes[]; };
@@ -75,6 +73,7 @@ layout(push_constant) uniform Push {
     uint width;
     uint height;
     uint tiles_x;
+    uint thermal;  // 0: the thermal upstream is taken as zero (see main)
 } pc;
 
 // Where the current sample's sums go: fields [g_prim * g_fields, (g_prim + 1) * g_fields).
@@ -127,20 +126,22 @@ float w_upto[PIX];
 // Phase 2 for rows [rows, rows + ROWS) of this invocation's column: the full gradient
 // evaluation of the batch's samples whose bits are set, front to back. Called with constant
 // `rows`, so every row index is a constant (no indexed register access).
-void walk(uint rows, uint todo, uint start, float near_m, uint m) {
+void walk(uint rows, uint todo, uint start, float near_m, uint m, bool thermal) {
     while (todo != 0u) {
         uint k = start + uint(findLSB(todo));
         todo &= todo - 1u;
-        uint i = sorted_prims[k];
+        uint i = sorted_prim(k);
         g_prim = i;
-        vec4 a_o = views[i].a_opacity;
-        vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-        vec4 misc = views[i].misc;
-        float beta = views[i].cmm_beta.w;
-        float omega = views[i].b0.w;
+        vec4 a_o = view_field(i, PV_A_OPACITY);
+        vec3 b0 = view_field(i, PV_B0).xyz, b1 = view_field(i, PV_B1).xyz, b2 = view_field(i, PV_B2).xyz;
+        vec4 misc = view_field(i, PV_MISC);
+        float beta = view_field(i, PV_CMM_BETA).w;
+        float omega = view_field(i, PV_B0).w;
         float half_beta = 0.5 * beta;
-        uint live = uint(views[i].b1.w);
-        bool frozen = views[i].b2.w != 0.0;
+        // Without thermal upstream the bands get gradient through psi_high only (sum_psi_high
+        // below): no band phase is evaluated.
+        uint live = thermal ? uint(view_field(i, PV_B1).w) : 0u;
+        bool frozen = view_field(i, PV_B2).w != 0.0;
 
         // The sample of each pixel, as raster_forward evaluates it (same decisions).
         bool valid[PIX];
@@ -195,14 +196,15 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m) {
         // their sines for the gradients below: caching them in an array indexed by the band is
         // slower on lavapipe, whose indexed register access costs a gather per lane.
         for (uint j = 0u; j < live; ++j) {
-            BandView bv = bands[m * i + j];
+            vec4 g_theta0 = band_field(m * i + j, BV_G_THETA0);
+            float amp = band_field(m * i + j, BV_AMP).x;
             for (uint r = rows; r < rows + ROWS; ++r) {
-                float theta = bv.g_theta0.w + t[r] * dot(bv.g_theta0.xyz, p[r]);
-                pre[r] += valid[r] ? bv.amp.x * cos(theta) : 0.0;
+                float theta = g_theta0.w + t[r] * dot(g_theta0.xyz, p[r]);
+                pre[r] += valid[r] ? amp * cos(theta) : 0.0;
             }
         }
         float wt[PIX], d_alpha[PIX], g_f[PIX], g_t[PIX];
-        float sum_omega = 0.0;
+        float sum_omega = 0.0, sum_psi_high = 0.0;
         for (uint r = rows; r < rows + ROWS; ++r) {
             wt[r] = 0.0;
             d_alpha[r] = 0.0;
@@ -218,23 +220,25 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m) {
             }
             g_t[r] = wt[r] * g[6u * r + 4u];
             sum_omega += wt[r] * g[6u * r + 1u] + g_f[r];
+            sum_psi_high += wt[r] * g[6u * r + 2u];
         }
 
-        // Spectrum: omega_low, then per band amplitude, theta0 and sum g_theta t p.
+        // Spectrum: per band amplitude (through the thermal image; psi_high's part is added in
+        // raster_backward_finish), theta0 and sum g_theta t p.
         for (uint j = 0u; j < live; ++j) {
-            BandView bv = bands[m * i + j];
-            float amp = bv.amp.x;
+            vec4 g_theta0 = band_field(m * i + j, BV_G_THETA0);
+            float amp = band_field(m * i + j, BV_AMP).x;
             float g_amp = 0.0, g_th = 0.0;
             vec3 g_tp = vec3(0.0);
             for (uint r = rows; r < rows + ROWS; ++r) {
                 if (!valid[r]) {
                     continue;
                 }
-                float gp = dot(bv.g_theta0.xyz, p[r]);
-                vec2 sc = sin_cos(bv.g_theta0.w + t[r] * gp);
+                float gp = dot(g_theta0.xyz, p[r]);
+                vec2 sc = sin_cos(g_theta0.w + t[r] * gp);
                 float sn = sc.x, c = sc.y;
                 float g_theta = -g_f[r] * amp * sn;
-                g_amp += wt[r] * g[6u * r + 2u] * sign(amp) + g_f[r] * c;
+                g_amp += g_f[r] * c;
                 g_th += g_theta;
                 g_tp += g_theta * t[r] * p[r];
                 g_t[r] += g_theta * gp;
@@ -270,7 +274,7 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m) {
         }
         put_geom(float[ACC_GEOM](g_a.x, g_a.y, g_a.z, g_bp[0].x, g_bp[0].y, g_bp[0].z, g_bp[1].x,
                                  g_bp[1].y, g_bp[1].z, g_bp[2].x, g_bp[2].y, g_bp[2].z, g_o, g_beta,
-                                 sum_omega));
+                                 sum_omega, sum_psi_high));
     }
 }
 
@@ -282,6 +286,7 @@ void main() {
     uvec2 range = ranges[tile];
     float near_m = cam[CAM_NEAR];
     uint m = pc.m;
+    bool thermal = pc.thermal != 0u;
     g_fields = acc_fields(m);
 
     uint walk_end = range.x;
@@ -297,7 +302,7 @@ void main() {
         if (x < pc.width && y < pc.height) {
             uint pidx = y * pc.width + x;
             for (uint c = 0u; c < 6u; ++c) {
-                float gc = upstream[c * npix + pidx];
+                float gc = c == 0u && !thermal ? 0.0 : upstream[c * npix + pidx];
                 g[6u * r + c] = gc;
                 any_g = any_g || gc != 0.0;
                 w_total[r] += gc * planes[c * npix + pidx];
@@ -329,10 +334,10 @@ void main() {
             todo[grp] = 0u;
         }
         for (uint k = start; k < stop; ++k) {
-            uint i = sorted_prims[k];
-            vec4 a_o = views[i].a_opacity;
-            vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-            float q_cut = q_cut_of(views[i].misc.w);
+            uint i = sorted_prim(k);
+            vec4 a_o = view_field(i, PV_A_OPACITY);
+            vec3 b0 = view_field(i, PV_B0).xyz, b1 = view_field(i, PV_B1).xyz, b2 = view_field(i, PV_B2).xyz;
+            float q_cut = q_cut_of(view_field(i, PV_MISC).w);
             uint bit = 1u << (k - start);
             for (uint r = 0u; r < PIX; ++r) {
                 vec3 b, rr;
@@ -347,9 +352,9 @@ void main() {
             todo[grp] = subgroupOr(todo[grp]);
         }
 #endif
-        walk(0u, todo[0], start, near_m, m);
-        walk(4u, todo[1], start, near_m, m);
-        walk(8u, todo[2], start, near_m, m);
-        walk(12u, todo[3], start, near_m, m);
+        walk(0u, todo[0], start, near_m, m, thermal);
+        walk(4u, todo[1], start, near_m, m, thermal);
+        walk(8u, todo[2], start, near_m, m, thermal);
+        walk(12u, todo[3], start, near_m, m, thermal);
     }
 }

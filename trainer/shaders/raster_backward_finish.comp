@@ -1,6 +1,7 @@
 // Backward rasteriser, final step, one invocation per primitive: chains the view-space gradient
 // sums of raster_backward_* (raster_common.glsl: dL/da, dL/dB p^T, dL/dopacity, dL/dbeta,
-// dL/domega_low, per band dL/damp, dL/dtheta0, sum dL/dtheta t p) to the primitive parameters
+// dL/domega_low, dL/dpsi_high, per band dL/damp, dL/dtheta0, sum dL/dtheta t p) to the
+// primitive parameters
 // (mean, log-scales, quaternion through its normalisation, opacity logit, raw beta, the
 // spectrum), as the CPU reference's final loop (trainer/src/render/backward.rs).
 // Bands (BandView): theta = 2 pi f . (c - mu) + phase + t 2 pi f . (W p), so
@@ -15,6 +16,7 @@ layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Params { float params[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Acc { float acc[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Grads { float grads[]; };
+layout(std430, set = 0, binding = 4) readonly buffer Views { PrimView views[]; };
 
 layout(push_constant) uniform Push {
     uint n;
@@ -61,8 +63,11 @@ void main() {
     vec3 c_cam = vec3(cam[CAM_C], cam[CAM_C + 1], cam[CAM_C + 2]);
     vec3 cmm = c_cam - mu;
 
-    // Spectrum.
+    // Spectrum. psi_high = sum over the live bands of |amp_j| gives live band j
+    // sign(amp_j) dL/dpsi_high (sign(0) = 0); dropped slots get none.
     grads[off_omega_low(n, m) + i] = acc[base + 14u];
+    float g_psi_high = acc[base + 15u];
+    uint live = uint(views[i].b1.w);
     vec3 acc_mu = vec3(0.0);
     for (uint j = 0u; j < m; ++j) {
         uint bj = m * i + j;
@@ -76,7 +81,8 @@ void main() {
                           dot(vec3(cam[CAM_W + 3], cam[CAM_W + 4], cam[CAM_W + 5]), s_tp),
                           dot(vec3(cam[CAM_W + 6], cam[CAM_W + 7], cam[CAM_W + 8]), s_tp));
         vec3 g_freq = TWO_PI * (g_theta0 * cmm + w_stp);
-        grads[off_band_amp(n, m) + bj] = acc[f];
+        float amp = params[off_band_amp(n, m) + bj];
+        grads[off_band_amp(n, m) + bj] = acc[f] + (j < live ? sign(amp) * g_psi_high : 0.0);
         grads[off_band_phase(n, m) + bj] = g_theta0;
         for (uint a = 0u; a < 3u; ++a) {
             grads[off_band_freq(n, m) + 3u * bj + a] = g_freq[a];

@@ -72,6 +72,37 @@ struct PrimView {
                     // culling ellipsoid (every tile without culling)
 };
 
+// The rasterisers read PrimView and BandView through texel buffers (RGBA32F, one vec4 texel
+// per field, in struct order) and the sorted primitive list through an R32UI texel buffer:
+// the samples are fetched at scattered, per-invocation positions, which software Vulkan
+// (lavapipe's gallivm) does with vector gathers for texels but one invocation at a time, with a
+// branch per invocation and component, for storage buffers (measured: the forward pass spent
+// about a quarter of its time on the extra loads of one more PrimView per sample).
+#define PV_B0 0
+#define PV_B1 1
+#define PV_B2 2
+#define PV_A_OPACITY 3
+#define PV_CMM_BETA 4
+#define PV_MISC 5
+#define PV_TEXELS 7
+#define BV_G_THETA0 0
+#define BV_AMP 1
+#define BV_TEXELS 2
+// Declares the texel-buffer bindings and their accessors (views, bands, sorted list).
+#define RASTER_TEXELS(VIEWS, BANDS, SORTED)                                                  \
+    layout(set = 0, binding = VIEWS) uniform samplerBuffer view_texels;                      \
+    layout(set = 0, binding = BANDS) uniform samplerBuffer band_texels;                      \
+    layout(set = 0, binding = SORTED) uniform usamplerBuffer sorted_texels;                  \
+    vec4 view_field(uint i, int field) {                                                     \
+        return texelFetch(view_texels, PV_TEXELS * int(i) + field);                          \
+    }                                                                                        \
+    vec4 band_field(uint band, int field) {                                                  \
+        return texelFetch(band_texels, BV_TEXELS * int(band) + field);                       \
+    }                                                                                        \
+    uint sorted_prim(uint k) {                                                               \
+        return texelFetch(sorted_texels, int(k)).x;                                          \
+    }
+
 // Band j of primitive i as seen from the current view (32 bytes, at index m i + j), written by
 // raster_project. The phase of the band at the sample (t, pixel p) of the ray c + t W p is
 //   theta = 2 pi f . (c - mu + t W p) + phase = theta0 + t (g . p),
@@ -90,9 +121,10 @@ struct BandView {
 
 // View-space gradient sums per primitive, written by raster_backward_* and chained to the
 // parameters by raster_backward_finish: dL/da (3), dL/dB p^T (9, row-major: row = component of
-// b), dL/dopacity, dL/dbeta, dL/domega_low, then per band: dL/damp, dL/dtheta0 (= dL/dphase),
-// sum dL/dtheta t p (3).
-#define ACC_GEOM 15u
+// b), dL/dopacity, dL/dbeta, dL/domega_low, dL/dpsi_high (the primitive's own psi_high = sum_j
+// |amp_j|; finish gives band j sign(amp_j) of it), then per band: dL/damp through the thermal
+// image, dL/dtheta0 (= dL/dphase), sum dL/dtheta t p (3).
+#define ACC_GEOM 16u
 #define ACC_BAND 5u
 uint acc_fields(uint m) { return ACC_GEOM + ACC_BAND * m; }
 

@@ -6,6 +6,9 @@
 // behind the near plane skipped, early stop before T would fall below 1e-4.
 // Output planes (each width*height floats, row-major): thermal, psi_low, psi_high, psi_beta,
 // depth (alpha-weighted camera depth), alpha, and the end plane (see raster_common.glsl).
+// With pc.thermal = 0 (a view whose G-buffers alone are needed, e.g. the consistency partner)
+// the band cosines are not evaluated and the thermal plane is written as zeros; every other
+// plane is unchanged.
 //
 // The tile's list is walked in batches of FWD_BATCH samples, in two phases per batch:
 //   1. screen: every pixel tests every sample of the batch with the cheap part of the
@@ -30,9 +33,7 @@
 layout(local_size_x = HALF_TILE) in;
 
 layout(std430, set = 0, binding = 0) readonly buffer Camera { float cam[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Views { PrimView views[]; };
-layout(std430, set = 0, binding = 2) readonly buffer Bands { BandView bands[]; };
-layout(std430, set = 0, binding = 3) readonly buffer Values { uint sorted_prims[]; };
+RASTER_TEXELS(1, 2, 3)
 layout(std430, set = 0, binding = 4) readonly buffer Ranges { uvec2 ranges[]; };
 layout(std430, set = 0, binding = 5) writeonly buffer Out { float planes[]; };
 
@@ -42,6 +43,7 @@ layout(push_constant) uniform Push {
     uint width;
     uint height;
     uint tiles_x;
+    uint thermal;  // 1: the thermal image too; 0: the G-buffers only (thermal plane zero)
 } pc;
 
 // Samples per batch: one bit each in a uint.
@@ -57,18 +59,18 @@ struct Pixel {
 };
 
 // Phase 2 for one pixel: blends the batch's samples whose bits are set, front to back.
-void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
+void blend(inout Pixel px, uint bits, uint start, float near_m, uint m, bool thermal) {
     while (bits != 0u) {
         uint k = start + uint(findLSB(bits));
         bits &= bits - 1u;
-        uint i = sorted_prims[k];
-        vec4 a_o = views[i].a_opacity;
-        vec4 b0 = views[i].b0, b1 = views[i].b1, b2 = views[i].b2;
-        vec4 misc = views[i].misc;
+        uint i = sorted_prim(k);
+        vec4 a_o = view_field(i, PV_A_OPACITY);
+        vec4 b0 = view_field(i, PV_B0), b1 = view_field(i, PV_B1), b2 = view_field(i, PV_B2);
+        vec4 misc = view_field(i, PV_MISC);
         vec3 b, rr;
         float t;
         float q = ray_point(px.p, a_o.xyz, b0.xyz, b1.xyz, b2.xyz, b, t, rr);
-        float beta = views[i].cmm_beta.w;
+        float beta = view_field(i, PV_CMM_BETA).w;
         // beta == 2 (Gaussian): q^1 exactly, no pow.
         float mb = support_power(q, log2(q), beta);
         float alpha = min(a_o.w * exp(-mb), ALPHA_MAX);
@@ -82,14 +84,16 @@ void blend(inout Pixel px, uint bits, uint start, float near_m, uint m) {
             continue;
         }
         float omega = b0.w;
-        uint live = uint(b1.w);
+        // Without the thermal image no band is evaluated (psi_high comes from misc.x).
+        uint live = thermal ? uint(b1.w) : 0u;
         float pre = omega;
         for (uint j = 0u; j < live; ++j) {
-            BandView bv = bands[m * i + j];
-            pre += bv.amp.x * cos(bv.g_theta0.w + t * dot(bv.g_theta0.xyz, px.p));
+            vec4 g_theta0 = band_field(m * i + j, BV_G_THETA0);
+            float amp = band_field(m * i + j, BV_AMP).x;
+            pre += amp * cos(g_theta0.w + t * dot(g_theta0.xyz, px.p));
         }
         float w = px.trans * alpha;
-        px.acc[0] += w * max(pre, 0.0);
+        px.acc[0] += thermal ? w * max(pre, 0.0) : 0.0;
         px.acc[1] += w * omega;
         px.acc[2] += w * misc.x;
         px.acc[3] += w * beta;
@@ -107,6 +111,7 @@ void main() {
     uvec2 range = ranges[tile];
     float near_m = cam[CAM_NEAR];
     uint m = pc.m;
+    bool thermal = pc.thermal != 0u;
 
     Pixel px[PIX];
     bool any_open = false;
@@ -134,10 +139,10 @@ void main() {
             cand[r] = 0u;
         }
         for (uint k = start; k < stop; ++k) {
-            uint i = sorted_prims[k];
-            vec4 a_o = views[i].a_opacity;
-            vec3 b0 = views[i].b0.xyz, b1 = views[i].b1.xyz, b2 = views[i].b2.xyz;
-            float q_cut = q_cut_of(views[i].misc.w);
+            uint i = sorted_prim(k);
+            vec4 a_o = view_field(i, PV_A_OPACITY);
+            vec3 b0 = view_field(i, PV_B0).xyz, b1 = view_field(i, PV_B1).xyz, b2 = view_field(i, PV_B2).xyz;
+            float q_cut = q_cut_of(view_field(i, PV_MISC).w);
             uint bit = 1u << (k - start);
             for (uint r = 0u; r < PIX; ++r) {
                 vec3 b, rr;
@@ -148,22 +153,22 @@ void main() {
             }
         }
         // Phase 2, one row at a time (constant indices: no indexed register access).
-        blend(px[0], cand[0], start, near_m, m);
-        blend(px[1], cand[1], start, near_m, m);
-        blend(px[2], cand[2], start, near_m, m);
-        blend(px[3], cand[3], start, near_m, m);
-        blend(px[4], cand[4], start, near_m, m);
-        blend(px[5], cand[5], start, near_m, m);
-        blend(px[6], cand[6], start, near_m, m);
-        blend(px[7], cand[7], start, near_m, m);
-        blend(px[8], cand[8], start, near_m, m);
-        blend(px[9], cand[9], start, near_m, m);
-        blend(px[10], cand[10], start, near_m, m);
-        blend(px[11], cand[11], start, near_m, m);
-        blend(px[12], cand[12], start, near_m, m);
-        blend(px[13], cand[13], start, near_m, m);
-        blend(px[14], cand[14], start, near_m, m);
-        blend(px[15], cand[15], start, near_m, m);
+        blend(px[0], cand[0], start, near_m, m, thermal);
+        blend(px[1], cand[1], start, near_m, m, thermal);
+        blend(px[2], cand[2], start, near_m, m, thermal);
+        blend(px[3], cand[3], start, near_m, m, thermal);
+        blend(px[4], cand[4], start, near_m, m, thermal);
+        blend(px[5], cand[5], start, near_m, m, thermal);
+        blend(px[6], cand[6], start, near_m, m, thermal);
+        blend(px[7], cand[7], start, near_m, m, thermal);
+        blend(px[8], cand[8], start, near_m, m, thermal);
+        blend(px[9], cand[9], start, near_m, m, thermal);
+        blend(px[10], cand[10], start, near_m, m, thermal);
+        blend(px[11], cand[11], start, near_m, m, thermal);
+        blend(px[12], cand[12], start, near_m, m, thermal);
+        blend(px[13], cand[13], start, near_m, m, thermal);
+        blend(px[14], cand[14], start, near_m, m, thermal);
+        blend(px[15], cand[15], start, near_m, m, thermal);
         any_open = false;
         for (uint r = 0u; r < PIX; ++r) {
             any_open = any_open || px[r].open;

@@ -375,15 +375,27 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         "  host reads per step         {:8.1} ({:.0} bytes; {:.1} submissions), Vulkan s3tir",
         r.host_reads_per_step, r.host_read_bytes_per_step, r.submissions_per_step
     );
-    println!("  GPU time per step, s3tir mode:");
+    println!("  GPU time (dispatches) per step:  s3tir mode             3dgs mode");
     for k in &r.kernels {
         println!(
-            "    {:<28} {:9.3} ms  {:5.1} %",
+            "    {:<26} {:8.3} ms ({:3.0}) {:5.1} %  {:8.3} ms ({:3.0})",
             k.kernel,
             k.ms_per_step,
-            100.0 * k.share
+            k.dispatches_per_step,
+            100.0 * k.share,
+            k.gaussian_ms_per_step,
+            k.gaussian_dispatches_per_step
         );
     }
+    let total = |f: fn(&bench::KernelShare) -> f64| r.kernels.iter().map(f).sum::<f64>();
+    println!(
+        "    {:<26} {:8.3} ms ({:3.0})          {:8.3} ms ({:3.0})",
+        "all kernels",
+        total(|k| k.ms_per_step),
+        total(|k| k.dispatches_per_step),
+        total(|k| k.gaussian_ms_per_step),
+        total(|k| k.gaussian_dispatches_per_step)
+    );
     Ok(())
 }
 

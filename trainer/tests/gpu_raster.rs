@@ -17,6 +17,10 @@
 //! opacity, β and every spectrum group; ≤ 3e-2 for means and quaternions, which the scenes'
 //! needle primitives (scale 1e-3, whitening entries ~1e3) make ill-conditioned in f32 — the CPU
 //! reference run in f32 is itself 1e-3…1e-2 away from f64 there (measured: 1.0e-3 / 7.4e-3).
+//! A view rendered for its G-buffers only (`Outputs::GBuffers`, the consistency partner) has a
+//! zero thermal plane and every other plane bit-identical to the full render, on the GPU and on
+//! the CPU; its backward pass (thermal upstream zero, no band phases evaluated) matches the CPU
+//! reference's full backward pass within the tolerances above.
 //! Does NOT test the RGB (SH colour) branch: it is not on the GPU yet.
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -25,10 +29,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use s3tir_trainer::camera::PinholeCamera;
 use s3tir_trainer::gpu::accumulate::AccumulateVariant;
-use s3tir_trainer::gpu::raster::GpuRasterizer;
+use s3tir_trainer::gpu::raster::{GpuRasterizer, Outputs};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
 use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives};
-use s3tir_trainer::render::{GBuffers, RenderSettings, render, render_backward};
+use s3tir_trainer::render::{
+    GBuffers, RenderSettings, prepare, render, render_backward, render_backward_prepared,
+    render_gbuffers,
+};
 
 fn lavapipe() -> GpuContext {
     lavapipe_with(false)
@@ -225,7 +232,7 @@ fn gpu_forward_matches_cpu_reference_on_random_scenes() {
             let cpu64 = render(&prims, &cam, &settings).unwrap();
             let cpu32 = render(&prims.cast::<f32>(), &cam, &settings).unwrap();
             let gpu = raster
-                .render(&ctx, &prims.cast::<f32>(), &cam, &settings)
+                .render(&ctx, &prims.cast::<f32>(), &cam, Outputs::All, &settings)
                 .unwrap();
             assert!(
                 cpu64.alpha.iter().any(|a| *a > 0.5),
@@ -266,6 +273,7 @@ fn gpu_forward_of_an_empty_view_is_zero() {
             &ctx,
             &prims.cast::<f32>(),
             &camera(32, 32),
+            Outputs::All,
             &RenderSettings::default(),
         )
         .unwrap();
@@ -273,6 +281,49 @@ fn gpu_forward_of_an_empty_view_is_zero() {
         out.alpha.iter().chain(&out.thermal).all(|v| *v == 0.0),
         "nothing visible: all planes zero"
     );
+    raster.destroy(&ctx);
+}
+
+#[test]
+fn gbuffers_only_render_is_the_full_render_without_its_thermal_plane() {
+    let ctx = lavapipe();
+    let raster = GpuRasterizer::new(&ctx, AccumulateVariant::best_for(ctx.capabilities())).unwrap();
+    for (seed, adapt) in [(11u64, false), (12, true)] {
+        let prims = random_scene(seed, 300, 4);
+        let prims = if adapt { adapted(prims) } else { prims }.cast::<f32>();
+        let cam = camera(96, 72);
+        let settings = RenderSettings {
+            near_m: 0.05,
+            cull: true,
+        };
+        let label = format!("scene {seed} (adapted {adapt})");
+        let full = raster
+            .render(&ctx, &prims, &cam, Outputs::All, &settings)
+            .unwrap();
+        let only = raster
+            .render(&ctx, &prims, &cam, Outputs::GBuffers, &settings)
+            .unwrap();
+        let cpu_full = render(&prims, &cam, &settings).unwrap();
+        let cpu_only = render_gbuffers(&prims, &cam, &settings).unwrap();
+        assert!(
+            full.thermal.iter().any(|v| *v != 0.0),
+            "{label}: the full render must have a thermal image"
+        );
+        for (who, a, b) in [("GPU", &full, &only), ("CPU", &cpu_full, &cpu_only)] {
+            assert!(
+                b.thermal.iter().all(|v| *v == 0.0),
+                "{label}, {who}: a G-buffers-only render must leave the thermal plane zero"
+            );
+            for ((name, x), (_, y)) in planes(a).into_iter().zip(planes(b)).skip(1) {
+                let differ = x.iter().zip(y.iter()).filter(|(p, q)| p != q).count();
+                assert_eq!(
+                    differ, 0,
+                    "{label}, {who}: {name} of the G-buffers-only render must equal the full \
+                     render's bit for bit ({differ} pixels differ)"
+                );
+            }
+        }
+    }
     raster.destroy(&ctx);
 }
 
@@ -352,11 +403,14 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
                 (150, 0, 37, 29),
                 (40, 24, 33, 21),
                 (120, 4, 48, 40),
+                (120, 4, 48, 40),
             ]
             .into_iter()
             .enumerate()
             {
-                // The last scene as capacity adaptation leaves it (dropped bands, frozen β).
+                // Scene 3 as capacity adaptation leaves it (dropped bands, frozen β); scene 4
+                // without thermal upstream (a consistency partner's backward pass: no band
+                // phases evaluated), against the reference's full pass.
                 let prims = random_scene(50 + seed as u64, n, bands);
                 let prims = if seed == 3 { adapted(prims) } else { prims };
                 let cam = camera(w, h);
@@ -364,13 +418,32 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
                     near_m: 0.05,
                     cull: true,
                 };
-                let up = random_upstream(seed as u64, w, h);
-                let want64 = render_backward(&prims, &cam, &settings, &up).unwrap();
+                let mut up = random_upstream(seed as u64, w, h);
+                if seed == 4 {
+                    up.thermal.iter_mut().for_each(|g| *g = 0.0);
+                }
+                let full_reference = |prims: &Primitives<f64>, up: &GBuffers<f64>| {
+                    let prep = prepare(prims, &cam, &settings).unwrap();
+                    assert!(prep.thermal, "prepare evaluates the thermal image");
+                    render_backward_prepared(prims, &prep, up)
+                };
+                let want64 = full_reference(&prims, &up);
                 let prims32 = prims.cast::<f32>();
                 let up32 = cast_buffers(&up);
                 let want32 = render_backward(&prims32, &cam, &settings, &up32)
                     .unwrap()
                     .cast::<f64>();
+                if seed == 4 {
+                    // The CPU's own shortcut (no band phases without thermal upstream) is exact.
+                    let skipped = render_backward(&prims, &cam, &settings, &up).unwrap();
+                    for ((name, a), (_, b)) in skipped.groups().iter().zip(want64.groups().iter()) {
+                        assert!(
+                            a.iter().zip(b.iter()).all(|(x, y)| x == y),
+                            "CPU backward without thermal upstream: {name} must equal the full \
+                             pass's exactly"
+                        );
+                    }
+                }
                 let got = raster
                     .render_backward(&ctx, &prims32, &cam, &settings, &up32)
                     .unwrap();

@@ -287,16 +287,22 @@ fn vulkan_resident_step_reads_once() {
 
 /// A run whose buffers would exceed the device's storage-buffer range is refused before the
 /// run folder is written, with an error naming the buffer, the budget and the limit (lavapipe:
-/// 128 MiB). The largest per-primitive buffer is the backward pass's scratch (15 + 5 · 4
+/// 128 MiB). The largest per-primitive buffer is the backward pass's scratch (16 + 5 · 4
 /// floats per primitive with 4 bands): the budget here makes it one primitive too large, and
-/// one primitive fewer passes the check.
+/// one primitive fewer passes the check. (The texel buffers, 7 texels per primitive against
+/// lavapipe's 2^27, allow far more.)
 #[test]
 fn vulkan_run_too_large_for_the_device_is_refused_up_front() {
     let (tmp, data_dir) = small_scene();
     let backend = VulkanBackend::new(&lavapipe(false), RenderSettings::default())
         .expect("lavapipe must be available");
     let limit = backend.context().report().max_storage_buffer_range_bytes;
-    let fits = (limit / (35 * 4)) as usize;
+    let fits = (limit / (36 * 4)) as usize;
+    let texel_limit = backend.context().report().max_texel_buffer_elements;
+    assert!(
+        7 * fits as u64 <= texel_limit,
+        "the storage limit must be the binding one here ({texel_limit} texels)"
+    );
     let mut c = config(&data_dir);
     c.bands = 4;
     let shape = |budget| RunShape {

@@ -24,7 +24,7 @@ use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation, Reco
 use super::error::GpuError;
 use super::loss::GpuViewLoss;
 use super::optimiser::{AdamStep, GpuOptimiser, KeyGate};
-use super::raster::{GpuRasterizer, KeptView, KeySizing, ParamSource};
+use super::raster::{GpuRasterizer, KeptView, KeySizing, Outputs, ParamSource};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
@@ -271,10 +271,11 @@ impl VulkanBackend {
             .ok_or_else(|| GpuError::InvalidInput {
                 reason: "thermal target not uploaded".to_owned(),
             })?;
-        // Views rendered now stay on the GPU for the losses and the backward passes.
+        // Views rendered now stay on the GPU for the losses and the backward passes. Only the
+        // partner's G-buffers enter the loss: it is rendered without its thermal image.
         let pair = step.pair;
-        let mut cams: Vec<&PinholeCamera> = vec![step.cam];
-        cams.extend(pair);
+        let mut cams = vec![(step.cam, Outputs::All)];
+        cams.extend(pair.map(|c| (c, Outputs::GBuffers)));
         raster.render_kept(ctx, prims, src, &cams, &self.settings, sizing)?;
         let zeros = &losses.zeros;
         raster.submit_with_views(ctx, prims, src, &cams, &self.settings, |rec, views| {
@@ -358,11 +359,23 @@ impl VulkanBackend {
             reason: "device losses unavailable".to_owned(),
         })?;
         let ctx = &self.ctx;
-        let mut grads =
-            raster.render_backward_device(ctx, prims, step.cam, &self.settings, &losses.up_i)?;
+        let mut grads = raster.render_backward_device(
+            ctx,
+            prims,
+            step.cam,
+            Outputs::All,
+            &self.settings,
+            &losses.up_i,
+        )?;
         if let Some(cam_j) = step.pair {
-            let g_j =
-                raster.render_backward_device(ctx, prims, cam_j, &self.settings, &losses.up_j)?;
+            let g_j = raster.render_backward_device(
+                ctx,
+                prims,
+                cam_j,
+                Outputs::GBuffers,
+                &self.settings,
+                &losses.up_j,
+            )?;
             for ((_, a), (_, b)) in grads.groups_mut().into_iter().zip(g_j.groups()) {
                 for (x, y) in a.iter_mut().zip(b) {
                     *x += *y;
@@ -463,12 +476,25 @@ impl VulkanBackend {
         // Losses, both backward passes and Adam in one submission.
         self.forward_losses(prims, src, losses_step, sizing, &|rec, views| {
             rec.compute_barrier();
-            let written_i =
-                raster.record_backward(rec, prims, &views[0], &losses.up_i, acc_i, grads_i)?;
+            let written_i = raster.record_backward(
+                rec,
+                prims,
+                &views[0],
+                Outputs::All,
+                &losses.up_i,
+                acc_i,
+                grads_i,
+            )?;
             let written_j = match views.get(1) {
-                Some(view_j) => {
-                    raster.record_backward(rec, prims, view_j, &losses.up_j, acc_j, grads_j)?
-                }
+                Some(view_j) => raster.record_backward(
+                    rec,
+                    prims,
+                    view_j,
+                    Outputs::GBuffers,
+                    &losses.up_j,
+                    acc_j,
+                    grads_j,
+                )?,
                 None => false,
             };
             opt.record_step(
@@ -543,18 +569,26 @@ impl Backend for VulkanBackend {
     /// within the device's storage-buffer range.
     fn check_run(&self, shape: &RunShape) -> Result<(), TrainerError> {
         let report = self.ctx.report();
-        let limit = report.max_storage_buffer_range_bytes;
         let npix = shape.width * shape.height;
-        for (buffer, required) in super::raster::run_buffers(shape.budget, shape.bands, npix) {
-            if required > limit {
+        let storage = super::raster::run_buffers(shape.budget, shape.bands, npix).map(|(b, r)| {
+            let limit = report.max_storage_buffer_range_bytes;
+            (b, r, "bytes", "maxStorageBufferRange", limit)
+        });
+        let texel = super::raster::run_texel_buffers(shape.budget, shape.bands).map(|(b, r)| {
+            let limit = report.max_texel_buffer_elements;
+            (b, r, "texels", "maxTexelBufferElements", limit)
+        });
+        for (buffer, required, unit, limit, actual) in storage.into_iter().chain(texel) {
+            if required > actual {
                 return Err(GpuError::BudgetTooLarge {
                     device: report.name.clone(),
                     buffer,
                     budget: shape.budget,
                     bands: shape.bands,
-                    limit: "maxStorageBufferRange",
+                    limit,
+                    unit,
                     required,
-                    actual: limit,
+                    actual,
                 }
                 .into());
             }
@@ -570,7 +604,19 @@ impl Backend for VulkanBackend {
         let _span = tracing::trace_span!("vulkan_render").entered();
         Self::check_no_colour(prims)?;
         self.raster()?
-            .render(&self.ctx, prims, cam, &self.settings)
+            .render(&self.ctx, prims, cam, Outputs::All, &self.settings)
+            .map_err(|source| TrainerError::Gpu { source })
+    }
+
+    fn render_gbuffers(
+        &mut self,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+    ) -> Result<GBuffers<f32>, TrainerError> {
+        let _span = tracing::trace_span!("vulkan_render_gbuffers").entered();
+        Self::check_no_colour(prims)?;
+        self.raster()?
+            .render(&self.ctx, prims, cam, Outputs::GBuffers, &self.settings)
             .map_err(|source| TrainerError::Gpu { source })
     }
 

@@ -46,13 +46,20 @@ impl Default for BenchOptions {
     }
 }
 
-/// GPU time of one kernel per training step.
+/// GPU time of one kernel per training step, in both modes.
 #[derive(Debug, Clone, Serialize)]
 pub struct KernelShare {
     pub kernel: String,
+    /// s3tir mode.
     pub ms_per_step: f64,
-    /// Fraction of all kernels' GPU time.
+    /// Fraction of all kernels' GPU time, s3tir mode.
     pub share: f64,
+    /// 3dgs mode (0 when the kernel does not run in that mode).
+    pub gaussian_ms_per_step: f64,
+    /// Dispatches per step, s3tir mode and 3dgs mode. On lavapipe every dispatch costs a fixed
+    /// ~0.05–0.1 ms (its worker threads wake, run and join) however little work it holds.
+    pub dispatches_per_step: f64,
+    pub gaussian_dispatches_per_step: f64,
 }
 
 /// The benchmark's figures (`--json` prints this object).
@@ -83,7 +90,7 @@ pub struct BenchReport {
     pub vulkan_speedup_over_cpu: f64,
     /// `gaussian_steps_per_s / s3tir_steps_per_s`: cost of the full primitive (goal ≤ 1.5).
     pub s3tir_cost_over_gaussian: f64,
-    /// Per-kernel GPU time in s3tir mode, largest first.
+    /// Per-kernel GPU time in s3tir and 3dgs mode, largest (in s3tir mode) first.
     pub kernels: Vec<KernelShare>,
     pub peak_gpu_bytes: u64,
     /// Vulkan s3tir steps: host reads of GPU data per step (each waits for the GPU), their
@@ -330,36 +337,38 @@ fn run_in(
     drop(gaussian.backend);
     drop(s3tir.backend);
 
-    // Timestamps add work of their own: time the kernels in a separate pass.
-    progress("Vulkan backend, s3tir mode: per-kernel timestamps");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let mut profiled = Timed::start(
-        &data_dir,
-        &root.join("vk-prof"),
-        Mode::S3tir,
-        opts,
-        vk,
-        &mut |b: &mut VulkanBackend| {
-            b.set_profiling(true);
-            let _ = b.take_timings();
-        },
-        &vulkan_traffic,
-    )?;
-    profiled.round(opts.steps)?;
-    let vk = profiled.finish(&vulkan_traffic)?.backend;
-    let mut per_kernel: BTreeMap<String, f64> = BTreeMap::new();
-    for t in vk.take_timings() {
-        *per_kernel.entry(t.kernel).or_default() += t.duration_ns;
-    }
-    let total_ns: f64 = per_kernel.values().sum();
-    let mut kernels: Vec<KernelShare> = per_kernel
-        .into_iter()
-        .map(|(kernel, ns)| KernelShare {
-            kernel,
-            ms_per_step: ns / 1e6 / opts.steps as f64,
-            share: if total_ns > 0.0 { ns / total_ns } else { 0.0 },
+    // Timestamps add work of their own: time the kernels in separate passes.
+    let (s3tir_kernels, vk) = profile(&data_dir, root, Mode::S3tir, opts, settings, progress)?;
+    let (gaussian_kernels, _) = profile(&data_dir, root, Mode::Gaussian, opts, settings, progress)?;
+    let total_ns: f64 = s3tir_kernels.values().map(|k| k.0).sum();
+    let steps = opts.steps as f64;
+    let mut kernels: Vec<KernelShare> = s3tir_kernels
+        .iter()
+        .map(|(kernel, &(ns, count))| {
+            let (g_ns, g_count) = gaussian_kernels.get(kernel).copied().unwrap_or((0.0, 0));
+            KernelShare {
+                kernel: kernel.clone(),
+                ms_per_step: ns / 1e6 / steps,
+                share: if total_ns > 0.0 { ns / total_ns } else { 0.0 },
+                gaussian_ms_per_step: g_ns / 1e6 / steps,
+                dispatches_per_step: count as f64 / steps,
+                gaussian_dispatches_per_step: g_count as f64 / steps,
+            }
         })
         .collect();
+    kernels.extend(
+        gaussian_kernels
+            .iter()
+            .filter(|(k, _)| !s3tir_kernels.contains_key(*k))
+            .map(|(kernel, &(ns, count))| KernelShare {
+                kernel: kernel.clone(),
+                ms_per_step: 0.0,
+                share: 0.0,
+                gaussian_ms_per_step: ns / 1e6 / steps,
+                dispatches_per_step: 0.0,
+                gaussian_dispatches_per_step: count as f64 / steps,
+            }),
+    );
     kernels.sort_by(|a, b| b.ms_per_step.total_cmp(&a.ms_per_step));
     let peak_gpu_bytes = vk.context().peak_allocated_bytes();
     let per_step = |x: u64| x as f64 / opts.steps as f64;
@@ -384,4 +393,49 @@ fn run_in(
         host_read_bytes_per_step: per_step(s3tir.traffic.1),
         submissions_per_step: per_step(s3tir.traffic.2),
     })
+}
+
+/// Per kernel name: GPU time (ns) and dispatches.
+type KernelTimes = BTreeMap<String, (f64, u64)>;
+
+/// GPU time per kernel (ns) and its dispatches, summed over `opts.steps` steps of a Vulkan run
+/// in `mode`, timed with timestamp queries; returns the backend too (its peak memory is
+/// reported).
+fn profile(
+    data_dir: &Path,
+    root: &Path,
+    mode: Mode,
+    opts: &BenchOptions,
+    settings: RenderSettings,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(KernelTimes, VulkanBackend), BenchError> {
+    let name = mode.to_string();
+    progress(&format!(
+        "Vulkan backend, {name} mode: per-kernel timestamps"
+    ));
+    let vk =
+        VulkanBackend::new(&opts.device, settings).map_err(|source| BenchError::Gpu { source })?;
+    let mut profiled = Timed::start(
+        data_dir,
+        &root.join(format!("vk-prof-{name}")),
+        mode,
+        opts,
+        vk,
+        &mut |b: &mut VulkanBackend| {
+            b.set_profiling(true);
+            let _ = b.take_timings();
+        },
+        &|b: &VulkanBackend| b.context().traffic(),
+    )?;
+    profiled.round(opts.steps)?;
+    let vk = profiled
+        .finish(&|b: &VulkanBackend| b.context().traffic())?
+        .backend;
+    let mut per_kernel = KernelTimes::new();
+    for t in vk.take_timings() {
+        let k = per_kernel.entry(t.kernel).or_default();
+        k.0 += t.duration_ns;
+        k.1 += 1;
+    }
+    Ok((per_kernel, vk))
 }

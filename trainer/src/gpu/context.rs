@@ -56,6 +56,45 @@ pub enum MemoryLocation {
     DeviceOnly,
 }
 
+/// How a kernel binding is declared (set 0, bindings 0.. in order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Binding {
+    /// A `buffer` block: a storage buffer.
+    Storage,
+    /// A `samplerBuffer` / `usamplerBuffer` read with `texelFetch`: a uniform texel buffer
+    /// viewing the whole buffer in `TexelFormat`. Read-only data that a kernel fetches at
+    /// scattered (per-invocation) positions: software Vulkan (lavapipe's gallivm) fetches
+    /// texels with vector gathers, while it loads storage buffers one invocation at a time.
+    Texel(TexelFormat),
+}
+
+/// Formats of texel-buffer bindings (both must be supported for uniform texel buffers by every
+/// Vulkan device).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TexelFormat {
+    /// `vec4` texels (`samplerBuffer`).
+    Rgba32Float,
+    /// `uint` texels (`usamplerBuffer`).
+    R32Uint,
+}
+
+impl TexelFormat {
+    fn vk(self) -> vk::Format {
+        match self {
+            Self::Rgba32Float => vk::Format::R32G32B32A32_SFLOAT,
+            Self::R32Uint => vk::Format::R32_UINT,
+        }
+    }
+
+    /// Bytes per texel.
+    pub fn bytes(self) -> u64 {
+        match self {
+            Self::Rgba32Float => 16,
+            Self::R32Uint => 4,
+        }
+    }
+}
+
 /// A storage buffer and its memory. Release it with [`GpuContext::destroy_buffer`].
 #[derive(Debug)]
 pub struct GpuBuffer {
@@ -74,15 +113,15 @@ impl GpuBuffer {
     }
 }
 
-/// A compute pipeline with its interface: `storage_buffers` bindings 0.. in set 0 and a push
-/// constant block of `push_constant_bytes`. Release with [`GpuContext::destroy_kernel`].
+/// A compute pipeline with its interface: `bindings` 0.. in set 0 and a push constant block of
+/// `push_constant_bytes`. Release with [`GpuContext::destroy_kernel`].
 #[derive(Debug)]
 pub struct ComputeKernel {
     name: String,
     pipeline: vk::Pipeline,
     layout: vk::PipelineLayout,
     set_layout: vk::DescriptorSetLayout,
-    storage_buffers: u32,
+    bindings: Vec<Binding>,
     push_constant_bytes: u32,
 }
 
@@ -321,11 +360,13 @@ impl GpuContext {
                 actual: limit,
             });
         }
-        let size = size_bytes.max(4);
+        // At least one texel of every texel format (see `Recorder::texel_view`).
+        let size = size_bytes.max(16);
         let info = vk::BufferCreateInfo::default()
             .size(size)
             .usage(
                 vk::BufferUsageFlags::STORAGE_BUFFER
+                    | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
                     | vk::BufferUsageFlags::TRANSFER_SRC
                     | vk::BufferUsageFlags::TRANSFER_DST,
             )
@@ -480,16 +521,17 @@ impl GpuContext {
         self.allocated_bytes.fetch_sub(size, Ordering::Relaxed);
     }
 
-    /// Creates a compute pipeline from SPIR-V words with `storage_buffers` bindings in set 0
-    /// and a push-constant block of `push_constant_bytes`.
+    /// Creates a compute pipeline from SPIR-V words with `bindings` 0.. in set 0 and a
+    /// push-constant block of `push_constant_bytes`.
     pub fn create_kernel(
         &self,
         name: &str,
         spirv: &[u32],
-        storage_buffers: u32,
+        bindings: &[Binding],
         push_constant_bytes: u32,
     ) -> Result<ComputeKernel, GpuError> {
         let limit = self.report.max_per_stage_storage_buffers;
+        let storage_buffers = bindings.iter().filter(|b| **b == Binding::Storage).count() as u32;
         if storage_buffers > limit {
             return Err(GpuError::LimitTooSmall {
                 device: self.report.name.clone(),
@@ -499,11 +541,13 @@ impl GpuContext {
             });
         }
         let d = &self.device;
-        let bindings: Vec<_> = (0..storage_buffers)
-            .map(|b| {
+        let layout_bindings: Vec<_> = bindings
+            .iter()
+            .enumerate()
+            .map(|(b, kind)| {
                 vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .binding(b as u32)
+                    .descriptor_type(descriptor_type(*kind))
                     .descriptor_count(1)
                     .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })
@@ -513,7 +557,7 @@ impl GpuContext {
         unsafe {
             let set_layout = d
                 .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings),
                     None,
                 )
                 .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
@@ -568,7 +612,7 @@ impl GpuContext {
                     pipeline,
                     layout,
                     set_layout,
-                    storage_buffers,
+                    bindings: bindings.to_vec(),
                     push_constant_bytes,
                 }),
                 Err(result) => {
@@ -617,9 +661,16 @@ impl GpuContext {
     {
         self.submissions.fetch_add(1, Ordering::Relaxed);
         let d = &self.device;
-        let pool_sizes = [vk::DescriptorPoolSize::default()
-            .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(4096)];
+        let pool_sizes = [
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(4096),
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::UNIFORM_TEXEL_BUFFER)
+                .descriptor_count(1024),
+        ];
+        // Texel-buffer views of this submission's dispatches, released after it completed.
+        let views = std::cell::RefCell::new(Vec::new());
         // SAFETY (whole block): valid device; the pools and command buffer are released before
         // returning, after the fence wait (or on the error paths without a submission).
         unsafe {
@@ -651,6 +702,9 @@ impl GpuContext {
                 None
             };
             let release_pools = || {
+                for v in views.borrow_mut().drain(..) {
+                    d.destroy_buffer_view(v, None);
+                }
                 d.destroy_descriptor_pool(descriptor_pool, None);
                 if let Some(q) = query_pool {
                     d.destroy_query_pool(q, None);
@@ -685,6 +739,7 @@ impl GpuContext {
                     ctx: self,
                     cmd,
                     descriptor_pool,
+                    views: &views,
                     query_pool,
                     timed: Vec::new(),
                 };
@@ -751,6 +806,8 @@ pub struct Recorder<'a> {
     ctx: &'a GpuContext,
     cmd: vk::CommandBuffer,
     descriptor_pool: vk::DescriptorPool,
+    /// Texel-buffer views created for this submission (released with its descriptor pool).
+    views: &'a std::cell::RefCell<Vec<vk::BufferView>>,
     /// Timestamp queries when profiling: two per timed dispatch.
     query_pool: Option<vk::QueryPool>,
     /// Kernel names of the timed dispatches, in order.
@@ -774,8 +831,9 @@ impl std::fmt::Debug for Recorder<'_> {
 }
 
 impl Recorder<'_> {
-    /// Binds `buffers` to bindings 0.. of `kernel`, sets its push constants and dispatches
-    /// `groups` workgroups. Checks the interface (buffer count, push size, group limit).
+    /// Binds `buffers` to bindings 0.. of `kernel` (a texel binding views the whole buffer),
+    /// sets its push constants and dispatches `groups` workgroups. Checks the interface (buffer
+    /// count, push size, texel count, group limit).
     pub fn dispatch(
         &mut self,
         kernel: &ComputeKernel,
@@ -787,11 +845,11 @@ impl Recorder<'_> {
             name: kernel.name.clone(),
             reason,
         };
-        if buffers.len() != kernel.storage_buffers as usize {
+        if buffers.len() != kernel.bindings.len() {
             return Err(mismatch(format!(
-                "{} buffers bound, the kernel has {} storage bindings",
+                "{} buffers bound, the kernel has {} bindings",
                 buffers.len(),
-                kernel.storage_buffers
+                kernel.bindings.len()
             )));
         }
         if push_constants.len() != kernel.push_constant_bytes as usize {
@@ -831,15 +889,27 @@ impl Recorder<'_> {
                         .range(vk::WHOLE_SIZE)]
                 })
                 .collect();
+            let mut texel_views = Vec::with_capacity(buffers.len());
+            for (b, kind) in buffers.iter().zip(&kernel.bindings) {
+                texel_views.push(match kind {
+                    Binding::Storage => [vk::BufferView::null()],
+                    Binding::Texel(format) => [self.texel_view(b, *format)?],
+                });
+            }
             let writes: Vec<_> = infos
                 .iter()
+                .zip(&texel_views)
+                .zip(&kernel.bindings)
                 .enumerate()
-                .map(|(binding, info)| {
-                    vk::WriteDescriptorSet::default()
+                .map(|(binding, ((info, view), kind))| {
+                    let write = vk::WriteDescriptorSet::default()
                         .dst_set(set)
                         .dst_binding(binding as u32)
-                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                        .buffer_info(info)
+                        .descriptor_type(descriptor_type(*kind));
+                    match kind {
+                        Binding::Storage => write.buffer_info(info),
+                        Binding::Texel(_) => write.texel_buffer_view(view),
+                    }
                 })
                 .collect();
             d.update_descriptor_sets(&writes, &[]);
@@ -883,6 +953,37 @@ impl Recorder<'_> {
             }
         }
         Ok(())
+    }
+
+    /// A view of the whole of `buffer` as texels of `format`, released with the submission.
+    fn texel_view(
+        &self,
+        buffer: &GpuBuffer,
+        format: TexelFormat,
+    ) -> Result<vk::BufferView, GpuError> {
+        // Buffers hold at least 16 bytes (create_buffer): at least one texel.
+        let texels = buffer.size_bytes.max(16) / format.bytes();
+        let limit = self.ctx.report.max_texel_buffer_elements;
+        if texels > limit {
+            return Err(GpuError::LimitTooSmall {
+                device: self.ctx.report.name.clone(),
+                limit: "maxTexelBufferElements",
+                required: texels,
+                actual: limit,
+            });
+        }
+        let info = vk::BufferViewCreateInfo::default()
+            .buffer(buffer.raw)
+            .format(format.vk())
+            .offset(0)
+            .range(texels * format.bytes());
+        // SAFETY: a buffer of this device created with UNIFORM_TEXEL_BUFFER usage; the range
+        // lies inside it and is within the device's texel limit; the view is destroyed after
+        // the submission completed.
+        let view = unsafe { self.ctx.device.create_buffer_view(&info, None) }
+            .map_err(vk_err("vkCreateBufferView"))?;
+        self.views.borrow_mut().push(view);
+        Ok(view)
     }
 
     /// Sets every byte of `buffer` to zero (a transfer command), then makes that visible to
@@ -998,6 +1099,13 @@ impl Recorder<'_> {
                 &[],
             );
         }
+    }
+}
+
+fn descriptor_type(binding: Binding) -> vk::DescriptorType {
+    match binding {
+        Binding::Storage => vk::DescriptorType::STORAGE_BUFFER,
+        Binding::Texel(_) => vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
     }
 }
 

@@ -188,6 +188,7 @@ impl VulkanInstance {
                 max_storage_buffer_range_bytes: u64::from(limits.max_storage_buffer_range),
                 max_compute_shared_memory_bytes: limits.max_compute_shared_memory_size,
                 max_per_stage_storage_buffers: limits.max_per_stage_descriptor_storage_buffers,
+                max_texel_buffer_elements: u64::from(limits.max_texel_buffer_elements),
                 max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
                 max_compute_workgroup_count_x: limits.max_compute_work_group_count[0],
                 subgroup_size: subgroup.subgroup_size,
@@ -255,6 +256,9 @@ pub struct DeviceReport {
     pub max_compute_shared_memory_bytes: u32,
     /// Storage buffers one kernel may bind (Vulkan guarantees only 4).
     pub max_per_stage_storage_buffers: u32,
+    /// Texels one texel-buffer view may address (Vulkan guarantees 65 536; lavapipe, Jetson and
+    /// the Raspberry Pi 5 offer 2^27 or more): the rasterisers read primitive data through them.
+    pub max_texel_buffer_elements: u64,
     pub max_compute_workgroup_invocations: u32,
     pub max_compute_workgroup_count_x: u32,
     pub subgroup_size: u32,

@@ -46,7 +46,7 @@ pub enum GpuError {
     /// training starts).
     #[error(
         "Vulkan device {device:?}: a budget of {budget} primitives with {bands} bands needs \
-         buffer {buffer} of {required} bytes, above its {limit} of {actual}: lower --budget or \
+         buffer {buffer} of {required} {unit}, above its {limit} of {actual}: lower --budget or \
          --bands, or train on a device with a larger limit"
     )]
     BudgetTooLarge {
@@ -55,6 +55,8 @@ pub enum GpuError {
         budget: usize,
         bands: usize,
         limit: &'static str,
+        /// What `required` and `actual` count (`bytes`, `texels`).
+        unit: &'static str,
         required: u64,
         actual: u64,
     },

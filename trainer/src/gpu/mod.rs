@@ -39,8 +39,8 @@ pub mod shaders;
 pub mod sort;
 
 pub use context::{
-    Capabilities, ComputeKernel, ContextOptions, DeviceChoice, GpuBuffer, GpuContext, KernelTiming,
-    MemoryLocation, Recorder,
+    Binding, Capabilities, ComputeKernel, ContextOptions, DeviceChoice, GpuBuffer, GpuContext,
+    KernelTiming, MemoryLocation, Recorder, TexelFormat,
 };
 pub use devices::{DeviceReport, VulkanInstance};
 pub use error::GpuError;

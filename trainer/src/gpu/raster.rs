@@ -27,8 +27,18 @@
 //! in the forward pass, per group of 4 rows in the backward pass). SIMD implementations run
 //! both sides of every branch (lavapipe's gallivm never skips an `if`), so only a loop's trip
 //! count saves work; the screen makes the same decisions as the single loop did. The backward
-//! pass adds a sample's subgroup sums with one atomic per `gl_SubgroupSize` fields. Measured in
+//! pass adds a sample's subgroup sums with one atomic per `gl_SubgroupSize` fields. Both read
+//! the primitive views, band views and sorted lists through texel buffers (`texelFetch`): gallivm
+//! fetches texels with vector gathers but loads storage buffers one invocation at a time, with
+//! a branch per invocation and component, and those loads were most of the rasterisers' time
+//! (the bound: `maxTexelBufferElements`, checked up front with the storage limits). Measured in
 //! `s3tir-train bench` (per-kernel times).
+//!
+//! [`Outputs::GBuffers`] renders a view without its thermal image (no band phases), and its
+//! backward pass takes no thermal upstream: the consistency partner of a training step needs
+//! only its G-buffers, and the bands' gradient through Ψ_high is one per-primitive sum
+//! (`raster_backward_finish` gives band j `sign(ω_j)` of it), so the partner costs about what a
+//! 3DGS view does.
 //!
 //! Not here yet: the RGB (SH colour) branch.
 
@@ -85,7 +95,31 @@ fn grown(need: usize) -> usize {
 /// Floats of per-primitive view-space gradient sums for `bands` bands (`acc_fields` in
 /// raster_common.glsl).
 fn acc_fields(bands: usize) -> usize {
-    15 + 5 * bands
+    16 + 5 * bands
+}
+
+/// What a render of a view computes, and what its backward pass takes upstream gradient for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outputs {
+    /// The thermal image and every G-buffer.
+    All,
+    /// The G-buffers only (Ψ_low, Ψ_high, Ψ_β, depth, alpha): the thermal plane is zero and no
+    /// band phase is evaluated; the backward pass takes the thermal upstream as zero, so the
+    /// bands get gradient through Ψ_high only. What a view needs when only its G-buffers enter
+    /// the loss (the consistency partner): its G-buffers and, given a zero thermal upstream, its
+    /// gradients are exactly those of [`Outputs::All`], without the band cosines.
+    GBuffers,
+}
+
+impl Outputs {
+    /// Whether a view rendered with `self` serves a request for `wanted`.
+    fn serves(self, wanted: Outputs) -> bool {
+        self == Outputs::All || wanted == Outputs::GBuffers
+    }
+
+    fn thermal_flag(self) -> u32 {
+        u32::from(self == Outputs::All)
+    }
 }
 
 /// Bytes of one `BandView` (raster_common.glsl).
@@ -150,6 +184,17 @@ pub fn run_buffers(budget: usize, bands: usize, npix: usize) -> [(&'static str, 
     ]
 }
 
+/// The per-primitive buffers the rasterisers read as texel buffers (see raster_common.glsl), as
+/// (name, texels) for a run with `budget` primitives of `bands` bands: checked against the
+/// device's `maxTexelBufferElements` before training (the sorted lists are checked when bound).
+pub fn run_texel_buffers(budget: usize, bands: usize) -> [(&'static str, u64); 2] {
+    let n = budget as u64;
+    [
+        ("raster.views", n * PRIM_VIEW_BYTES / 16),
+        ("raster.bands", n * bands as u64 * BAND_VIEW_BYTES / 16),
+    ]
+}
+
 /// How [`GpuRasterizer::render_kept`] sizes a view's key list (one key per primitive and tile
 /// it covers), whose length only the GPU knows after binning.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -183,6 +228,8 @@ struct BinnedView {
     lists: Option<(usize, usize)>,
     /// Output of `raster_forward` ([`FORWARD_PLANES`] planes), once rendered.
     planes: Option<usize>,
+    /// What `raster_forward` computed.
+    outputs: Outputs,
     tiles: [usize; 2],
     /// What was binned: the camera block, the parameters and the live band counts (the cache
     /// key of kept views).
@@ -262,6 +309,7 @@ impl<'a> Transient<'a> {
     fn new(
         ctx: &'a GpuContext,
         tiles: [usize; 2],
+        outputs: Outputs,
         camera_block: [f32; 32],
         param_key: ParamKey,
         band_count: Vec<u32>,
@@ -279,6 +327,7 @@ impl<'a> Transient<'a> {
                 keys: None,
                 lists: None,
                 planes: None,
+                outputs,
                 tiles,
                 camera_block,
                 param_key,
@@ -476,6 +525,7 @@ impl GpuRasterizer {
         prims: &Primitives<f32>,
         src: ParamSource<'b>,
         cam: &PinholeCamera,
+        outputs: Outputs,
         settings: &RenderSettings,
     ) -> Result<AllocatedView<'a, 'b>, GpuError> {
         let invalid = |reason: String| GpuError::InvalidInput { reason };
@@ -508,6 +558,7 @@ impl GpuRasterizer {
         let mut out = Transient::new(
             ctx,
             [tiles_x, tiles_y],
+            outputs,
             camera_block,
             ParamKey::of(prims, src),
             band_count,
@@ -567,13 +618,14 @@ impl GpuRasterizer {
     /// and `raster_forward` for every view in a second submission. The planes stay on the GPU.
     /// With [`KeySizing::Exact`] the host reads the key totals of all views between the two (one
     /// read) and sizes the key lists exactly; with [`KeySizing::Capacity`] it reads nothing and
-    /// every list has room for that many keys (see [`KeySizing`]).
+    /// every list has room for that many keys (see [`KeySizing`]). Each camera comes with what
+    /// its render computes.
     fn bin_and_render_views<'a>(
         &self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
-        cams: &[&PinholeCamera],
+        cams: &[(&PinholeCamera, Outputs)],
         settings: &RenderSettings,
         sizing: KeySizing,
     ) -> Result<Vec<Transient<'a>>, GpuError> {
@@ -581,8 +633,8 @@ impl GpuRasterizer {
         let mut outs = Vec::with_capacity(cams.len());
         let mut copies = Vec::with_capacity(cams.len());
         let mut counts = Vec::with_capacity(cams.len());
-        for cam in cams {
-            let a = self.alloc_view(ctx, prims, src, cam, settings)?;
+        for &(cam, outputs) in cams {
+            let a = self.alloc_view(ctx, prims, src, cam, outputs, settings)?;
             outs.push(a.view);
             copies.push(a.resident_copy);
             counts.push(a.counts);
@@ -673,7 +725,7 @@ impl GpuRasterizer {
                 MemoryLocation::DeviceOnly,
             )?);
             let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
-            let npix = cams[v].width * cams[v].height;
+            let npix = cams[v].0.width * cams[v].0.height;
             let planes = binned.keep(ctx.create_buffer(
                 "raster.planes",
                 (FORWARD_PLANES * npix * 4) as u64,
@@ -739,9 +791,10 @@ impl GpuRasterizer {
                     &push_u32s(&[
                         n as u32,
                         prims.bands as u32,
-                        cams[v].width as u32,
-                        cams[v].height as u32,
+                        cams[v].0.width as u32,
+                        cams[v].0.height as u32,
                         tiles_x as u32,
+                        b.outputs.thermal_flag(),
                     ]),
                     [2 * tiles_x as u32, tiles_y as u32, 1],
                 )?;
@@ -761,11 +814,19 @@ impl GpuRasterizer {
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
         cam: &PinholeCamera,
+        outputs: Outputs,
         settings: &RenderSettings,
     ) -> Result<Transient<'a>, GpuError> {
-        self.bin_and_render_views(ctx, prims, src, &[cam], settings, KeySizing::Exact)?
-            .pop()
-            .ok_or_else(|| poisoned("rendered view"))
+        self.bin_and_render_views(
+            ctx,
+            prims,
+            src,
+            &[(cam, outputs)],
+            settings,
+            KeySizing::Exact,
+        )?
+        .pop()
+        .ok_or_else(|| poisoned("rendered view"))
     }
 
     /// Keeps a rendered view for the backward pass of the same view and parameters.
@@ -780,15 +841,18 @@ impl GpuRasterizer {
         Ok(())
     }
 
-    /// Renders the thermal image and G-buffers (no RGB planes) of `prims` seen by `cam`.
+    /// Renders the thermal image and G-buffers (no RGB planes) of `prims` seen by `cam`; with
+    /// [`Outputs::GBuffers`] the thermal plane is zero.
     pub fn render(
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
+        outputs: Outputs,
         settings: &RenderSettings,
     ) -> Result<GBuffers<f32>, GpuError> {
-        let rendered = self.bin_and_render(ctx, prims, ParamSource::Host, cam, settings)?;
+        let rendered =
+            self.bin_and_render(ctx, prims, ParamSource::Host, cam, outputs, settings)?;
         let npix = cam.width * cam.height;
         let mut out = GBuffers::zeros(cam.width, cam.height, false);
         let view = rendered.view()?;
@@ -821,7 +885,7 @@ impl GpuRasterizer {
         ctx: &GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
-        cams: &[&PinholeCamera],
+        cams: &[(&PinholeCamera, Outputs)],
         settings: &RenderSettings,
         sizing: KeySizing,
     ) -> Result<(), GpuError> {
@@ -842,14 +906,14 @@ impl GpuRasterizer {
     }
 
     /// Submits `record` with the GPU buffers of kept rendered views (one per camera of `cams`,
-    /// rendered from `prims` by [`GpuRasterizer::render`] or [`GpuRasterizer::render_kept`]);
-    /// a view that is not kept is an error.
+    /// rendered from `prims` with at least those outputs by [`GpuRasterizer::render`] or
+    /// [`GpuRasterizer::render_kept`]); a view that is not kept is an error.
     pub fn submit_with_views<F>(
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
-        cams: &[&PinholeCamera],
+        cams: &[(&PinholeCamera, Outputs)],
         settings: &RenderSettings,
         record: F,
     ) -> Result<(), GpuError>
@@ -859,11 +923,11 @@ impl GpuRasterizer {
         let key_params = ParamKey::of(prims, src);
         let kept = lock(&self.kept)?;
         let mut views = Vec::with_capacity(cams.len());
-        for cam in cams {
+        for &(cam, outputs) in cams {
             let key_cam = camera_block(cam, settings);
             let v = kept
                 .iter()
-                .find(|v| v.is_view_of(&key_cam, &key_params, prims))
+                .find(|v| v.outputs.serves(outputs) && v.is_view_of(&key_cam, &key_params, prims))
                 .ok_or_else(|| GpuError::InvalidInput {
                     reason: "submit_with_views: a view was not rendered from these parameters"
                         .to_owned(),
@@ -918,19 +982,27 @@ impl GpuRasterizer {
             }
             dst.copy_from_slice(src);
         }
+        // Without thermal upstream the band phases need not be evaluated (same gradients).
+        let outputs = if upstream.thermal.iter().all(|&g| g == 0.0) {
+            Outputs::GBuffers
+        } else {
+            Outputs::All
+        };
         let up_buf = ctx.upload("raster.upstream", &up)?;
-        let result = self.render_backward_device(ctx, prims, cam, settings, &up_buf);
+        let result = self.render_backward_device(ctx, prims, cam, outputs, settings, &up_buf);
         ctx.destroy_buffer(up_buf);
         result
     }
 
     /// [`GpuRasterizer::render_backward`] with the upstream gradient planes already on the GPU
-    /// (6 planes of `cam.width × cam.height` floats, the order of [`PLANES`]).
+    /// (6 planes of `cam.width × cam.height` floats, the order of [`PLANES`]); with
+    /// [`Outputs::GBuffers`] the thermal plane of `up_buf` is taken as zero.
     pub fn render_backward_device(
         &self,
         ctx: &GpuContext,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
+        outputs: Outputs,
         settings: &RenderSettings,
         up_buf: &GpuBuffer,
     ) -> Result<Primitives<f32>, GpuError> {
@@ -942,7 +1014,16 @@ impl GpuRasterizer {
             MemoryLocation::Readback,
         )?;
         let result = self
-            .backward_into(ctx, prims, ParamSource::Host, cam, settings, up_buf, &out)
+            .backward_into(
+                ctx,
+                prims,
+                ParamSource::Host,
+                cam,
+                outputs,
+                settings,
+                up_buf,
+                &out,
+            )
             .and_then(|written| {
                 if written {
                     ctx.read::<f32>(&out, param_count)
@@ -978,7 +1059,8 @@ impl GpuRasterizer {
     /// The backward pass of `cam` with the upstream planes in `up_buf`, writing the parameter
     /// gradients into `out` on the GPU (the parameter-block layout, [`parameter_count`] floats;
     /// nothing is read back). Returns `false` when no primitive covers the view: `out` is then
-    /// not written and the caller treats the gradient as zero.
+    /// not written and the caller treats the gradient as zero. With [`Outputs::GBuffers`] the
+    /// thermal upstream is taken as zero (see [`Outputs`]).
     #[allow(clippy::too_many_arguments)]
     pub fn backward_into(
         &self,
@@ -986,6 +1068,7 @@ impl GpuRasterizer {
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
         cam: &PinholeCamera,
+        outputs: Outputs,
         settings: &RenderSettings,
         up_buf: &GpuBuffer,
         out: &GpuBuffer,
@@ -1014,13 +1097,13 @@ impl GpuRasterizer {
         let mut kept = lock(&self.kept)?;
         let position = kept
             .iter()
-            .position(|v| v.is_view_of(&key_cam, &key_params, prims));
+            .position(|v| v.outputs.serves(outputs) && v.is_view_of(&key_cam, &key_params, prims));
         let mut fresh = None;
         let view: &mut BinnedView = match position {
             Some(at) => &mut kept[at],
             None => {
                 drop(kept);
-                fresh = Some(self.bin_and_render(ctx, prims, src, cam, settings)?);
+                fresh = Some(self.bin_and_render(ctx, prims, src, cam, outputs, settings)?);
                 kept = lock(&self.kept)?;
                 fresh
                     .as_mut()
@@ -1047,7 +1130,7 @@ impl GpuRasterizer {
             view: v,
         };
         let recorded = self.submit(ctx, |rec| {
-            self.record_backward(rec, prims, &kept_view, up_buf, &acc, out)
+            self.record_backward(rec, prims, &kept_view, outputs, up_buf, &acc, out)
                 .map(|_| ())
         });
         ctx.destroy_buffer(acc);
@@ -1066,12 +1149,16 @@ impl GpuRasterizer {
     /// upstream planes in `up_buf`, writing the parameter gradients into `out` (the
     /// parameter-block layout, [`parameter_count`] floats) and using `acc`
     /// ([`Self::backward_scratch_floats`]) as scratch. Returns `false` when no primitive covers
-    /// the view: nothing is recorded and the caller treats the gradient as zero.
+    /// the view: nothing is recorded and the caller treats the gradient as zero. With
+    /// [`Outputs::GBuffers`] the thermal upstream is taken as zero (see [`Outputs`]); a view
+    /// rendered without its thermal image cannot take thermal upstream.
+    #[allow(clippy::too_many_arguments)]
     pub fn record_backward(
         &self,
         rec: &mut Recorder<'_>,
         prims: &Primitives<f32>,
         view: &KeptView<'_>,
+        outputs: Outputs,
         up_buf: &GpuBuffer,
         acc: &GpuBuffer,
         out: &GpuBuffer,
@@ -1093,6 +1180,13 @@ impl GpuRasterizer {
             }
         }
         let v = view.view;
+        if !v.outputs.serves(outputs) {
+            return Err(GpuError::InvalidInput {
+                reason: "record_backward: thermal upstream for a view rendered without its \
+                         thermal image"
+                    .to_owned(),
+            });
+        }
         let (Some((values, ranges)), Some(planes)) = (v.lists, v.planes) else {
             return Ok(false);
         };
@@ -1117,13 +1211,14 @@ impl GpuRasterizer {
                 width as u32,
                 height as u32,
                 tiles_x as u32,
+                outputs.thermal_flag(),
             ]),
             [2 * tiles_x as u32, tiles_y as u32, 1],
         )?;
         rec.compute_barrier();
         rec.dispatch(
             &self.finish,
-            &[v.get(v.cam), v.get(v.params), acc, out],
+            &[v.get(v.cam), v.get(v.params), acc, out, v.get(v.views)],
             &push_u32s(&[n as u32, prims.bands as u32]),
             [n.div_ceil(PROJECT_WG) as u32, 1, 1],
         )?;

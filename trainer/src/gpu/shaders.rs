@@ -2,7 +2,7 @@
 //! interface each one has. A test checks that every compiled shader has an entry here and
 //! builds a pipeline from it on a real driver, so a broken shader cannot slip through.
 
-use super::context::{Capabilities, ComputeKernel, GpuContext};
+use super::context::{Binding, Capabilities, ComputeKernel, GpuContext, TexelFormat};
 use super::error::GpuError;
 
 include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
@@ -14,8 +14,10 @@ include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
 pub struct KernelSpec {
     /// File stem in `trainer/shaders/` (`reduce_shared` for `reduce_shared.comp`).
     pub name: &'static str,
-    /// Storage buffers at bindings 0.. of set 0.
-    pub storage_buffers: u32,
+    /// Bindings 0.. of set 0: storage buffers, except those listed in `texel`.
+    pub bindings: u32,
+    /// The bindings that are texel buffers (`samplerBuffer`/`usamplerBuffer`), with their format.
+    pub texel: &'static [(u32, TexelFormat)],
     /// Size of the push-constant block.
     pub push_constant_bytes: u32,
     /// Needs subgroup arithmetic (subgroupAdd …) in compute.
@@ -24,172 +26,204 @@ pub struct KernelSpec {
     pub needs_float_atomic_add: bool,
 }
 
+/// The rasterisers' texel bindings: primitive views, band views (RGBA32F) and the sorted
+/// primitive list (R32UI); see raster_common.glsl.
+const RASTER_TEXELS: &[(u32, TexelFormat)] = &[
+    (1, TexelFormat::Rgba32Float),
+    (2, TexelFormat::Rgba32Float),
+    (3, TexelFormat::R32Uint),
+];
+
 /// Every kernel's interface.
 pub const KERNELS: &[KernelSpec] = &[
     KernelSpec {
         name: "reduce_shared",
-        storage_buffers: 2,
+        bindings: 2,
+        texel: &[],
         push_constant_bytes: 12,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "reduce_subgroup",
-        storage_buffers: 2,
+        bindings: 2,
+        texel: &[],
         push_constant_bytes: 12,
         needs_subgroup_arithmetic: true,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "scan_blocks",
-        storage_buffers: 2,
+        bindings: 2,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "scan_add",
-        storage_buffers: 2,
+        bindings: 2,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "radix_count",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 16,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "radix_scatter",
-        storage_buffers: 6,
+        bindings: 6,
+        texel: &[],
         push_constant_bytes: 16,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "accumulate_atomic",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: true,
     },
     KernelSpec {
         name: "accumulate_cas",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_project",
-        storage_buffers: 6,
+        bindings: 6,
+        texel: &[],
         push_constant_bytes: 16,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_emit",
-        storage_buffers: 4,
+        bindings: 4,
+        texel: &[],
         push_constant_bytes: 12,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_ranges",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_forward",
-        storage_buffers: 6,
-        push_constant_bytes: 20,
+        bindings: 6,
+        texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_backward_atomic",
-        storage_buffers: 8,
-        push_constant_bytes: 20,
+        bindings: 8,
+        texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: true,
     },
     KernelSpec {
         name: "raster_backward_cas",
-        storage_buffers: 8,
-        push_constant_bytes: 20,
+        bindings: 8,
+        texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_backward_atomic_sg",
-        storage_buffers: 8,
-        push_constant_bytes: 20,
+        bindings: 8,
+        texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
         needs_subgroup_arithmetic: true,
         needs_float_atomic_add: true,
     },
     KernelSpec {
         name: "raster_backward_cas_sg",
-        storage_buffers: 8,
-        push_constant_bytes: 20,
+        bindings: 8,
+        texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
         needs_subgroup_arithmetic: true,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "adam",
-        storage_buffers: 9,
+        bindings: 9,
+        texel: &[],
         push_constant_bytes: 92,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "raster_backward_finish",
-        storage_buffers: 4,
+        bindings: 5,
+        texel: &[],
         push_constant_bytes: 8,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "loss_blur",
-        storage_buffers: 2,
+        bindings: 2,
+        texel: &[],
         push_constant_bytes: 16,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "loss_ssim_prepare",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "loss_ssim_map",
-        storage_buffers: 3,
+        bindings: 3,
+        texel: &[],
         push_constant_bytes: 4,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "loss_grad",
-        storage_buffers: 5,
+        bindings: 5,
+        texel: &[],
         push_constant_bytes: 20,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },
     KernelSpec {
         name: "loss_consistency_atomic",
-        storage_buffers: 7,
+        bindings: 7,
+        texel: &[],
         push_constant_bytes: 32,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: true,
     },
     KernelSpec {
         name: "loss_consistency_cas",
-        storage_buffers: 7,
+        bindings: 7,
+        texel: &[],
         push_constant_bytes: 32,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
@@ -251,10 +285,13 @@ pub fn check_supported(
 pub fn build(ctx: &GpuContext, name: &str) -> Result<ComputeKernel, GpuError> {
     let spec = spec(name)?;
     check_supported(spec, ctx.capabilities(), &ctx.report().name)?;
-    ctx.create_kernel(
-        name,
-        &spirv(name)?,
-        spec.storage_buffers,
-        spec.push_constant_bytes,
-    )
+    let bindings: Vec<Binding> = (0..spec.bindings)
+        .map(|b| {
+            spec.texel
+                .iter()
+                .find(|(at, _)| *at == b)
+                .map_or(Binding::Storage, |(_, format)| Binding::Texel(*format))
+        })
+        .collect();
+    ctx.create_kernel(name, &spirv(name)?, &bindings, spec.push_constant_bytes)
 }

@@ -41,8 +41,11 @@ pub fn render_backward<T: Real>(
     settings: &RenderSettings,
     upstream: &GBuffers<T>,
 ) -> Result<Primitives<T>, TrainerError> {
-    let prep = prepare(prims, cam, settings)?;
+    let mut prep = prepare(prims, cam, settings)?;
     check_upstream(&prep, upstream)?;
+    // Without thermal upstream the spectrum's value does not enter any gradient: skip the band
+    // phases (exactly the same gradients, the bands still get Ψ_high's).
+    prep.thermal = upstream.thermal.iter().any(|g| *g != T::ZERO);
     Ok(render_backward_prepared(prims, &prep, upstream))
 }
 

@@ -74,7 +74,11 @@ pub(crate) fn sample<T: Real>(
     }
     let d = v3::mat_vec(&prep.pix_to_dir, p);
     let delta = v3::add(pv.c_minus_mu, v3::scale(d, t));
-    let (pre, _) = spectrum_pre(prims, pv, i, delta);
+    let pre = if prep.thermal {
+        spectrum_pre(prims, pv, i, delta).0
+    } else {
+        T::ZERO
+    };
     let f_active = pre > T::ZERO;
     Some(Sample {
         alpha,
@@ -152,6 +156,18 @@ pub fn render<T: Real>(
     settings: &RenderSettings,
 ) -> Result<GBuffers<T>, TrainerError> {
     let prep = prepare(prims, cam, settings)?;
+    Ok(render_prepared(prims, &prep))
+}
+
+/// The G-buffers of `prims` seen by `cam` without the thermal image (its plane is zero; see
+/// [`Prepared::thermal`]).
+pub fn render_gbuffers<T: Real>(
+    prims: &Primitives<T>,
+    cam: &PinholeCamera,
+    settings: &RenderSettings,
+) -> Result<GBuffers<T>, TrainerError> {
+    let mut prep = prepare(prims, cam, settings)?;
+    prep.thermal = false;
     Ok(render_prepared(prims, &prep))
 }
 

@@ -67,7 +67,7 @@ mod prepare;
 
 pub use backward::{render_backward, render_backward_prepared};
 pub use buffers::GBuffers;
-pub use forward::{render, render_prepared};
+pub use forward::{render, render_gbuffers, render_prepared};
 pub use prepare::{Prepared, PrimView, prepare};
 
 /// Tile edge in pixels.

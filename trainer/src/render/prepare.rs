@@ -65,6 +65,10 @@ pub struct Prepared<T> {
     pub order: Vec<u32>,
     /// Per tile (row-major over tiles), primitive indices front to back.
     pub tile_lists: Vec<Vec<u32>>,
+    /// Evaluate the thermal image `F`. `false` (the G-buffers only, for a view whose image does
+    /// not enter the loss): the thermal plane stays zero and no band phase is evaluated; every
+    /// G-buffer, and every gradient given a zero thermal upstream, is unchanged.
+    pub thermal: bool,
 }
 
 impl<T: Copy> Prepared<T> {
@@ -207,6 +211,7 @@ pub fn prepare<T: Real>(
         prims: views,
         order,
         tile_lists,
+        thermal: true,
     })
 }
 

@@ -8,7 +8,7 @@ use crate::error::TrainerError;
 use crate::loss::LossWeights;
 use crate::loss::consistency::ConsistencyOptions;
 use crate::primitive::Primitives;
-use crate::render::{GBuffers, RenderSettings, render, render_backward};
+use crate::render::{GBuffers, RenderSettings, render, render_backward, render_gbuffers};
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 /// One training step's thermal losses, for a backend that evaluates them on its own device
@@ -84,6 +84,16 @@ pub trait Backend {
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
     ) -> Result<GBuffers<f32>, TrainerError>;
+    /// The G-buffers of `prims` seen by `cam` without the thermal image (its plane is zero): all
+    /// a view needs whose image does not enter the loss (the consistency partner), without
+    /// the band cosines. The default renders everything.
+    fn render_gbuffers(
+        &mut self,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+    ) -> Result<GBuffers<f32>, TrainerError> {
+        self.render(prims, cam)
+    }
     /// `dL/dprims` given `dL/d(buffers)` for the same view.
     fn backward(
         &mut self,
@@ -147,6 +157,14 @@ impl Backend for CpuBackend {
     ) -> Result<GBuffers<f32>, TrainerError> {
         let _span = tracing::trace_span!("cpu_render").entered();
         render(prims, cam, &self.settings)
+    }
+    fn render_gbuffers(
+        &mut self,
+        prims: &Primitives<f32>,
+        cam: &PinholeCamera,
+    ) -> Result<GBuffers<f32>, TrainerError> {
+        let _span = tracing::trace_span!("cpu_render_gbuffers").entered();
+        render_gbuffers(prims, cam, &self.settings)
     }
     fn backward(
         &mut self,

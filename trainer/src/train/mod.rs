@@ -670,7 +670,8 @@ impl<B: Backend> Trainer<B> {
                 let mut grads = None;
                 if let Some(vj) = pair {
                     let cam_j = self.data.views[vj].camera;
-                    let gb_j = self.backend.render(&self.prims, &cam_j)?;
+                    // Only the partner's G-buffers enter the loss.
+                    let gb_j = self.backend.render_gbuffers(&self.prims, &cam_j)?;
                     let mut up_j = GBuffers::zeros(gb_j.width, gb_j.height, has_rgb);
                     let c = consistency_loss(
                         &gb_i,
