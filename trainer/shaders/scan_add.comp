@@ -2,7 +2,7 @@
 #version 450
 
 #define WG 256
-#define BLOCK 512
+#define BLOCK 2048
 
 layout(local_size_x = WG) in;
 

@@ -1,16 +1,16 @@
-// Exclusive prefix sum of u32, first level: each workgroup scans one block of 512 values in
+// Exclusive prefix sum of u32, first level: each workgroup scans one block of 2048 values in
 // place and writes the block's total to block_sums. The host scans block_sums recursively and
 // adds them back with scan_add.
 //
 // Each invocation scans PER consecutive values in registers; invocation 0 then scans the WG
 // invocation totals serially in shared memory. Two barriers in all: a barrier is what costs on
 // CPU implementations (lavapipe switches between the workgroup's SIMD batches at each one), and
-// a tree scan over the 512 values needs 18.
+// a tree scan over the 2048 values needs 22.
 #version 450
 
 #define WG 64
-#define PER 8
-#define BLOCK 512
+#define PER 32
+#define BLOCK 2048
 
 layout(local_size_x = WG) in;
 

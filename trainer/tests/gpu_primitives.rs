@@ -26,10 +26,10 @@ fn rng(seed: u64) -> rand_chacha::ChaCha8Rng {
 #[test]
 fn exclusive_scan_is_exact_across_block_and_level_boundaries() {
     let ctx = lavapipe(false);
-    let max = 600_000;
+    let max = 4_200_000;
     let scan = GpuScan::new(&ctx, max).unwrap();
-    // 512 per block; 512*512 = 262144 needs a third level.
-    for (seed, n) in [1usize, 5, 512, 513, 1024, 262_144, 262_145, max]
+    // 2048 per block; 2049 needs a second level, 2048*2048 + 1 = 4194305 a third.
+    for (seed, n) in [1usize, 5, 2048, 2049, 262_145, 4_194_304, 4_194_305, max]
         .into_iter()
         .enumerate()
     {
@@ -197,12 +197,13 @@ fn profiled_submission_times_every_dispatch() {
         ctx.capabilities().compute_timestamps,
         "lavapipe has compute timestamps"
     );
-    let scan = GpuScan::new(&ctx, 300_000).unwrap();
-    let buf = ctx.upload("scan.data", &vec![1u32; 300_000]).unwrap();
+    const N: usize = 5_000_000;
+    let scan = GpuScan::new(&ctx, N).unwrap();
+    let buf = ctx.upload("scan.data", &vec![1u32; N]).unwrap();
     let timings = ctx
-        .submit_profiled(|rec| scan.record(rec, &buf, 300_000))
+        .submit_profiled(|rec| scan.record(rec, &buf, N))
         .unwrap();
-    // 300000 values: level 0 (586 blocks), level 1 (2 blocks), level 2 (1 block), two adds.
+    // 5e6 values: level 0 (2442 blocks), level 1 (2 blocks), level 2 (1 block), two adds.
     let names: Vec<&str> = timings.iter().map(|t| t.kernel.as_str()).collect();
     assert_eq!(
         names,
@@ -223,8 +224,8 @@ fn profiled_submission_times_every_dispatch() {
         timings[0].duration_ns > 0.0,
         "the big level must take measurable time"
     );
-    let got: Vec<u32> = ctx.read(&buf, 300_000).unwrap();
-    assert_eq!(got[299_999], 299_999);
+    let got: Vec<u32> = ctx.read(&buf, N).unwrap();
+    assert_eq!(got[N - 1], (N - 1) as u32);
     ctx.destroy_buffer(buf);
     scan.destroy(&ctx);
 }

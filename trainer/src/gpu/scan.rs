@@ -1,6 +1,6 @@
 //! Exclusive prefix sum of `u32` on the GPU (tile binning and radix-sort offsets build on it).
 //!
-//! Level 1 (`scan_blocks`) scans blocks of 512 values in place and collects block totals; the
+//! Level 1 (`scan_blocks`) scans blocks of 2048 values in place and collects block totals; the
 //! totals are scanned recursively and added back (`scan_add`). All levels' scratch buffers are
 //! allocated once for a maximum count, so recording a scan allocates nothing.
 
@@ -9,7 +9,7 @@ use super::error::GpuError;
 use super::shaders::{self, push_u32s};
 
 /// Values one `scan_blocks` workgroup scans.
-pub const SCAN_BLOCK: usize = 512;
+pub const SCAN_BLOCK: usize = 2048;
 const ADD_WG: usize = 256;
 
 /// A reusable GPU exclusive scan for up to `max_count` values.
