@@ -250,7 +250,7 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
 /// host work in between (no density control, no capacity checks, no evaluation), from the
 /// context's traffic counters.
 #[test]
-fn vulkan_resident_step_reads_once() {
+fn vulkan_resident_step_reads_once_and_allocates_nothing() {
     let (tmp, data_dir) = small_scene();
     let options = lavapipe(false);
     let backend = VulkanBackend::new(&options, RenderSettings::default())
@@ -262,14 +262,20 @@ fn vulkan_resident_step_reads_once() {
     c.densify.from = u64::MAX;
     c.capacity.every = u64::MAX;
     let mut t = Trainer::new(c, data, backend, &tmp.path().join("run")).unwrap();
-    t.step().unwrap(); // uploads the state
+    // Step 1 uploads the state and sizes its key lists exactly; step 2 gives them the measured
+    // room; step 3 replaces step 1's (too small) lists once more. Warm from then on.
+    for _ in 0..3 {
+        t.step().unwrap();
+    }
     let (r0, b0, _) = t.backend.context().traffic();
+    let created0 = t.backend.raster_buffers_created();
     let steps = 8;
     for _ in 0..steps {
         t.step().unwrap();
     }
     let (r1, b1, _) = t.backend.context().traffic();
-    assert_eq!(t.backend.resident_steps(), steps + 1, "every step resident");
+    let created = t.backend.raster_buffers_created() - created0;
+    assert_eq!(t.backend.resident_steps(), steps + 3, "every step resident");
     let repeated = t.backend.repeated_steps();
     assert!(
         repeated <= 1,
@@ -283,6 +289,13 @@ fn vulkan_resident_step_reads_once() {
         "host reads and bytes over {steps} resident steps, {repeated} repeated (expected 1 read, \
          32 bytes per run)"
     );
+    if repeated == 0 {
+        assert_eq!(
+            created, 0,
+            "warm resident steps must reuse the rasteriser's buffers, {created} were created \
+             over {steps} steps"
+        );
+    }
 }
 
 /// A run whose buffers would exceed the device's storage-buffer range is refused before the

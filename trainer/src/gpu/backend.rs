@@ -205,6 +205,12 @@ impl VulkanBackend {
         self.key_room = (keys.max(1), 0);
     }
 
+    /// Buffers the rasteriser had to create (its released buffers serve the next views, so a
+    /// warm step creates none).
+    pub fn raster_buffers_created(&self) -> u64 {
+        self.raster.as_ref().map_or(0, |r| r.buffers_created())
+    }
+
     /// Resident steps run twice because a view's key list outgrew its room (the first run
     /// changed nothing): after density control, or when a view covers more tiles than any
     /// before.
@@ -592,6 +598,10 @@ impl Backend for VulkanBackend {
                 }
                 .into());
             }
+        }
+        // The run fits: its per-primitive buffers are created for the whole budget.
+        if let Some(raster) = &self.raster {
+            raster.reserve_primitives(shape.budget);
         }
         Ok(())
     }

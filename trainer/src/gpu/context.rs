@@ -102,11 +102,15 @@ pub struct GpuBuffer {
     allocation: Allocation,
     size_bytes: u64,
     name: String,
+    location: MemoryLocation,
 }
 
 impl GpuBuffer {
     pub fn size_bytes(&self) -> u64 {
         self.size_bytes
+    }
+    pub fn location(&self) -> MemoryLocation {
+        self.location
     }
     pub fn name(&self) -> &str {
         &self.name
@@ -428,6 +432,7 @@ impl GpuContext {
             allocation,
             size_bytes,
             name: name.to_owned(),
+            location,
         })
     }
 

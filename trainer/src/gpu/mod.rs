@@ -10,6 +10,8 @@
 //! - [`scan`], [`sort`]: exclusive prefix sum and stable 64-bit-key radix sort (tile binning and
 //!   depth ordering of the rasteriser),
 //! - [`accumulate`]: float scatter-add with `atomicAdd(float)` or a CAS-loop fallback,
+//! - [`pool`]: reuse of released buffers (a warm training step allocates nothing; per-primitive
+//!   buffers sized for the run's budget),
 //! - [`raster`]: the forward rasteriser (projection + culling, binning, sort, per-tile blend of
 //!   the thermal image and G-buffers) and its exact backward pass, held to the CPU reference
 //!   renderer by parity tests,
@@ -32,6 +34,7 @@ pub mod devices;
 pub mod error;
 pub mod loss;
 pub mod optimiser;
+pub mod pool;
 pub mod raster;
 pub mod reduce;
 pub mod scan;

@@ -50,6 +50,7 @@ use super::context::{
     ComputeKernel, GpuBuffer, GpuContext, KernelTiming, MemoryLocation, Recorder,
 };
 use super::error::GpuError;
+use super::pool::BufferPool;
 use super::scan::GpuScan;
 use super::shaders::{self, push_u32s};
 use super::sort::{GpuRadixSort, ItemCount};
@@ -84,6 +85,8 @@ pub struct GpuRasterizer {
     sort: Mutex<Option<GpuRadixSort>>,
     /// The last rendered views, for the backward pass of the same view and parameters.
     kept: Mutex<VecDeque<BinnedView>>,
+    /// Released view buffers for the next views (see [`BufferPool`]).
+    pool: BufferPool,
 }
 
 /// Capacity to allocate for `need` items: 25 % headroom so slowly growing views do not
@@ -266,9 +269,10 @@ impl BinnedView {
                 .all(|(i, &c)| c as usize == prims.live_bands(i))
     }
 
-    fn destroy(mut self, ctx: &GpuContext) {
+    /// Returns the view's buffers to `pool`.
+    fn release(mut self, ctx: &GpuContext, pool: &BufferPool) {
         for b in self.buffers.drain(..) {
-            ctx.destroy_buffer(b);
+            pool.give(ctx, b);
         }
     }
 }
@@ -298,9 +302,11 @@ struct AllocatedView<'a, 'b> {
     counts: Option<usize>,
 }
 
-/// A view's buffers on the way to the cache or to release: freed if the render fails.
+/// A view's buffers on the way to the cache or to release: returned to the pool if the render
+/// fails.
 struct Transient<'a> {
     ctx: &'a GpuContext,
+    pool: &'a BufferPool,
     view: Option<BinnedView>,
 }
 
@@ -308,6 +314,7 @@ impl<'a> Transient<'a> {
     /// A view with no buffers yet.
     fn new(
         ctx: &'a GpuContext,
+        pool: &'a BufferPool,
         tiles: [usize; 2],
         outputs: Outputs,
         camera_block: [f32; 32],
@@ -316,6 +323,7 @@ impl<'a> Transient<'a> {
     ) -> Self {
         Self {
             ctx,
+            pool,
             view: Some(BinnedView {
                 buffers: Vec::new(),
                 cam: 0,
@@ -352,7 +360,7 @@ impl<'a> Transient<'a> {
 impl Drop for Transient<'_> {
     fn drop(&mut self) {
         if let Some(v) = self.view.take() {
-            v.destroy(self.ctx);
+            v.release(self.ctx, self.pool);
         }
     }
 }
@@ -474,12 +482,24 @@ impl GpuRasterizer {
                 scan: Mutex::new(None),
                 sort: Mutex::new(None),
                 kept: Mutex::new(VecDeque::new()),
+                pool: BufferPool::new(),
             }),
             _ => Err(GpuError::Shader {
                 name: "raster".to_owned(),
                 reason: "kernel list incomplete".to_owned(),
             }),
         }
+    }
+
+    /// Buffers the rasteriser had to create so far (a warm training step reuses released ones).
+    pub fn buffers_created(&self) -> u64 {
+        self.pool.created()
+    }
+
+    /// Sizes the per-primitive buffers of views created from now on for at least `prims`
+    /// primitives (the run's budget: density control then never reallocates them).
+    pub fn reserve_primitives(&self, prims: usize) {
+        self.pool.set_reserve_prims(prims);
     }
 
     /// Times every dispatch with timestamp queries from now on (`false`: stop and drop them).
@@ -520,7 +540,7 @@ impl GpuRasterizer {
     /// the resident block to copy in the first submission), primitive views, band views, live
     /// band counts, tile counts.
     fn alloc_view<'a, 'b>(
-        &self,
+        &'a self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'b>,
@@ -557,37 +577,54 @@ impl GpuRasterizer {
         let band_count: Vec<u32> = (0..n).map(|i| prims.live_bands(i) as u32).collect();
         let mut out = Transient::new(
             ctx,
+            &self.pool,
             [tiles_x, tiles_y],
             outputs,
             camera_block,
             ParamKey::of(prims, src),
             band_count,
         );
+        let pool = &self.pool;
+        // Per-primitive buffers have room for the run's budget (see BufferPool).
+        let cap = pool.prims_capacity(n) as u64;
+        let m = prims.bands as u64;
+        let param_bytes = (parameter_count(prims) * 4) as u64;
+        let param_cap = cap * (13 + 5 * m) * 4;
         let binned = out.view_mut()?;
-        binned.cam = binned.keep(ctx.upload("raster.camera", &binned.camera_block)?);
+        binned.cam = binned.keep(pool.upload(ctx, "raster.camera", &binned.camera_block, 0)?);
         // A resident block is copied on the GPU (first thing in the first submission): the
         // optimiser may change it while this view is kept.
         let (params, resident) = match (&binned.param_key, src) {
-            (ParamKey::Values(block), _) => (ctx.upload("raster.params", block)?, None),
+            (ParamKey::Values(block), _) => {
+                (pool.upload(ctx, "raster.params", block, param_cap)?, None)
+            }
             (ParamKey::Generation(_), ParamSource::Device { buffer, .. }) => {
-                let bytes = (parameter_count(prims) * 4) as u64;
-                let copy =
-                    ctx.create_buffer("raster.params", bytes.max(4), MemoryLocation::DeviceOnly)?;
-                (copy, Some((buffer, bytes)))
+                let copy = pool.take(
+                    ctx,
+                    "raster.params",
+                    param_bytes.max(4),
+                    param_cap,
+                    MemoryLocation::DeviceOnly,
+                )?;
+                (copy, Some((buffer, param_bytes)))
             }
             (ParamKey::Generation(_), ParamSource::Host) => {
                 return Err(poisoned("parameter source"));
             }
         };
         binned.params = binned.keep(params);
-        binned.views = binned.keep(ctx.create_buffer(
+        binned.views = binned.keep(pool.take(
+            ctx,
             "raster.views",
             n.max(1) as u64 * PRIM_VIEW_BYTES,
+            cap * PRIM_VIEW_BYTES,
             MemoryLocation::DeviceOnly,
         )?);
-        binned.bands = binned.keep(ctx.create_buffer(
+        binned.bands = binned.keep(pool.take(
+            ctx,
             "raster.bands",
             (n * prims.bands).max(1) as u64 * BAND_VIEW_BYTES,
+            cap * m * BAND_VIEW_BYTES,
             MemoryLocation::DeviceOnly,
         )?);
         if n == 0 {
@@ -597,12 +634,20 @@ impl GpuRasterizer {
                 counts: None,
             });
         }
-        let band_count = binned.keep(ctx.upload("raster.band_count", &binned.band_count)?);
+        let band_count =
+            binned.keep(pool.upload(ctx, "raster.band_count", &binned.band_count, cap * 4)?);
         binned.band_count_buf = Some(band_count);
         // n counts + 1 trailing zero: after the exclusive scan, element n is the key total.
-        let counts = binned.keep(ctx.upload("raster.tile_counts", &vec![0u32; n + 1])?);
-        binned.total = Some(binned.keep(ctx.create_buffer(
+        let counts = binned.keep(pool.upload(
+            ctx,
+            "raster.tile_counts",
+            &vec![0u32; n + 1],
+            (cap + 1) * 4,
+        )?);
+        binned.total = Some(binned.keep(pool.take(
+            ctx,
             "raster.key_total",
+            4,
             4,
             MemoryLocation::DeviceOnly,
         )?));
@@ -621,7 +666,7 @@ impl GpuRasterizer {
     /// every list has room for that many keys (see [`KeySizing`]). Each camera comes with what
     /// its render computes.
     fn bin_and_render_views<'a>(
-        &self,
+        &'a self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
@@ -651,9 +696,11 @@ impl GpuRasterizer {
         }
         let scan = scan_slot.as_ref().ok_or_else(|| poisoned("scan"))?;
         let totals_buf = match sizing {
-            KeySizing::Exact => Some(ctx.create_buffer(
+            KeySizing::Exact => Some(self.pool.take(
+                ctx,
                 "raster.key_totals",
                 (4 * cams.len()) as u64,
+                (4 * KEPT_VIEWS) as u64,
                 MemoryLocation::Readback,
             )?),
             KeySizing::Capacity(_) => None,
@@ -699,7 +746,7 @@ impl GpuRasterizer {
         })();
         drop(scan_slot);
         if let Some(t) = totals_buf {
-            ctx.destroy_buffer(t);
+            self.pool.give(ctx, t);
         }
         // Exact: the totals; Capacity: the room of every list (the totals stay on the GPU).
         let room = first?;
@@ -714,21 +761,30 @@ impl GpuRasterizer {
             max_room = max_room.max(room);
             let binned = out.view_mut()?;
             let tiles = binned.tiles[0] * binned.tiles[1];
-            let keys = binned.keep(ctx.create_buffer(
+            let pool = &self.pool;
+            let room_cap = grown(room) as u64;
+            let keys = binned.keep(pool.take(
+                ctx,
                 "raster.keys",
                 (room * 8) as u64,
+                room_cap * 8,
                 MemoryLocation::DeviceOnly,
             )?);
-            let values = binned.keep(ctx.create_buffer(
+            let values = binned.keep(pool.take(
+                ctx,
                 "raster.values",
                 (room * 4) as u64,
+                room_cap * 4,
                 MemoryLocation::DeviceOnly,
             )?);
-            let ranges = binned.keep(ctx.upload("raster.ranges", &vec![[0u32; 2]; tiles])?);
-            let npix = cams[v].0.width * cams[v].0.height;
-            let planes = binned.keep(ctx.create_buffer(
+            let ranges =
+                binned.keep(pool.upload(ctx, "raster.ranges", &vec![[0u32; 2]; tiles], 0)?);
+            let npix = (cams[v].0.width * cams[v].0.height) as u64;
+            let planes = binned.keep(pool.take(
+                ctx,
                 "raster.planes",
-                (FORWARD_PLANES * npix * 4) as u64,
+                FORWARD_PLANES as u64 * npix * 4,
+                0,
                 MemoryLocation::Readback,
             )?);
             binned.keys = Some(keys);
@@ -809,7 +865,7 @@ impl GpuRasterizer {
 
     /// Bins `prims` for `cam` and runs the forward kernel; the planes stay on the GPU.
     fn bin_and_render<'a>(
-        &self,
+        &'a self,
         ctx: &'a GpuContext,
         prims: &Primitives<f32>,
         src: ParamSource<'_>,
@@ -835,7 +891,7 @@ impl GpuRasterizer {
         kept.push_back(view);
         while kept.len() > KEPT_VIEWS {
             if let Some(old) = kept.pop_front() {
-                old.destroy(ctx);
+                old.release(ctx, &self.pool);
             }
         }
         Ok(())
@@ -988,9 +1044,9 @@ impl GpuRasterizer {
         } else {
             Outputs::All
         };
-        let up_buf = ctx.upload("raster.upstream", &up)?;
+        let up_buf = self.pool.upload(ctx, "raster.upstream", &up, 0)?;
         let result = self.render_backward_device(ctx, prims, cam, outputs, settings, &up_buf);
-        ctx.destroy_buffer(up_buf);
+        self.pool.give(ctx, up_buf);
         result
     }
 
@@ -1008,9 +1064,11 @@ impl GpuRasterizer {
     ) -> Result<Primitives<f32>, GpuError> {
         let mut grads = prims.zeros_like();
         let param_count = parameter_count(prims);
-        let out = ctx.create_buffer(
+        let out = self.pool.take(
+            ctx,
             "raster.grads",
             (param_count.max(1) * 4) as u64,
+            0,
             MemoryLocation::Readback,
         )?;
         let result = self
@@ -1031,7 +1089,7 @@ impl GpuRasterizer {
                     Ok(Vec::new())
                 }
             });
-        ctx.destroy_buffer(out);
+        self.pool.give(ctx, out);
         let flat = result?;
         if flat.is_empty() {
             return Ok(grads);
@@ -1114,10 +1172,12 @@ impl GpuRasterizer {
         if view.lists.is_none() || view.planes.is_none() {
             return Ok(false);
         }
-        // Per-step scratch, released at the end of this call.
-        let acc = ctx.create_buffer(
+        // Scratch for this call, returned to the pool at its end.
+        let acc = self.pool.take(
+            ctx,
             "raster.grad_acc",
             Self::backward_scratch_floats(prims).max(1) as u64 * 4,
+            0,
             MemoryLocation::DeviceOnly,
         )?;
         let v = &*view;
@@ -1133,7 +1193,7 @@ impl GpuRasterizer {
             self.record_backward(rec, prims, &kept_view, outputs, up_buf, &acc, out)
                 .map(|_| ())
         });
-        ctx.destroy_buffer(acc);
+        self.pool.give(ctx, acc);
         recorded?;
         drop(kept);
         drop(fresh);
@@ -1245,9 +1305,10 @@ impl GpuRasterizer {
         }
         if let Ok(kept) = self.kept.into_inner() {
             for v in kept {
-                v.destroy(ctx);
+                v.release(ctx, &self.pool);
             }
         }
+        self.pool.destroy(ctx);
     }
 }
 

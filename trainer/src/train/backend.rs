@@ -74,7 +74,8 @@ pub trait Backend {
     /// Short name for logs and reports (`cpu`, `vulkan`).
     fn name(&self) -> &'static str;
     /// Checks, before training starts, that a run of `shape` fits the backend (device limits);
-    /// an error names what does not fit.
+    /// an error names what does not fit. A backend may prepare for the run here (the Vulkan
+    /// backend sizes its per-primitive buffers for the budget).
     fn check_run(&self, _shape: &RunShape) -> Result<(), TrainerError> {
         Ok(())
     }
