@@ -6,7 +6,8 @@
 // (z_j(X) > D_j(u_j) (1 + depth_rel_tol), D_j bilinear). Otherwise
 //   term(u) = |psi_high_i(u) - psi_high_j(u_j)| + |psi_beta_i(u) - psi_beta_j(u_j)|
 // and the gradients k sign(diff) go to view i's upstream plane at u and, through the bilinear
-// weights, to view j's (scatter-add: float atomics or a CAS loop, as the backward rasteriser).
+// weights, to view j's (scatter-add: float atomics or a CAS loop, as the backward rasteriser)
+// unless grad_j is 0 (view j's planes were kept from an earlier step: stop-gradient).
 // The warp and the mask are under stop-gradient. The CPU reference warps in f64, this kernel in
 // f32: a pixel whose footprint lies on a mask boundary may be decided differently.
 //
@@ -57,6 +58,7 @@ layout(push_constant) uniform Push {
     float depth_rel_tol;
     float near_m;
     float k;  // weight / (wi hi)
+    uint grad_j;  // 0: view j is under stop-gradient (kept from an earlier step), up_j untouched
 } pc;
 
 // Expected depth of pixel q of view j, or -1 when it has none.
@@ -126,8 +128,10 @@ void main() {
         term += abs(diff);
         float g = pc.k * sign(diff);
         up_i[which * npix_i + p] += g;
-        for (uint c = 0u; c < 4u; ++c) {
-            add_j(which * npix_j + q[c], -g * wgt[c]);
+        if (pc.grad_j != 0u) {
+            for (uint c = 0u; c < 4u; ++c) {
+                add_j(which * npix_j + q[c], -g * wgt[c]);
+            }
         }
     }
     terms[p] = term;

@@ -10,7 +10,7 @@ use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{Dataset, LoadOptions, ThermalUnits};
 use s3tir_trainer::report;
 use s3tir_trainer::train::{
-    self, Backend, CpuBackend, Event, Mode, Outcome, TrainConfig, Trainer, files,
+    self, Backend, ConsistPartner, CpuBackend, Event, Mode, Outcome, TrainConfig, Trainer, files,
 };
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
@@ -161,9 +161,15 @@ struct TrainArgs {
     /// β learning rate (β units).
     #[arg(long, default_value_t = 1e-3)]
     beta_lr: f64,
-    /// Compute the multi-view consistency loss every k-th iteration (it renders a second view).
+    /// Compute the multi-view consistency loss every k-th iteration.
     #[arg(long, default_value_t = 1)]
     consist_every: u64,
+    /// The consistency term's partner view: `previous` pairs consecutive steps (a random view,
+    /// then its overlap partner, warped into the G-buffers kept from the first: no extra
+    /// render, the term on every second step); `render` renders the partner in the same step
+    /// (both views get gradients; about 2x the step time).
+    #[arg(long, default_value_t = ConsistPartner::Previous)]
+    consist_partner: ConsistPartner,
 }
 
 fn main() -> Result<()> {
@@ -251,6 +257,7 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         cfg.checkpoint_every_s = a.checkpoint_every_s;
         cfg.lr.beta = a.beta_lr;
         cfg.consist_every = a.consist_every;
+        cfg.consist_partner = a.consist_partner;
         cfg.backend = a.backend.clone();
         cfg
     };
@@ -364,6 +371,10 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         r.s3tir_cost_over_gaussian
     );
     println!(
+        "  s3tir, partner rendered     {:8.2} steps/s, {:.2}x 3dgs  (--consist-partner render)",
+        r.s3tir_render_partner_steps_per_s, r.s3tir_render_partner_cost_over_gaussian
+    );
+    println!(
         "  process CPU time per step: CPU backend {:.1} ms, Vulkan s3tir {:.1} ms, Vulkan 3dgs {:.1} ms",
         r.cpu_backend_cpu_ms_per_step, r.vulkan_cpu_ms_per_step, r.gaussian_cpu_ms_per_step
     );
@@ -375,10 +386,10 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         "  host reads per step         {:8.1} ({:.0} bytes; {:.1} submissions), Vulkan s3tir",
         r.host_reads_per_step, r.host_read_bytes_per_step, r.submissions_per_step
     );
-    println!("  GPU time (dispatches) per step:  s3tir mode             3dgs mode");
+    println!("  GPU time (dispatches) per step:  s3tir mode              3dgs mode");
     for k in &r.kernels {
         println!(
-            "    {:<26} {:8.3} ms ({:3.0}) {:5.1} %  {:8.3} ms ({:3.0})",
+            "    {:<26} {:8.3} ms ({:4.1}) {:5.1} %  {:8.3} ms ({:4.1})",
             k.kernel,
             k.ms_per_step,
             k.dispatches_per_step,
@@ -389,7 +400,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     }
     let total = |f: fn(&bench::KernelShare) -> f64| r.kernels.iter().map(f).sum::<f64>();
     println!(
-        "    {:<26} {:8.3} ms ({:3.0})          {:8.3} ms ({:3.0})",
+        "    {:<26} {:8.3} ms ({:4.1})          {:8.3} ms ({:4.1})",
         "all kernels",
         total(|k| k.ms_per_step),
         total(|k| k.dispatches_per_step),

@@ -194,7 +194,7 @@ fn gpu_consistency_matches_cpu_reference_with_and_without_float_atomics() {
             planes_i: &bufs[2],
             planes_j: &bufs[3],
             up_i: &bufs[4],
-            up_j: &bufs[5],
+            up_j: Some(&bufs[5]),
             width_j: wj,
             height_j: hj,
         };
@@ -238,6 +238,33 @@ fn gpu_consistency_matches_cpu_reference_with_and_without_float_atomics() {
                 );
             }
         }
+        // Stop-gradient on view j (its planes kept from an earlier step, `up_j` None): the same
+        // loss and view i upstream, view j's upstream buffer untouched.
+        let up_i_sg = ctx.upload("test.up_i_sg", &planes(&up_i0, 6)).unwrap();
+        let views_sg = ConsistencyViews {
+            up_i: &up_i_sg,
+            up_j: None,
+            ..views
+        };
+        ctx.submit(|rec| term.record(rec, &views_sg, &opt, weight as f32))
+            .unwrap();
+        let got_sg = term.values(&ctx).unwrap();
+        assert_eq!(
+            (got_sg.loss, got_sg.valid_px),
+            (got.loss, got.valid_px),
+            "{label}: the term without gradient to view j must have the same value"
+        );
+        let up_i_after: Vec<f32> = ctx.read(&up_i_sg, 6 * npix_i).unwrap();
+        assert!(
+            up_i_after == up_i,
+            "{label}: view i's upstream must not depend on view j's stop-gradient"
+        );
+        let up_j_after: Vec<f32> = ctx.read(&bufs[5], 6 * wj * hj).unwrap();
+        assert!(
+            up_j_after == up_j,
+            "{label}: view j's upstream must be untouched under stop-gradient"
+        );
+        ctx.destroy_buffer(up_i_sg);
         for b in bufs {
             ctx.destroy_buffer(b);
         }

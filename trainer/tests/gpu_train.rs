@@ -14,7 +14,9 @@ use s3tir_trainer::gpu::backend::VulkanBackend;
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{Primitives, beta_of_raw};
 use s3tir_trainer::render::RenderSettings;
-use s3tir_trainer::train::{Backend, CpuBackend, Mode, Outcome, RunShape, TrainConfig, Trainer};
+use s3tir_trainer::train::{
+    Backend, ConsistPartner, CpuBackend, Mode, Outcome, RunShape, TrainConfig, Trainer,
+};
 
 fn config(data: &std::path::Path) -> TrainConfig {
     let mut c = TrainConfig::new(data.to_path_buf());
@@ -127,6 +129,16 @@ fn canonical_bands(p: &Primitives<f32>) -> Primitives<f32> {
 
 #[test]
 fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
+    paths_take_the_same_steps(ConsistPartner::Previous);
+}
+
+/// As above with the consistency partner rendered in each step (both views' backward passes).
+#[test]
+fn vulkan_paths_take_the_same_steps_with_rendered_partner() {
+    paths_take_the_same_steps(ConsistPartner::Render);
+}
+
+fn paths_take_the_same_steps(partner: ConsistPartner) {
     let (tmp, data_dir) = small_scene();
     let options = lavapipe(false);
     let mut losses = Vec::new();
@@ -144,6 +156,7 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
         let mut c = config(&data_dir);
         c.warmup = 2; // β, bands and the consistency term from step 2 (the state syncs there)
         c.consist_every = 1;
+        c.consist_partner = partner;
         c.densify.from = 3;
         c.densify.every = 3;
         c.capacity.every = 4;
@@ -180,7 +193,7 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
         for (step, (a, b)) in l.iter().zip(ref_losses).enumerate() {
             assert!(
                 (a - b).abs() <= 1e-3 * b.abs(),
-                "step {step}: {name}-path loss {a} vs {ref_name}-path loss {b} (relative 1e-3)"
+                "{partner}: step {step}: {name}-path loss {a} vs {ref_name}-path loss {b} (relative 1e-3)"
             );
         }
     }
@@ -235,7 +248,7 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
             eprintln!("{name} vs host path, {group}: largest difference {worst:.3e}");
             assert!(
                 worst <= bound(group),
-                "{name} path: {group} differs from the host path's by up to {worst:.3e}, more \
+                "{partner}: {name} path: {group} differs from the host path's by up to {worst:.3e}, more \
                  than {:.3e} (3 × 12 steps of its learning rate)",
                 bound(group)
             );
@@ -251,6 +264,13 @@ fn vulkan_resident_device_and_host_paths_take_the_same_steps() {
 /// context's traffic counters.
 #[test]
 fn vulkan_resident_step_reads_once_and_allocates_nothing() {
+    for partner in [ConsistPartner::Previous, ConsistPartner::Render] {
+        reads_once_and_allocates_nothing(partner);
+    }
+}
+
+fn reads_once_and_allocates_nothing(partner: ConsistPartner) {
+    const WARM: u64 = 5;
     let (tmp, data_dir) = small_scene();
     let options = lavapipe(false);
     let backend = VulkanBackend::new(&options, RenderSettings::default())
@@ -258,13 +278,16 @@ fn vulkan_resident_step_reads_once_and_allocates_nothing() {
     let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let mut c = config(&data_dir);
     c.warmup = 0;
-    c.consist_every = 1; // both views every step
+    c.consist_every = 1; // the term every step (render) or every second step (previous)
+    c.consist_partner = partner;
     c.densify.from = u64::MAX;
     c.capacity.every = u64::MAX;
     let mut t = Trainer::new(c, data, backend, &tmp.path().join("run")).unwrap();
-    // Step 1 uploads the state and sizes its key lists exactly; step 2 gives them the measured
-    // room; step 3 replaces step 1's (too small) lists once more. Warm from then on.
-    for _ in 0..3 {
+    // Step 1 uploads the state and sizes its key lists exactly; the next steps give them the
+    // measured room, and the rasteriser keeps the last two views, so once two views with that
+    // room have been released (step 4 with a partner rendered per step, step 5 without) the
+    // pool serves every view. Warm from then on.
+    for _ in 0..WARM {
         t.step().unwrap();
     }
     let (r0, b0, _) = t.backend.context().traffic();
@@ -275,24 +298,28 @@ fn vulkan_resident_step_reads_once_and_allocates_nothing() {
     }
     let (r1, b1, _) = t.backend.context().traffic();
     let created = t.backend.raster_buffers_created() - created0;
-    assert_eq!(t.backend.resident_steps(), steps + 3, "every step resident");
+    assert_eq!(
+        t.backend.resident_steps(),
+        steps + WARM,
+        "every step resident"
+    );
     let repeated = t.backend.repeated_steps();
     assert!(
         repeated <= 1,
-        "{repeated} of {steps} steps repeated: the measured room (+25 %) should fit this scene's \
+        "{partner}: {repeated} of {steps} steps repeated: the measured room (+25 %) should fit this scene's \
          views"
     );
     let reads = steps + repeated;
     assert_eq!(
         (r1 - r0, b1 - b0),
         (reads, 32 * reads),
-        "host reads and bytes over {steps} resident steps, {repeated} repeated (expected 1 read, \
+        "{partner}: host reads and bytes over {steps} resident steps, {repeated} repeated (expected 1 read, \
          32 bytes per run)"
     );
     if repeated == 0 {
         assert_eq!(
             created, 0,
-            "warm resident steps must reuse the rasteriser's buffers, {created} were created \
+            "{partner}: warm resident steps must reuse the rasteriser's buffers, {created} were created \
              over {steps} steps"
         );
     }

@@ -2,13 +2,16 @@
 //! `s3tir-train --backend vulkan` runs the same training loop as the CPU backend.
 //!
 //! Thermal training steps run resident ([`Backend::resident_step`]): the parameters, the Adam
-//! moments and the densification statistics stay on the GPU ([`super::optimiser`]); both views
-//! are rendered into buffers that stay there, the single-view loss ([`super::loss`]) and the
-//! consistency term ([`super::consistency`]) write the upstream gradient planes, both backward
-//! passes write the parameter gradients into the optimiser's buffers and the `adam` kernel
-//! steps the state. A step is three submissions (binning of both views, sorting and forward
-//! passes, then losses + backward passes + Adam) and one small read at the end: the loss sums
-//! and the views' key totals. The key lists have the room earlier steps measured, so the sort
+//! moments and the densification statistics stay on the GPU ([`super::optimiser`]); the
+//! training view (and a [`Partner::Render`] partner) are rendered into buffers that stay there,
+//! the single-view loss ([`super::loss`]) and the consistency term ([`super::consistency`])
+//! write the upstream gradient planes, the backward passes write the parameter gradients into
+//! the optimiser's buffers and the `adam` kernel steps the state. A [`Partner::Previous`]
+//! partner is the previous step's training view: every step copies its view's planes and
+//! camera block into one of two kept slots, and the next step's term reads the other (no
+//! render, no backward pass for it; a repeated step reads the same slot). A step is three
+//! submissions (binning, sorting and forward passes, then losses + backward passes + Adam) and
+//! one small read at the end: the loss sums and the views' key totals. The key lists have the room earlier steps measured, so the sort
 //! reads its count on the GPU; a step whose views need more room is gated (the `adam` kernel
 //! changes nothing) and runs again with room for them. With
 //! [`VulkanBackend::set_resident_optimiser`] off, steps take the device
@@ -30,8 +33,11 @@ use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
 use crate::train::backend::{
-    Backend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep, RunShape,
+    Backend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep, RunShape,
 };
+
+/// Bytes of a camera block ([`super::raster::camera_block`]).
+const CAMERA_BLOCK_BYTES: u64 = 32 * 4;
 
 /// Least room of a resident step's key lists (keys; 8 + 4 bytes each).
 const KEY_ROOM_MIN: usize = 1024;
@@ -60,6 +66,15 @@ struct DeviceLosses {
     /// What a step reads back, in one read: the key totals of its two views (u32; 0 for a
     /// missing pair), then its loss sums (view loss 4, consistency 2).
     step_out: GpuBuffer,
+    /// The planes (Ψ … alpha, 6) of the last step's training view, for a
+    /// [`Partner::Previous`] in the next: a step reads `kept[kept_slot]` and writes the other,
+    /// which becomes `kept_slot` when the step completes (a repeated step reads the same).
+    kept: [GpuBuffer; 2],
+    /// Their camera blocks ([`super::raster::camera_block`]), slot by slot.
+    kept_camera: [GpuBuffer; 2],
+    kept_slot: usize,
+    /// The camera of the view in `kept[kept_slot]` (`None`: nothing kept).
+    kept_cam: Option<PinholeCamera>,
 }
 
 impl DeviceLosses {
@@ -84,6 +99,10 @@ impl DeviceLosses {
             ("device_step.up_j", bytes),
             ("device_step.zeros", (7 * width * height * 4) as u64),
             ("device_step.loss_sums", (STEP_OUT_TOTALS + 6) * 4),
+            ("device_step.kept_a", bytes),
+            ("device_step.kept_b", bytes),
+            ("device_step.kept_camera_a", CAMERA_BLOCK_BYTES),
+            ("device_step.kept_camera_b", CAMERA_BLOCK_BYTES),
         ] {
             let location = if name.ends_with("loss_sums") {
                 MemoryLocation::Readback
@@ -101,8 +120,25 @@ impl DeviceLosses {
             }
         }
         let mut b = buffers.into_iter();
-        let (Some(up_i), Some(up_j), Some(zeros), Some(step_out)) =
-            (b.next(), b.next(), b.next(), b.next())
+        let (
+            Some(up_i),
+            Some(up_j),
+            Some(zeros),
+            Some(step_out),
+            Some(kept_a),
+            Some(kept_b),
+            Some(kept_camera_a),
+            Some(kept_camera_b),
+        ) = (
+            b.next(),
+            b.next(),
+            b.next(),
+            b.next(),
+            b.next(),
+            b.next(),
+            b.next(),
+            b.next(),
+        )
         else {
             view_loss.destroy(ctx);
             consistency.destroy(ctx);
@@ -120,6 +156,10 @@ impl DeviceLosses {
             up_j,
             zeros,
             step_out,
+            kept: [kept_a, kept_b],
+            kept_camera: [kept_camera_a, kept_camera_b],
+            kept_slot: 0,
+            kept_cam: None,
         })
     }
 
@@ -133,6 +173,9 @@ impl DeviceLosses {
         ctx.destroy_buffer(self.up_j);
         ctx.destroy_buffer(self.zeros);
         ctx.destroy_buffer(self.step_out);
+        for b in self.kept.into_iter().chain(self.kept_camera) {
+            ctx.destroy_buffer(b);
+        }
     }
 }
 
@@ -278,10 +321,30 @@ impl VulkanBackend {
                 reason: "thermal target not uploaded".to_owned(),
             })?;
         // Views rendered now stay on the GPU for the losses and the backward passes. Only the
-        // partner's G-buffers enter the loss: it is rendered without its thermal image.
+        // partner's G-buffers enter the loss: it is rendered without its thermal image, or
+        // not at all when they were kept from the previous step.
         let pair = step.pair;
         let mut cams = vec![(step.cam, Outputs::All)];
-        cams.extend(pair.map(|c| (c, Outputs::GBuffers)));
+        if let Some(Partner::Render(c)) = pair {
+            cams.push((c, Outputs::GBuffers));
+        }
+        let previous = match pair {
+            Some(Partner::Previous(c)) => {
+                if losses.kept_cam.as_ref() != Some(c) {
+                    return Err(GpuError::InvalidInput {
+                        reason: "consistency partner: the previous step's training view is not \
+                                 the one kept on the GPU (the loop pairs only consecutive device \
+                                 steps)"
+                            .to_owned(),
+                    });
+                }
+                let slot = losses.kept_slot;
+                Some((c, &losses.kept_camera[slot], &losses.kept[slot]))
+            }
+            _ => None,
+        };
+        let keep_into = &losses.kept[1 - losses.kept_slot];
+        let keep_camera_into = &losses.kept_camera[1 - losses.kept_slot];
         raster.render_kept(ctx, prims, src, &cams, &self.settings, sizing)?;
         let zeros = &losses.zeros;
         raster.submit_with_views(ctx, prims, src, &cams, &self.settings, |rec, views| {
@@ -304,24 +367,48 @@ impl VulkanBackend {
                 &losses.up_i,
                 &step.weights,
             )?;
-            if let Some(view_j) = views.get(1) {
+            // The partner: rendered now (view 1, gets gradients) or kept (stop-gradient).
+            let partner = match (views.get(1), previous) {
+                (Some(view_j), _) => Some((
+                    view_j.camera,
+                    planes_of(view_j, zeros),
+                    Some(&losses.up_j),
+                    view_j.width,
+                    view_j.height,
+                )),
+                (None, Some((cam, camera, planes))) => {
+                    Some((camera, planes, None, cam.width, cam.height))
+                }
+                (None, None) => None,
+            };
+            if let Some((cam_j, planes_j, up_j, width_j, height_j)) = partner {
                 rec.compute_barrier();
                 losses.consistency.record(
                     rec,
                     &ConsistencyViews {
                         cam_i: view_i.camera,
-                        cam_j: view_j.camera,
+                        cam_j,
                         planes_i: planes_of(view_i, zeros),
-                        planes_j: planes_of(view_j, zeros),
+                        planes_j,
                         up_i: &losses.up_i,
-                        up_j: &losses.up_j,
-                        width_j: view_j.width,
-                        height_j: view_j.height,
+                        up_j,
+                        width_j,
+                        height_j,
                     },
                     &step.consistency,
                     step.weights.lambda_consist as f32,
                 )?;
             }
+            // Keep this view's planes for the next step's partner (the copy waits for the
+            // consistency kernel's reads of the other slot; the slots differ anyway).
+            rec.copy_region(
+                planes_of(view_i, zeros),
+                0,
+                keep_into,
+                0,
+                keep_into.size_bytes(),
+            )?;
+            rec.copy_region(view_i.camera, 0, keep_camera_into, 0, CAMERA_BLOCK_BYTES)?;
             after(rec, views)?;
             let sums_at = 4 * STEP_OUT_TOTALS;
             rec.copy_region(
@@ -331,7 +418,7 @@ impl VulkanBackend {
                 sums_at,
                 16,
             )?;
-            if views.len() > 1 {
+            if pair.is_some() {
                 let at = sums_at + 16;
                 rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, at, 8)?;
             }
@@ -349,6 +436,14 @@ impl VulkanBackend {
         Ok((loss, [totals[0].to_bits(), totals[1].to_bits()]))
     }
 
+    /// A step on `cam` completed: the planes it kept are the next step's [`Partner::Previous`].
+    fn step_kept(&mut self, cam: &PinholeCamera) {
+        if let Some(l) = self.losses.as_mut() {
+            l.kept_slot = 1 - l.kept_slot;
+            l.kept_cam = Some(*cam);
+        }
+    }
+
     /// The device path of [`Backend::device_step`].
     fn device_step_inner(
         &mut self,
@@ -360,6 +455,7 @@ impl VulkanBackend {
             self.forward_losses(prims, ParamSource::Host, step, KeySizing::Exact, &|_, _| {
                 Ok(())
             })?;
+        self.step_kept(step.cam);
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -373,7 +469,7 @@ impl VulkanBackend {
             &self.settings,
             &losses.up_i,
         )?;
-        if let Some(cam_j) = step.pair {
+        if let Some(Partner::Render(cam_j)) = step.pair {
             let g_j = raster.render_backward_device(
                 ctx,
                 prims,
@@ -435,6 +531,7 @@ impl VulkanBackend {
             self.key_room = (room, n);
             if fits {
                 self.resident_steps += 1;
+                self.step_kept(losses_step.cam);
                 return Ok(loss);
             }
             // Nothing changed on the GPU (the Adam step was gated): run it again.
@@ -652,6 +749,7 @@ impl Backend for VulkanBackend {
         // buffers are sized per view size); anything else takes the host path.
         let same_size = step
             .pair
+            .map(|p| p.camera())
             .is_none_or(|c| (c.width, c.height) == (step.cam.width, step.cam.height));
         if !self.device_losses || prims.sh_degree.is_some() || !same_size {
             return None;
@@ -693,6 +791,7 @@ impl Backend for VulkanBackend {
         let l = &step.losses;
         let same_size = l
             .pair
+            .map(|p| p.camera())
             .is_none_or(|c| (c.width, c.height) == (l.cam.width, l.cam.height));
         let resident = self
             .optimiser

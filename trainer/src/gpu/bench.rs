@@ -15,7 +15,7 @@ use super::error::GpuError;
 use crate::dataset::synth::{self, SynthConfig};
 use crate::dataset::{Dataset, DatasetError, LoadOptions};
 use crate::render::RenderSettings;
-use crate::train::{Backend, CpuBackend, Mode, TrainConfig, TrainError, Trainer};
+use crate::train::{Backend, ConsistPartner, CpuBackend, Mode, TrainConfig, TrainError, Trainer};
 
 /// What to measure.
 #[derive(Debug, Clone)]
@@ -74,7 +74,8 @@ pub struct BenchReport {
     pub cpu_steps_per_s: f64,
     /// Vulkan backend, s3tir mode (= `s3tir_steps_per_s`).
     pub vulkan_steps_per_s: f64,
-    /// Vulkan backend, s3tir mode (learnable β, M bands).
+    /// Vulkan backend, s3tir mode (learnable β, M bands, every term of eq. 6; the consistency
+    /// partner is the previous step's view, the default).
     pub s3tir_steps_per_s: f64,
     /// Vulkan backend, 3dgs mode (β ≡ 2, no bands).
     pub gaussian_steps_per_s: f64,
@@ -90,6 +91,11 @@ pub struct BenchReport {
     pub vulkan_speedup_over_cpu: f64,
     /// `gaussian_steps_per_s / s3tir_steps_per_s`: cost of the full primitive (goal ≤ 1.5).
     pub s3tir_cost_over_gaussian: f64,
+    /// Vulkan backend, s3tir mode with the consistency partner rendered in every step
+    /// (`--consist-partner render`: a second view's projection, sort, forward and backward).
+    pub s3tir_render_partner_steps_per_s: f64,
+    /// `gaussian_steps_per_s / s3tir_render_partner_steps_per_s`.
+    pub s3tir_render_partner_cost_over_gaussian: f64,
     /// Per-kernel GPU time in s3tir and 3dgs mode, largest (in s3tir mode) first.
     pub kernels: Vec<KernelShare>,
     pub peak_gpu_bytes: u64,
@@ -123,9 +129,10 @@ pub enum BenchError {
     Zero { what: &'static str },
 }
 
-fn config(data: &Path, mode: Mode, opts: &BenchOptions) -> TrainConfig {
+fn config(data: &Path, mode: Mode, partner: ConsistPartner, opts: &BenchOptions) -> TrainConfig {
     let mut c = TrainConfig::new(data.to_path_buf());
     c.mode = mode;
+    c.consist_partner = partner;
     c.iters = (opts.steps + opts.warmup_steps) as u64 + 1;
     c.warmup = 0; // spectral modulation and shape on from the first step
     c.budget = opts.primitives;
@@ -170,7 +177,7 @@ impl<B: Backend> Timed<B> {
     fn start(
         data_dir: &Path,
         run_dir: &Path,
-        mode: Mode,
+        (mode, partner): (Mode, ConsistPartner),
         opts: &BenchOptions,
         backend: B,
         before_timing: &mut dyn FnMut(&mut B),
@@ -183,8 +190,13 @@ impl<B: Backend> Timed<B> {
                 source,
             }
         })?;
-        let mut trainer =
-            Trainer::new(config(data_dir, mode, opts), data, backend, run_dir).map_err(train)?;
+        let mut trainer = Trainer::new(
+            config(data_dir, mode, partner, opts),
+            data,
+            backend,
+            run_dir,
+        )
+        .map_err(train)?;
         for _ in 0..opts.warmup_steps {
             trainer.step().map_err(train)?;
         }
@@ -289,7 +301,7 @@ fn run_in(
     let mut cpu = Timed::start(
         &data_dir,
         &root.join("cpu"),
-        Mode::S3tir,
+        (Mode::S3tir, ConsistPartner::default()),
         opts,
         CpuBackend { settings },
         &mut |_| {},
@@ -300,7 +312,7 @@ fn run_in(
     let mut gaussian = Timed::start(
         &data_dir,
         &root.join("vk-3dgs"),
-        Mode::Gaussian,
+        (Mode::Gaussian, ConsistPartner::default()),
         opts,
         vk,
         &mut |_| {},
@@ -312,7 +324,18 @@ fn run_in(
     let mut s3tir = Timed::start(
         &data_dir,
         &root.join("vk-s3tir"),
-        Mode::S3tir,
+        (Mode::S3tir, ConsistPartner::default()),
+        opts,
+        vk,
+        &mut |_| {},
+        &vulkan_traffic,
+    )?;
+    progress("Vulkan backend, s3tir mode, consistency partner rendered each step: warm-up");
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let mut rendered = Timed::start(
+        &data_dir,
+        &root.join("vk-s3tir-render"),
+        (Mode::S3tir, ConsistPartner::Render),
         opts,
         vk,
         &mut |_| {},
@@ -330,12 +353,15 @@ fn run_in(
         cpu.round(n)?;
         gaussian.round(n)?;
         s3tir.round(n)?;
+        rendered.round(n)?;
     }
     let cpu = cpu.finish(&no_traffic)?;
     let gaussian = gaussian.finish(&vulkan_traffic)?;
     let s3tir = s3tir.finish(&vulkan_traffic)?;
+    let rendered = rendered.finish(&vulkan_traffic)?;
     drop(gaussian.backend);
     drop(s3tir.backend);
+    drop(rendered.backend);
 
     // Timestamps add work of their own: time the kernels in separate passes.
     let (s3tir_kernels, vk) = profile(&data_dir, root, Mode::S3tir, opts, settings, progress)?;
@@ -384,6 +410,8 @@ fn run_in(
         gaussian_steps_per_s: gaussian.steps_per_s,
         vulkan_speedup_over_cpu: s3tir.steps_per_s / cpu.steps_per_s,
         s3tir_cost_over_gaussian: gaussian.steps_per_s / s3tir.steps_per_s,
+        s3tir_render_partner_steps_per_s: rendered.steps_per_s,
+        s3tir_render_partner_cost_over_gaussian: gaussian.steps_per_s / rendered.steps_per_s,
         cpu_backend_cpu_ms_per_step: cpu.cpu_ms_per_step,
         vulkan_cpu_ms_per_step: s3tir.cpu_ms_per_step,
         gaussian_cpu_ms_per_step: gaussian.cpu_ms_per_step,
@@ -418,7 +446,7 @@ fn profile(
     let mut profiled = Timed::start(
         data_dir,
         &root.join(format!("vk-prof-{name}")),
-        mode,
+        (mode, ConsistPartner::default()),
         opts,
         vk,
         &mut |b: &mut VulkanBackend| {

@@ -42,8 +42,10 @@ pub struct ConsistencyViews<'a> {
     pub planes_i: &'a GpuBuffer,
     pub planes_j: &'a GpuBuffer,
     /// Upstream gradient planes (6-plane layout) the gradients are added to; distinct buffers.
+    /// `up_j` `None`: the source view is under stop-gradient (its G-buffers were kept from an
+    /// earlier step; see [`crate::train::Partner::Previous`]) and gets nothing.
     pub up_i: &'a GpuBuffer,
-    pub up_j: &'a GpuBuffer,
+    pub up_j: Option<&'a GpuBuffer>,
     /// Size of the source view.
     pub width_j: usize,
     pub height_j: usize,
@@ -107,8 +109,9 @@ impl GpuConsistency {
         })
     }
 
-    /// Records the term of `views` with `weight` (λc): adds `weight · dL/dΨ` to both upstream
-    /// buffers and reduces the loss and valid count into the result slots.
+    /// Records the term of `views` with `weight` (λc): adds `weight · dL/dΨ` to the upstream
+    /// buffers (both, or view i's alone) and reduces the loss and valid count into the result
+    /// slots.
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
@@ -131,6 +134,7 @@ impl GpuConsistency {
         ] {
             push.extend_from_slice(&v.to_le_bytes());
         }
+        push.extend_from_slice(&u32::from(views.up_j.is_some()).to_le_bytes());
         rec.dispatch(
             &self.kernel,
             &[
@@ -139,7 +143,8 @@ impl GpuConsistency {
                 views.planes_i,
                 views.planes_j,
                 views.up_i,
-                views.up_j,
+                // Never written without gradient to view j (the kernel's `grad_j` is 0).
+                views.up_j.unwrap_or(views.up_i),
                 &self.terms,
             ],
             &push,

@@ -37,8 +37,9 @@
 //! [`Outputs::GBuffers`] renders a view without its thermal image (no band phases), and its
 //! backward pass takes no thermal upstream: the consistency partner of a training step needs
 //! only its G-buffers, and the bands' gradient through Ψ_high is one per-primitive sum
-//! (`raster_backward_finish` gives band j `sign(ω_j)` of it), so the partner costs about what a
-//! 3DGS view does.
+//! (`raster_backward_finish` gives band j `sign(ω_j)` of it), so a rendered partner
+//! ([`crate::train::Partner::Render`]) costs about what a 3DGS view does; the default partner
+//! ([`crate::train::Partner::Previous`]) is not rendered at all.
 //!
 //! Not here yet: the RGB (SH colour) branch.
 

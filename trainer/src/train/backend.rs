@@ -21,10 +21,30 @@ pub struct DeviceStep<'a> {
     pub cam: &'a PinholeCamera,
     /// The view's normalised thermal image.
     pub target: &'a [f32],
-    /// The consistency partner's camera (only its renders are needed, not its image).
-    pub pair: Option<&'a PinholeCamera>,
+    /// The consistency partner (only its G-buffers are needed, not its image).
+    pub pair: Option<Partner<'a>>,
     pub weights: LossWeights,
     pub consistency: ConsistencyOptions,
+}
+
+/// The consistency partner of a step ([`DeviceStep::pair`]; see
+/// [`crate::train::ConsistPartner`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Partner<'a> {
+    /// Rendered in this step (G-buffers only); both views get the term's gradients.
+    Render(&'a PinholeCamera),
+    /// The training view of the backend's previous device step, seen by this camera: its
+    /// G-buffers as that step rendered them (the backend keeps them), under stop-gradient.
+    /// Nothing is rendered for it.
+    Previous(&'a PinholeCamera),
+}
+
+impl<'a> Partner<'a> {
+    pub fn camera(&self) -> &'a PinholeCamera {
+        match *self {
+            Partner::Render(c) | Partner::Previous(c) => c,
+        }
+    }
 }
 
 /// What [`Backend::device_step`] computed.
@@ -104,6 +124,8 @@ pub trait Backend {
     ) -> Result<Primitives<f32>, TrainerError>;
     /// Renders, evaluates the thermal losses of `step` and back-propagates them on the
     /// backend's own device, so that images and their gradients never travel to the host.
+    /// A backend with a device path keeps the G-buffers of each step's training view until its
+    /// next step, for a [`Partner::Previous`] there.
     /// `None`: this backend (or this step) has no device path, and the loop renders, evaluates
     /// the losses on the host and calls [`Backend::backward`]. Both paths compute the same
     /// quantities (held together by tests).

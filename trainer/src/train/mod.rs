@@ -12,6 +12,19 @@
 //! `L_consist` (Ψ_high, Ψ_β warped to the view's overlap partner) join the loss. A term whose
 //! G-buffer cannot change in the mode (e.g. `L_sparse` without bands) is not computed.
 //!
+//! # Consistency pairs over steps ([`ConsistPartner`])
+//! With `previous` (the default) no step renders a second view: a step on a random view i
+//! ("lead", no term) keeps its G-buffers (the host's copy on the host path, the backend's on
+//! its device path), and the next step ("follow") trains a random view j among those that
+//! overlap i (≥ `capacity.min_pair_overlap`; not only i's best partner, which would leave
+//! the views that are nobody's best partner to the lead steps) with `L_consist`
+//! warping j into i's kept G-buffers (rendered one optimiser step earlier, under
+//! stop-gradient); then a lead again. The term runs on every second step (at most; also only
+//! on iterations that are multiples of `consist_every`) and pulls the freshly rendered side
+//! only. Density control, band dropping, β freezing and the end of the warm-up drop the kept
+//! view (it shows the primitives before the change), so the next step leads. With `render`
+//! every step renders i's partner j too (G-buffers only) and both get the term's gradients.
+//!
 //! # Leaving out what the scene does not need
 //! - colour (SH) is allocated only when a view has RGB;
 //! - consistency pairs are chosen once by camera overlap (fraction of a 6×6 grid of the view's
@@ -51,9 +64,10 @@ use thiserror::Error;
 
 pub use adam::{AdamParams, AdamState, GroupLrs};
 pub use backend::{
-    Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, ResidentStep, RunShape,
+    Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
+    RunShape,
 };
-pub use config::{Capacity, Densify, Mode, TrainConfig, Weights};
+pub use config::{Capacity, ConsistPartner, Densify, Mode, TrainConfig, Weights};
 
 use crate::camera::PinholeCamera;
 use crate::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint, CheckpointError};
@@ -198,12 +212,48 @@ pub struct Trainer<B: Backend> {
     min_log_scale: f32,
     /// Overlap partner of each view (index into `data.views`).
     pairs: Vec<Option<usize>>,
+    /// Each training view's overlapping training views (overlap ≥ `min_pair_overlap`).
+    neighbours: Vec<Vec<usize>>,
     grad_accum: Vec<f64>,
     grad_count: Vec<u32>,
     /// The optimiser state (`prims`' values, `adam`'s moments, the densification statistics)
     /// lives on the backend's device; the host copies are stale until [`Trainer::sync_host`].
     resident: bool,
+    /// The last step's training view, kept for a [`ConsistPartner::Previous`] term in the next
+    /// step (cleared whenever the primitives change between steps).
+    kept: Option<KeptView>,
     state: LoopState,
+}
+
+/// A training view's G-buffers kept from its step for the next step's consistency term.
+#[derive(Debug)]
+struct KeptView {
+    view: usize,
+    /// Iteration of the step that rendered it.
+    iteration: u64,
+    /// That step itself had a consistency term (it followed another): the next step draws a
+    /// fresh view instead of following it, so the schedule alternates.
+    followed: bool,
+    /// The host's copy (host path); `None`: the backend's device keeps them
+    /// ([`Backend::device_step`]).
+    gbuffers: Option<GBuffers<f32>>,
+}
+
+/// The consistency partner a step uses (index into `data.views`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PairChoice {
+    /// Rendered in this step.
+    Render(usize),
+    /// The previous step's training view, from its kept G-buffers.
+    Previous(usize),
+}
+
+impl PairChoice {
+    fn view(self) -> usize {
+        match self {
+            PairChoice::Render(v) | PairChoice::Previous(v) => v,
+        }
+    }
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -322,7 +372,7 @@ impl<B: Backend> Trainer<B> {
         .unwrap_or(1.0);
         let f = median(data.views.iter().map(|v| v.camera.fx_px).collect()).unwrap_or(1.0);
         let min_log_scale = (0.5 * depth / f).max(1e-9).ln() as f32;
-        let pairs = choose_pairs(&data, centre, cfg.capacity.min_pair_overlap);
+        let (pairs, neighbours) = choose_pairs(&data, centre, cfg.capacity.min_pair_overlap);
         Self {
             cfg,
             data,
@@ -335,9 +385,11 @@ impl<B: Backend> Trainer<B> {
             extent_m,
             min_log_scale,
             pairs,
+            neighbours,
             grad_accum: Vec::new(),
             grad_count: Vec::new(),
             resident: false,
+            kept: None,
             state: LoopState::default(),
         }
     }
@@ -508,6 +560,44 @@ impl<B: Backend> Trainer<B> {
             && self.iteration.is_multiple_of(self.cfg.consist_every)
     }
 
+    /// The view of a step and its consistency partner, from the view `drawn` at random (see
+    /// [`ConsistPartner`]): with [`ConsistPartner::Previous`], a step that follows a step
+    /// without a term (on view i, whose G-buffers are kept) trains one of i's overlapping
+    /// views j, drawn from `rng`, against them instead of `drawn`.
+    fn schedule(&self, drawn: usize, rng: &mut ChaCha8Rng) -> (usize, Option<PairChoice>) {
+        if !self.consist_active() {
+            return (drawn, None);
+        }
+        match self.cfg.consist_partner {
+            ConsistPartner::Render => (drawn, self.pairs[drawn].map(PairChoice::Render)),
+            ConsistPartner::Previous => match &self.kept {
+                // One of i's overlapping views at random, not i's best partner: views that are
+                // nobody's best partner would otherwise train only on lead steps.
+                Some(k) if !k.followed && k.iteration + 1 == self.iteration => {
+                    match self.neighbours[k.view].as_slice() {
+                        [] => (drawn, None),
+                        near => (
+                            near[rng.random_range(0..near.len())],
+                            Some(PairChoice::Previous(k.view)),
+                        ),
+                    }
+                }
+                _ => (drawn, None),
+            },
+        }
+    }
+
+    /// Records the step's training view `vi` as kept for the next step (`gbuffers`: the host's
+    /// copy; `None`: the backend's device keeps them).
+    fn keep(&mut self, vi: usize, followed: bool, gbuffers: Option<GBuffers<f32>>) {
+        self.kept = Some(KeptView {
+            view: vi,
+            iteration: self.iteration,
+            followed,
+            gbuffers,
+        });
+    }
+
     /// Loss and upstream gradient of one view's own terms.
     fn view_terms(
         &self,
@@ -565,19 +655,18 @@ impl<B: Backend> Trainer<B> {
         let mut rng = ChaCha8Rng::seed_from_u64(
             self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.iteration,
         );
-        let vi = self.data.train[rng.random_range(0..self.data.train.len())];
+        let drawn = self.data.train[rng.random_range(0..self.data.train.len())];
         if self.iteration == self.cfg.warmup && self.cfg.mode.learns_beta() {
             self.sync_host()?;
             self.release_warmup_beta();
         }
         let weights = self.loss_weights();
         let has_rgb = !self.prims.sh.is_empty();
-        let pair = if self.consist_active() {
-            self.pairs[vi]
-        } else {
-            None
-        };
-        let thermal_only = self.data.views[vi].thermal.is_some() && !has_rgb;
+        let (vi, pair) = self.schedule(drawn, &mut rng);
+        // A partner kept on the host (the last step took the host path) needs the host path.
+        let host_kept = matches!(pair, Some(PairChoice::Previous(_)))
+            && self.kept.as_ref().is_some_and(|k| k.gbuffers.is_some());
+        let thermal_only = self.data.views[vi].thermal.is_some() && !has_rgb && !host_kept;
         if thermal_only && !self.resident {
             self.resident = self.backend.resident_upload(&mut OptimiserState {
                 prims: &mut self.prims,
@@ -605,11 +694,12 @@ impl<B: Backend> Trainer<B> {
         let loss = match resident_loss {
             Some(loss) => {
                 self.adam.step += 1;
+                self.keep(vi, pair.is_some(), None);
                 loss
             }
             None => {
                 self.sync_host()?;
-                self.host_optimiser_step(vi, pair, &weights, &lrs)?
+                self.host_optimiser_step(vi, pair, &weights, &lrs, host_kept)?
             }
         };
         self.iteration += 1;
@@ -643,13 +733,15 @@ impl<B: Backend> Trainer<B> {
     }
 
     /// Gradients (the backend's device path, else render + host losses + backward),
-    /// densification statistics and Adam on the host; returns the loss.
+    /// densification statistics and Adam on the host; returns the loss. `host_kept`: the
+    /// partner is the host's kept copy (no device path).
     fn host_optimiser_step(
         &mut self,
         vi: usize,
-        pair: Option<usize>,
+        pair: Option<PairChoice>,
         weights: &LossWeights,
         lrs: &GroupLrs,
+        host_kept: bool,
     ) -> Result<f64, TrainError> {
         let weights = *weights;
         let cam_i = self.data.views[vi].camera;
@@ -657,18 +749,49 @@ impl<B: Backend> Trainer<B> {
         // The backend's device path when it has one (images stay on the device), else the
         // host path below: render, losses on the host, backward.
         let device = match (thermal_step(&self.data, vi, pair, weights, &cam_i), has_rgb) {
-            (Some(step), false) => self.backend.device_step(&self.prims, &step).transpose()?,
+            (Some(step), false) if !host_kept => {
+                self.backend.device_step(&self.prims, &step).transpose()?
+            }
             _ => None,
         };
+        let kept = self.kept.take();
         let (loss, grads) = match device {
-            Some(r) => (r.loss, r.grads),
+            Some(r) => {
+                self.keep(vi, pair.is_some(), None);
+                (r.loss, r.grads)
+            }
             None => {
                 let gb_i = self.backend.render(&self.prims, &cam_i)?;
                 let mut up_i = GBuffers::zeros(gb_i.width, gb_i.height, has_rgb);
                 let mut loss = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
 
                 let mut grads = None;
-                if let Some(vj) = pair {
+                if let Some(PairChoice::Previous(vj)) = pair {
+                    match kept.as_ref().and_then(|k| k.gbuffers.as_ref()) {
+                        Some(gb_j) => {
+                            // The kept side is under stop-gradient: its upstream is dropped.
+                            let cam_j = self.data.views[vj].camera;
+                            let mut dropped = GBuffers::zeros(gb_j.width, gb_j.height, false);
+                            let c = consistency_loss(
+                                &gb_i,
+                                &cam_i,
+                                gb_j,
+                                &cam_j,
+                                &ConsistencyOptions::default(),
+                                weights.lambda_consist as f32,
+                                &mut up_i,
+                                &mut dropped,
+                            )?;
+                            loss += weights.lambda_consist * c.loss;
+                        }
+                        // Kept on the backend's device, which this step does not use.
+                        None => tracing::debug!(
+                            iteration = self.iteration,
+                            "consistency partner not kept on the host: term skipped"
+                        ),
+                    }
+                }
+                if let Some(PairChoice::Render(vj)) = pair {
                     let cam_j = self.data.views[vj].camera;
                     // Only the partner's G-buffers enter the loss.
                     let gb_j = self.backend.render_gbuffers(&self.prims, &cam_j)?;
@@ -687,6 +810,7 @@ impl<B: Backend> Trainer<B> {
                     grads = Some(self.backend.backward(&self.prims, &cam_j, &up_j)?);
                 }
                 let g_i = self.backend.backward(&self.prims, &cam_i, &up_i)?;
+                self.keep(vi, pair.is_some(), Some(gb_i));
                 let grads = match grads {
                     None => g_i,
                     Some(mut g) => {
@@ -724,6 +848,8 @@ impl<B: Backend> Trainer<B> {
 
     /// End of the warm-up: every frozen β becomes learnable (β = 2 + 4.5e-5).
     fn release_warmup_beta(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
         let mut released = 0;
         for (r, (m, v)) in self.prims.beta_raw.iter_mut().zip(
             self.adam
@@ -747,6 +873,8 @@ impl<B: Backend> Trainer<B> {
 
     /// Snaps primitives with β ≤ `gaussian_beta_max` and no live band to β = 2, frozen.
     fn freeze_gaussians(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
         let max = self.cfg.capacity.gaussian_beta_max;
         let mut frozen = 0;
         for i in 0..self.prims.len() {
@@ -768,6 +896,8 @@ impl<B: Backend> Trainer<B> {
 
     /// Clone/split/prune under the budget (see [`Densify`]).
     fn densify(&mut self, rng: &mut ChaCha8Rng) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
         let d = self.cfg.densify;
         let n = self.prims.len();
         let mut cand: Vec<(f64, usize)> = (0..n)
@@ -845,6 +975,8 @@ impl<B: Backend> Trainer<B> {
 
     /// Drops negligible bands per primitive and compacts the band storage.
     fn drop_bands(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
         let m = self.prims.bands;
         let thr = self.cfg.capacity.band_amp_threshold as f32;
         let mut keep: Vec<Vec<usize>> = Vec::with_capacity(self.prims.len());
@@ -1116,7 +1248,7 @@ impl<B: Backend> Trainer<B> {
 fn thermal_step<'a>(
     data: &'a Dataset,
     vi: usize,
-    pair: Option<usize>,
+    pair: Option<PairChoice>,
     weights: LossWeights,
     cam: &'a PinholeCamera,
 ) -> Option<DeviceStep<'a>> {
@@ -1124,7 +1256,13 @@ fn thermal_step<'a>(
         view: vi,
         cam,
         target,
-        pair: pair.map(|vj| &data.views[vj].camera),
+        pair: pair.map(|p| {
+            let cam = &data.views[p.view()].camera;
+            match p {
+                PairChoice::Render(_) => Partner::Render(cam),
+                PairChoice::Previous(_) => Partner::Previous(cam),
+            }
+        }),
         weights,
         consistency: ConsistencyOptions::default(),
     })
@@ -1210,8 +1348,13 @@ fn knn3_mean_distance(pts: &[[f64; 3]], lo: [f64; 3], hi: [f64; 3]) -> Vec<f64> 
         .collect()
 }
 
-/// Overlap partner of every training view (see the module docs).
-fn choose_pairs(data: &Dataset, centre: [f64; 3], min_overlap: f64) -> Vec<Option<usize>> {
+/// Overlap partner of every training view (see the module docs), and every training view's
+/// overlapping views (overlap ≥ `min_overlap`, ascending index).
+fn choose_pairs(
+    data: &Dataset,
+    centre: [f64; 3],
+    min_overlap: f64,
+) -> (Vec<Option<usize>>, Vec<Vec<usize>>) {
     let overlap = |a: &PinholeCamera, b: &PinholeCamera| -> f64 {
         let depth = a.to_cam(centre)[2];
         if depth.is_nan() || depth <= 0.0 {
@@ -1239,6 +1382,7 @@ fn choose_pairs(data: &Dataset, centre: [f64; 3], min_overlap: f64) -> Vec<Optio
         f64::from(hit) / (G * G) as f64
     };
     let mut pairs = vec![None; data.views.len()];
+    let mut neighbours = vec![Vec::new(); data.views.len()];
     for &i in &data.train {
         let a = &data.views[i].camera;
         let ca = a.centre_world();
@@ -1256,13 +1400,16 @@ fn choose_pairs(data: &Dataset, centre: [f64; 3], min_overlap: f64) -> Vec<Optio
                 continue;
             }
             let o = overlap(a, b);
-            if o >= min_overlap && best.is_none_or(|(bo, _)| o > bo) {
-                best = Some((o, j));
+            if o >= min_overlap {
+                neighbours[i].push(j);
+                if best.is_none_or(|(bo, _)| o > bo) {
+                    best = Some((o, j));
+                }
             }
         }
         pairs[i] = best.map(|b| b.1);
     }
-    pairs
+    (pairs, neighbours)
 }
 
 /// Held-out evaluation of a finished (or checkpointed) run, as `s3tir-train eval` prints it.
@@ -1316,4 +1463,112 @@ pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, T
         primitives: t.prims.len(),
         views: e.views,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+    use crate::dataset::LoadOptions;
+    use crate::dataset::synth::{self, SynthConfig};
+
+    fn trainer(dir: &Path, partner: ConsistPartner, lambda_consist: f64) -> Trainer<CpuBackend> {
+        let data_dir = dir.join("scene");
+        if !data_dir.exists() {
+            let scfg = SynthConfig {
+                width: 32,
+                height: 24,
+                f_px: 27.0,
+                points: 120,
+                ..SynthConfig::default()
+            };
+            synth::write_scene(&data_dir, &scfg).unwrap();
+        }
+        let mut c = TrainConfig::new(data_dir.clone());
+        c.iters = 100;
+        c.warmup = 0;
+        c.budget = 120;
+        c.seed = 9;
+        c.eval_every_s = 1e9;
+        c.checkpoint_every_s = 1e9;
+        c.densify.from = 5;
+        c.densify.every = 5;
+        c.capacity.every = u64::MAX;
+        c.consist_partner = partner;
+        c.weights.consist = lambda_consist;
+        // Opaque enough from the start that views have depth (alpha ≥ 0.5) to warp by.
+        c.init_opacity = 0.8;
+        let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+        let run = dir.join(format!("run-{partner}-{lambda_consist}"));
+        Trainer::new(c, data, CpuBackend::default(), &run).unwrap()
+    }
+
+    /// With `previous`, a step on a random view is followed by a step on its overlap partner
+    /// whose term uses the first step's kept G-buffers; the schedule alternates, and density
+    /// control in between drops the kept view (the next step draws a fresh one).
+    #[test]
+    fn previous_partner_schedule_alternates() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut t = trainer(tmp.path(), ConsistPartner::Previous, 0.01);
+        let mut follows = 0;
+        for step in 0..16u64 {
+            let before = t.kept.as_ref().map(|k| (k.view, k.followed));
+            t.step().unwrap();
+            if t.iteration.is_multiple_of(5) {
+                assert!(
+                    t.kept.is_none(),
+                    "step {step}: density control must drop the kept view"
+                );
+                continue;
+            }
+            let k = t.kept.as_ref().expect("the host path keeps its view");
+            assert_eq!(k.iteration, step, "step {step}: kept iteration");
+            assert!(
+                k.gbuffers.is_some(),
+                "step {step}: the CPU backend keeps its G-buffers on the host"
+            );
+            match before {
+                Some((prev, false)) if !t.neighbours[prev].is_empty() => {
+                    assert!(
+                        k.followed,
+                        "step {step}: must follow the lead step on view {prev}"
+                    );
+                    assert!(
+                        t.neighbours[prev].contains(&k.view),
+                        "step {step}: the follow step trains a view overlapping the lead view \
+                         {prev} ({:?}), not {}",
+                        t.neighbours[prev],
+                        k.view
+                    );
+                    follows += 1;
+                }
+                _ => assert!(!k.followed, "step {step}: must lead (draw a fresh view)"),
+            }
+        }
+        assert!(follows >= 4, "only {follows} follow steps in 16");
+    }
+
+    /// A follow step's loss carries λc·L_consist: the same run with λc = 0 (same schedule,
+    /// the term stays on) takes the same steps and losses up to the first follow step, whose
+    /// loss is larger with λc > 0.
+    #[test]
+    fn previous_partner_term_enters_the_loss() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut t = trainer(tmp.path(), ConsistPartner::Previous, 0.5);
+        let mut zero = trainer(tmp.path(), ConsistPartner::Previous, 0.0);
+        for step in 0..4u64 {
+            let (a, b) = (t.step().unwrap(), zero.step().unwrap());
+            let followed = t.kept.as_ref().is_some_and(|k| k.followed);
+            if followed {
+                assert!(
+                    a > b + 1e-6,
+                    "step {step}: follow-step loss {a} must exceed the λc = 0 run's {b}"
+                );
+                return;
+            }
+            assert_eq!(a, b, "step {step}: lead steps have no term");
+        }
+        panic!("no follow step in 4 steps");
+    }
 }
