@@ -165,9 +165,9 @@ struct TrainArgs {
     #[arg(long, default_value_t = 1)]
     consist_every: u64,
     /// The consistency term's partner view: `previous` pairs consecutive steps (a random view,
-    /// then its overlap partner, warped into the G-buffers kept from the first: no extra
-    /// render, the term on every second step); `render` renders the partner in the same step
-    /// (both views get gradients; about 2x the step time).
+    /// then a view overlapping it, warped into the G-buffers kept from the first: no extra
+    /// render, the term on every second step); `render` renders the view's best-overlap
+    /// partner in the same step (both views get gradients; about 2x the step time).
     #[arg(long, default_value_t = ConsistPartner::Previous)]
     consist_partner: ConsistPartner,
 }

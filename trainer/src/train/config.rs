@@ -143,16 +143,16 @@ impl Default for Capacity {
 /// costs a second projection, sort, forward and backward pass: at least 2× the step of a
 /// 3DGS view however the kernels are tuned, while issue 8 asks full S³-TIR training to cost at
 /// most 1.5× 3DGS mode. [`ConsistPartner::Previous`] (the default) pairs consecutive steps
-/// instead: a step on a random view i is followed by a step on i's overlap partner j, whose
-/// term warps j into the G-buffers kept from step i's render (one optimiser step old, under
-/// stop-gradient). Nothing extra is rendered; the term is computed on every second step and
-/// pulls only the freshly rendered side. Measured against `Render` in the closing note of
-/// issue 8 and in `s3tir-train bench`.
+/// instead: a step on a random view i is followed by a step on a random view j that overlaps
+/// i, whose term warps j into the G-buffers kept from step i's render (one optimiser step old,
+/// under stop-gradient). Nothing extra is rendered; the term is computed on every second step
+/// and pulls only the freshly rendered side. Cost and held-out quality against `Render` are in
+/// the closing note of issue 8; `s3tir-train bench` measures both modes' steps/s.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ConsistPartner {
     /// The previous step's training view, from the G-buffers kept from its render (the
-    /// schedule alternates a random view and its overlap partner). No extra render.
+    /// schedule alternates a random view and a view overlapping it). No extra render.
     #[default]
     Previous,
     /// The view's overlap partner, rendered in the same step (both views get gradients).
