@@ -157,6 +157,9 @@ fn paths_take_the_same_steps(partner: ConsistPartner) {
         c.warmup = 2; // β, bands and the consistency term from step 2 (the state syncs there)
         c.consist_every = 1;
         c.consist_partner = partner;
+        // Opaque from the start, so views have depth (alpha ≥ 0.5) and the consistency term
+        // is not zero in these first steps.
+        c.init_opacity = 0.8;
         c.densify.from = 3;
         c.densify.every = 3;
         c.capacity.every = 4;

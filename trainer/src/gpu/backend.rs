@@ -10,14 +10,14 @@
 //! partner is the previous step's training view: every step copies its view's planes and
 //! camera block into one of two kept slots, and the next step's term reads the other (no
 //! render, no backward pass for it; a repeated step reads the same slot). A step is three
-//! submissions (binning, sorting and forward passes, then losses + backward passes + Adam) and
-//! one small read at the end: the loss sums and the views' key totals. The key lists have the room earlier steps measured, so the sort
-//! reads its count on the GPU; a step whose views need more room is gated (the `adam` kernel
-//! changes nothing) and runs again with room for them. With
-//! [`VulkanBackend::set_resident_optimiser`] off, steps take the device
-//! path ([`Backend::device_step`]: the same, with the gradients read back for the host's
-//! Adam); with [`VulkanBackend::set_device_losses`] off, the host path (images read back).
-//! Targets are uploaded once per view. RGB steps (SH colour) are not supported on the GPU.
+//! submissions (binning, sorting and forward passes, then losses + backward passes + Adam) and one
+//! small read at the end: the loss sums and the views' key totals. The key lists have the room
+//! earlier steps measured, so the sort reads its count on the GPU; a step whose views need more
+//! room is gated (the `adam` kernel changes nothing) and runs again with room for them. With
+//! [`VulkanBackend::set_resident_optimiser`] off, steps take the device path
+//! ([`Backend::device_step`]: the same, with the gradients read back for the host's Adam); with
+//! [`VulkanBackend::set_device_losses`] off, the host path (images read back). Targets are uploaded
+//! once per view. RGB steps (SH colour) are not supported on the GPU.
 
 use std::collections::HashMap;
 
