@@ -305,32 +305,23 @@ pub fn kalibr_camchain(c: &Calibration) -> String {
     s
 }
 
-/// COLMAP `cameras.txt` with the FULL_OPENCV model. COLMAP puts the pixel origin at the
-/// top-left *corner*, so cx, cy are shifted by +0.5.
+/// COLMAP `cameras.txt` (camera 1 = thermal, 2 = rgb when present), written by the workspace's
+/// one COLMAP codec ([`crate::colmap::cameras_text`]: PINHOLE, OPENCV or FULL_OPENCV by the
+/// distortion, cx, cy shifted by +0.5 to COLMAP's pixel-corner origin), so the trainer's and
+/// COLMAP's readers take it.
 pub fn colmap_cameras(c: &Calibration) -> String {
-    let mut s = String::from(
-        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# 1 = thermal, 2 = rgb (when present). cx, cy shifted by +0.5 to COLMAP's pixel-corner origin.\n",
-    );
-    for r in c.cameras.iter().flatten() {
-        let m = &r.model;
-        let (i, d) = (m.intrinsics, m.distortion);
-        let id = r.camera.index() + 1;
-        let _ = writeln!(
-            s,
-            "{id} FULL_OPENCV {} {} {} {} {} {} {} {} {} {} {} 0 0 0",
-            m.width_px,
-            m.height_px,
-            i.fx,
-            i.fy,
-            i.cx + 0.5,
-            i.cy + 0.5,
-            d.k1,
-            d.k2,
-            d.p1,
-            d.p2,
-            d.k3
-        );
-    }
+    let cameras: Vec<crate::colmap::ColmapCamera> = c
+        .cameras
+        .iter()
+        .flatten()
+        .map(|r| crate::colmap::ColmapCamera {
+            id: r.camera.index() as u32 + 1,
+            model_name: crate::colmap::colmap_params(&r.model).0.to_owned(),
+            model: r.model,
+        })
+        .collect();
+    let mut s = String::from("# 1 = thermal, 2 = rgb (when present)\n");
+    s.push_str(&crate::colmap::cameras_text(&cameras));
     s
 }
 

@@ -1,14 +1,17 @@
 //! s3tir-calib: camera models, calibration files and (feature `opencv`) board detection.
 //!
-//! The camera model ([`camera`]) and rigid transforms ([`geometry`]) build without OpenCV so
-//! the trainer and the simulated rig share the exact model calibration solves.
+//! The camera model ([`camera`]), rigid transforms ([`geometry`]) and the file formats cameras
+//! travel in between stages ([`colmap`], [`calfile`]) build without OpenCV, so the trainer and the
+//! simulated rig share the exact model calibration solves and one codec per format.
 //! Conventions (frames, pixel-centre origin, units) are in `docs/CONVENTIONS.md`.
 
 #[cfg(feature = "opencv")]
 pub mod bench;
 #[cfg(feature = "opencv")]
 pub mod board;
+pub mod calfile;
 pub mod camera;
+pub mod colmap;
 #[cfg(feature = "opencv")]
 pub mod detect;
 pub mod error;
@@ -19,6 +22,8 @@ pub mod frontend;
 pub mod geometry;
 #[cfg(feature = "opencv")]
 pub mod pipeline;
+#[cfg(feature = "poses")]
+pub mod poses;
 #[cfg(feature = "opencv")]
 pub mod report;
 #[cfg(feature = "opencv")]

@@ -10,6 +10,8 @@ use s3tir_calib::solve::SolveOptions;
 use s3tir_calib::tags::{self, TagConfig, TagDetector};
 use s3tir_calib::{bench, detect, export, report};
 
+mod cli_poses;
+
 /// Calibrate a thermal + RGB camera rig with an emissivity-coated checkerboard.
 ///
 /// `s3tir-calib BOARD_DIR` reads `BOARD_DIR/board.toml` (`[board] inner_corners = [cols, rows]`,
@@ -71,6 +73,9 @@ struct CalibrateArgs {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Turn a recorded session into a posed thermal dataset for s3tir-train (COLMAP on the RGB
+    /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic).
+    Poses(cli_poses::PosesArgs),
     /// Detect a chessboard in each image and print its corners (pixels, origin at the centre
     /// of the top-left pixel). Exits non-zero if any image has no board.
     Detect {
@@ -306,6 +311,7 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.command {
+        Some(Command::Poses(a)) => cli_poses::run(&a),
         Some(Command::Detect {
             inner_corners: (cols, rows),
             images,

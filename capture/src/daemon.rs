@@ -57,7 +57,8 @@ pub struct DaemonConfig {
     pub queue_frames: usize,
     /// Draw the live status line on stderr.
     pub status_line: bool,
-    /// Calibration file attached to the session.
+    /// Calibration file attached to the session: (name with the file's extension, bytes);
+    /// the media type follows the extension.
     pub calibration: Option<(String, Vec<u8>)>,
     /// Extra per-buffer write delay (tests: simulates a slow disk).
     pub slow_disk: Option<Duration>,
@@ -206,7 +207,13 @@ async fn run_async(
     let started = Instant::now();
     let mut writer = SessionWriter::create(&cfg.out, &cfg.info)?;
     if let Some((name, data)) = &cfg.calibration {
-        writer.attach(name, "application/toml", data)?;
+        let media_type = match name.rsplit('.').next() {
+            Some("yaml" | "yml") => "application/yaml",
+            Some("toml") => "application/toml",
+            Some("json") => "application/json",
+            _ => "application/octet-stream",
+        };
+        writer.attach(name, media_type, data)?;
     }
     let (tx, mut rx) = mpsc::channel::<Msg>(cfg.queue_frames.max(2));
 

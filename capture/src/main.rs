@@ -80,7 +80,8 @@ struct RecordArgs {
     /// Largest RGB size to negotiate, WIDTHxHEIGHT.
     #[arg(long, default_value = "1920x1080")]
     rgb_max_size: String,
-    /// Calibration file (s3tir-calib TOML) attached to the session.
+    /// Calibration file (s3tir-calib's calibration.yaml) attached to the session, so the poses
+    /// stage (`export --dataset`, `s3tir-train SESSION.mcap`) finds it without --calibration.
     #[arg(long)]
     calibration: Option<PathBuf>,
 }
@@ -117,12 +118,22 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Export paired frames in the s3tir-calib board-folder layout: thermal/NNNN.png (16-bit)
-    /// and rgb/NNNN.png, pair k under the same name.
+    /// Export a session. `--out DIR`: paired frames in the s3tir-calib board-folder layout
+    /// (thermal/NNNN.png 16-bit, rgb/NNNN.png, pair k under the same name). `--dataset DIR`:
+    /// a posed thermal dataset for s3tir-train (COLMAP layout, radiometric 16-bit images
+    /// untouched), made by `s3tir-calib poses` (run from this program's folder: COLMAP on the
+    /// RGB keyframes, thermal poses composed with the calibrated extrinsic); see its --help.
     Export {
         file: PathBuf,
+        /// Board-folder layout of the pairs.
+        #[arg(long, required_unless_present = "dataset")]
+        out: Option<PathBuf>,
+        /// Posed dataset for s3tir-train (needs the rig's calibration).
         #[arg(long)]
-        out: PathBuf,
+        dataset: Option<PathBuf>,
+        /// The rig's calibration.yaml for --dataset [default: the one attached to the session].
+        #[arg(long, requires = "dataset")]
+        calibration: Option<PathBuf>,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time.
@@ -155,14 +166,59 @@ fn main() -> Result<()> {
             out,
             json,
         }) => replay(&file, realtime, out, json),
-        Some(Command::Export { file, out }) => {
-            let n = tools::export(&file, &out)?;
-            println!("exported {n} pairs to {}", out.display());
+        Some(Command::Export {
+            file,
+            out,
+            dataset,
+            calibration,
+        }) => {
+            if let Some(out) = out {
+                let n = tools::export(&file, &out)?;
+                println!("exported {n} pairs to {}", out.display());
+            }
+            if let Some(dataset) = dataset {
+                export_dataset(&file, &dataset, calibration.as_deref())?;
+            }
             Ok(())
         }
         Some(Command::Bench { seconds, out, json }) => bench(seconds, out, json),
         None => record(cli.record),
     }
+}
+
+/// `export --dataset`: capture sits below calib (ARCHITECTURE.md), so the poses stage runs as
+/// the `s3tir-calib poses` process installed beside this program.
+fn export_dataset(
+    session: &std::path::Path,
+    dataset: &std::path::Path,
+    calibration: Option<&std::path::Path>,
+) -> Result<()> {
+    let exe_dir = std::env::current_exe()
+        .ok()
+        .and_then(|p| p.parent().map(std::path::Path::to_path_buf))
+        .unwrap_or_default();
+    let calib = exe_dir.join("s3tir-calib");
+    if !calib.is_file() {
+        bail!(
+            "export --dataset runs s3tir-calib poses, and {} is not installed (build the workspace: cargo build --workspace --bins)",
+            calib.display()
+        );
+    }
+    let mut cmd = std::process::Command::new(&calib);
+    cmd.arg("poses").arg(session).arg("--out").arg(dataset);
+    if let Some(c) = calibration {
+        cmd.arg("--calibration").arg(c);
+    }
+    let status = cmd
+        .status()
+        .with_context(|| format!("running {}", calib.display()))?;
+    if !status.success() {
+        bail!(
+            "s3tir-calib poses failed ({status}): no dataset written to {}",
+            dataset.display()
+        );
+    }
+    Ok(())
 }
 
 fn info(file: &std::path::Path, json: bool) -> Result<()> {
@@ -419,7 +475,14 @@ fn record(a: RecordArgs) -> Result<()> {
     info.pairing = serde_json::to_string(&pairing)?;
     let calibration = match &a.calibration {
         Some(p) => Some((
-            "calibration".to_owned(),
+            // The name carries the file's extension, so readers know its format
+            // (calibration.yaml from s3tir-calib).
+            format!(
+                "calibration{}",
+                p.extension()
+                    .map(|e| format!(".{}", e.to_string_lossy()))
+                    .unwrap_or_default()
+            ),
             std::fs::read(p).with_context(|| format!("read {}", p.display()))?,
         )),
         None => None,

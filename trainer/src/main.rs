@@ -50,7 +50,7 @@ enum Command {
         json: bool,
     },
     /// Train a model (same as `s3tir-train DATA --out RUN_DIR …`).
-    Train(TrainArgs),
+    Train(Box<TrainArgs>),
     /// Benchmark training steps/s: Vulkan backend vs CPU backend on the same scene and budget,
     /// full s3tir mode vs 3dgs mode, and the GPU time per kernel (timestamp queries).
     Bench(BenchArgs),
@@ -91,9 +91,21 @@ enum Command {
 /// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
 #[derive(Debug, Args)]
 struct TrainArgs {
-    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`).
+    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`), or a session recorded by
+    /// s3tir-capture (`.mcap`): it is posed first (`s3tir-calib poses`: COLMAP on the RGB
+    /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic) into
+    /// --dataset, then trained on.
     #[arg(required = true)]
     data: Option<PathBuf>,
+    /// Session input: the rig's calibration.yaml [default: the one attached to the session].
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// Session input: where to write the posed dataset [default: RUN_DIR-dataset beside the run].
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Session input: the COLMAP program.
+    #[arg(long, env = "S3TIR_COLMAP", default_value = "colmap")]
+    colmap: PathBuf,
     /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
     /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]
@@ -182,7 +194,8 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match (cli.command, cli.train) {
         (Some(Command::Devices { json }), _) => devices(json),
-        (Some(Command::Train(a)), _) | (None, Some(a)) => train_cmd(a),
+        (Some(Command::Train(a)), _) => train_cmd(*a),
+        (None, Some(a)) => train_cmd(a),
         (Some(Command::Bench(a)), _) => bench_cmd(a),
         (Some(Command::Eval { run_dir, json }), _) => eval_cmd(&run_dir, json),
         (Some(Command::Compare { runs, out }), _) => compare_cmd(&runs, &out),
@@ -216,6 +229,15 @@ fn main() -> Result<()> {
 fn train_cmd(a: TrainArgs) -> Result<()> {
     let (Some(data), Some(out)) = (a.data.clone(), a.out.clone()) else {
         bail!("training needs DATA and --out RUN_DIR");
+    };
+    let data = if !a.resume
+        && data
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+    {
+        pose_session(&a, &data, &out)?
+    } else {
+        data
     };
     let data = std::fs::canonicalize(&data)
         .with_context(|| format!("dataset folder {}", data.display()))?;
@@ -286,6 +308,42 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         ),
         _ => run_training(cfg, dataset, CpuBackend::default(), &out, a.resume),
     }
+}
+
+/// `s3tir-train SESSION.mcap`: the poses stage (calib's, in-process) writes the dataset first.
+fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
+    use s3tir_calib::calfile::CalibrationFile;
+    use s3tir_calib::poses::{self, PosesOptions};
+    if out.exists() {
+        bail!(
+            "{} exists: s3tir-train never overwrites a run (choose another --out)",
+            out.display()
+        );
+    }
+    let dataset = a.dataset.clone().unwrap_or_else(|| {
+        let mut name = out.file_name().unwrap_or_default().to_os_string();
+        name.push("-dataset");
+        out.with_file_name(name)
+    });
+    let cal = match &a.calibration {
+        Some(p) => Some(CalibrationFile::read(p)?),
+        None => None,
+    };
+    let opts = PosesOptions {
+        colmap: a.colmap.clone(),
+        holdout_every: a.holdout,
+        progress: true,
+        ..PosesOptions::default()
+    };
+    println!(
+        "posing session {} into {}",
+        session.display(),
+        dataset.display()
+    );
+    let report = poses::session_to_dataset(session, cal.as_ref(), &dataset, &opts)
+        .with_context(|| format!("poses from {}", session.display()))?;
+    print!("{}", poses::summary(&report));
+    Ok(dataset)
 }
 
 #[cfg(feature = "vulkan")]

@@ -9,7 +9,9 @@
 use std::fs;
 use std::path::Path;
 
-use s3tir_trainer::dataset::colmap::{ColmapModel, read_binary_model, read_text_model};
+use s3tir_trainer::dataset::colmap::{
+    ColmapError, ColmapModel, read_binary_model, read_text_model,
+};
 use s3tir_trainer::dataset::images::{ColourMode, ImageKind, ironbow, load_image};
 use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, DatasetError, LoadOptions};
@@ -316,7 +318,10 @@ fn bad_inputs_give_clear_errors() {
     );
     assert!(matches!(
         Dataset::load(&root, &LoadOptions::default()),
-        Err(DatasetError::NonFinitePoint { point_id: 77, .. })
+        Err(DatasetError::Colmap(ColmapError::NonFinitePoint {
+            point_id: 77,
+            ..
+        }))
     ));
     fs::write(sparse.join("points3D.txt"), pts).unwrap();
 

@@ -10,13 +10,15 @@
 //! - thermal values (16-bit words, 8-bit grey, pseudo-colour palette index) are normalised to
 //!   [0, 1] with **one range per scene** ([`ThermalRange`]), kept so renders and errors convert
 //!   back to kelvin when the words are centikelvin; RGB is divided by 255;
-//! - views are sorted by image name and every `holdout_every`-th one (index 0, k, 2k, …) is held
-//!   out for testing (default 8, as 3DGS's LLFF hold-out; 0: no test views);
+//! - views are sorted by image name; the held-out test views are those `DATA/holdout.txt` names
+//!   (one image name per line, as the poses stage writes it), else every `holdout_every`-th one
+//!   (index 0, k, 2k, …; default 8, as 3DGS's LLFF hold-out; 0: no test views);
 //! - initial points come from `points3D` or, when there are none, uniformly from the scene
 //!   bounds ([`Dataset::bounds_m`]).
 
-pub mod colmap;
 pub mod images;
+/// The COLMAP codec lives in calib's OpenCV-free layer (one codec for every stage).
+pub use s3tir_calib::colmap;
 pub mod synth;
 
 use std::path::{Path, PathBuf};
@@ -41,22 +43,9 @@ pub enum DatasetError {
         #[source]
         source: std::io::Error,
     },
-    #[error("{path}:{line}: {reason}")]
-    Parse {
-        path: PathBuf,
-        line: usize,
-        reason: String,
-    },
-    #[error(
-        "{path}: camera model {model} is not supported (supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV)"
-    )]
-    UnsupportedCameraModel { path: PathBuf, model: String },
-    #[error("{path}:{line}: point {point_id} has a NaN or infinite coordinate")]
-    NonFinitePoint {
-        path: PathBuf,
-        line: usize,
-        point_id: u64,
-    },
+    /// The COLMAP model could not be read (file and line in the error).
+    #[error(transparent)]
+    Colmap(#[from] s3tir_calib::colmap::ColmapError),
     #[error("image {path}: {reason}")]
     Image { path: PathBuf, reason: String },
     #[error("image {image} refers to camera {camera_id}, which {model_dir} does not define")]
@@ -86,6 +75,9 @@ pub enum DatasetError {
         other: ImageKind,
     },
 }
+
+/// The file that names a dataset's held-out views (module docs).
+pub const HOLDOUT_FILE: &str = "holdout.txt";
 
 /// Options of [`Dataset::load`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -336,14 +328,38 @@ impl Dataset {
             .collect();
 
         let k = opts.holdout_every;
-        let (test, train): (Vec<usize>, Vec<usize>) =
-            (0..views.len()).partition(|&i| k > 0 && i % k == 0);
+        let holdout_file = root.join(HOLDOUT_FILE);
+        let (test, train): (Vec<usize>, Vec<usize>) = if holdout_file.is_file() {
+            let text =
+                std::fs::read_to_string(&holdout_file).map_err(|source| DatasetError::Io {
+                    path: holdout_file.clone(),
+                    source,
+                })?;
+            let names: std::collections::BTreeSet<&str> = text
+                .lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                .collect();
+            if let Some(unknown) = names.iter().find(|n| !views.iter().any(|v| v.name == **n)) {
+                return Err(DatasetError::Empty {
+                    root: root.to_path_buf(),
+                    reason: format!(
+                        "{} names {unknown}, which the model does not register",
+                        holdout_file.display()
+                    ),
+                });
+            }
+            (0..views.len()).partition(|&i| names.contains(views[i].name.as_str()))
+        } else {
+            (0..views.len()).partition(|&i| k > 0 && i % k == 0)
+        };
         if train.is_empty() {
             return Err(DatasetError::Empty {
                 root: root.to_path_buf(),
                 reason: format!(
-                    "no training views left: {} views, every {k}th held out",
-                    views.len()
+                    "no training views left: {} views, {} held out",
+                    views.len(),
+                    test.len()
                 ),
             });
         }

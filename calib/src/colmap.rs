@@ -1,10 +1,14 @@
 //! COLMAP sparse models, text (`cameras.txt`, `images.txt`, `points3D.txt`) and binary
 //! (`*.bin`), as documented in COLMAP's "Output format" page.
 //!
+//! The one COLMAP codec of the workspace (OpenCV-free): the trainer reads datasets with it,
+//! calib's COLMAP export and the poses stage write through it.
+//!
 //! Supported camera models: `SIMPLE_PINHOLE` (f, cx, cy), `PINHOLE` (fx, fy, cx, cy),
-//! `SIMPLE_RADIAL` (f, cx, cy, k), `RADIAL` (f, cx, cy, k1, k2) and `OPENCV`
-//! (fx, fy, cx, cy, k1, k2, p1, p2). All of them map onto `s3tir_calib::CameraModel` (OpenCV's
-//! Brown–Conrady model) exactly. Any other model is an error naming it.
+//! `SIMPLE_RADIAL` (f, cx, cy, k), `RADIAL` (f, cx, cy, k1, k2), `OPENCV`
+//! (fx, fy, cx, cy, k1, k2, p1, p2) and `FULL_OPENCV` with k4 = k5 = k6 = 0 (fx, fy, cx, cy,
+//! k1, k2, p1, p2, k3, 0, 0, 0). All of them map onto [`CameraModel`] (OpenCV's Brown–Conrady
+//! model) exactly. Any other model, or FULL_OPENCV's rational terms, is an error naming it.
 //!
 //! **Pixel origin**: COLMAP puts the image origin at the top-left *corner* (the centre of the
 //! top-left pixel is (0.5, 0.5)); s3tir puts it at the centre (`docs/CONVENTIONS.md`). The readers
@@ -15,9 +19,39 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
-use s3tir_calib::{BrownConrady, CameraModel, Intrinsics, Rigid3};
+use thiserror::Error;
 
-use super::DatasetError;
+use crate::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::geometry::Rigid3;
+
+/// Errors of reading or writing a COLMAP model. Each names the file (and line, in text files).
+#[derive(Debug, Error)]
+pub enum ColmapError {
+    #[error("{what} not found: {path}")]
+    MissingFile { path: PathBuf, what: &'static str },
+    #[error("cannot read or write {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}:{line}: {reason}")]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        reason: String,
+    },
+    #[error(
+        "{path}: camera model {model} is not supported (supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0)"
+    )]
+    UnsupportedCameraModel { path: PathBuf, model: String },
+    #[error("{path}:{line}: point {point_id} has a NaN or infinite coordinate")]
+    NonFinitePoint {
+        path: PathBuf,
+        line: usize,
+        point_id: u64,
+    },
+}
 
 /// One COLMAP camera (intrinsics in s3tir's pixel convention).
 #[derive(Debug, Clone, PartialEq)]
@@ -92,9 +126,9 @@ fn colmap_camera(
     width: u64,
     height: u64,
     params: &[f64],
-) -> Result<ColmapCamera, DatasetError> {
+) -> Result<ColmapCamera, ColmapError> {
     let model = camera_model(file, name, width, height, params).map_err(|e| match e {
-        DatasetError::Parse { path, reason, .. } => DatasetError::Parse { path, line, reason },
+        ColmapError::Parse { path, reason, .. } => ColmapError::Parse { path, line, reason },
         other => other,
     })?;
     Ok(ColmapCamera {
@@ -111,13 +145,13 @@ fn camera_model(
     width: u64,
     height: u64,
     p: &[f64],
-) -> Result<CameraModel, DatasetError> {
-    let bad = |reason: String| DatasetError::Parse {
+) -> Result<CameraModel, ColmapError> {
+    let bad = |reason: String| ColmapError::Parse {
         path: file.to_path_buf(),
         line: 0,
         reason,
     };
-    let need = |n: usize| -> Result<(), DatasetError> {
+    let need = |n: usize| -> Result<(), ColmapError> {
         if p.len() == n {
             Ok(())
         } else {
@@ -162,8 +196,30 @@ fn camera_model(
             };
             (p[0], p[1], p[2], p[3], d)
         }
+        "FULL_OPENCV" => {
+            need(12)?;
+            // fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6: the rational terms k4..k6 divide the radial
+            // factor; our 5-parameter Brown–Conrady model is the case k4 = k5 = k6 = 0.
+            if p[9..12].iter().any(|&k| k != 0.0) {
+                return Err(ColmapError::UnsupportedCameraModel {
+                    path: file.to_path_buf(),
+                    model: format!(
+                        "FULL_OPENCV with rational terms (k4, k5, k6) = ({}, {}, {})",
+                        p[9], p[10], p[11]
+                    ),
+                });
+            }
+            let d = BrownConrady {
+                k1: p[4],
+                k2: p[5],
+                p1: p[6],
+                p2: p[7],
+                k3: p[8],
+            };
+            (p[0], p[1], p[2], p[3], d)
+        }
         other => {
-            return Err(DatasetError::UnsupportedCameraModel {
+            return Err(ColmapError::UnsupportedCameraModel {
                 path: file.to_path_buf(),
                 model: other.to_owned(),
             });
@@ -192,28 +248,28 @@ fn pose(q: [f64; 4], t: [f64; 3]) -> Rigid3 {
 
 /// Reads a model from a folder holding either the text or the binary files (text preferred
 /// when both exist).
-pub fn read_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
+pub fn read_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
     if dir.join("cameras.txt").exists() {
         read_text_model(dir)
     } else if dir.join("cameras.bin").exists() {
         read_binary_model(dir)
     } else {
-        Err(DatasetError::MissingFile {
+        Err(ColmapError::MissingFile {
             path: dir.join("cameras.txt"),
             what: "COLMAP sparse model (cameras.txt or cameras.bin)",
         })
     }
 }
 
-fn read_to_string(path: &Path, what: &'static str) -> Result<String, DatasetError> {
+fn read_to_string(path: &Path, what: &'static str) -> Result<String, ColmapError> {
     fs::read_to_string(path).map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
-            DatasetError::MissingFile {
+            ColmapError::MissingFile {
                 path: path.to_path_buf(),
                 what,
             }
         } else {
-            DatasetError::Io {
+            ColmapError::Io {
                 path: path.to_path_buf(),
                 source: e,
             }
@@ -221,10 +277,10 @@ fn read_to_string(path: &Path, what: &'static str) -> Result<String, DatasetErro
     })
 }
 
-fn parse_f64s(path: &Path, line: usize, toks: &[&str]) -> Result<Vec<f64>, DatasetError> {
+fn parse_f64s(path: &Path, line: usize, toks: &[&str]) -> Result<Vec<f64>, ColmapError> {
     toks.iter()
         .map(|t| {
-            t.parse::<f64>().map_err(|_| DatasetError::Parse {
+            t.parse::<f64>().map_err(|_| ColmapError::Parse {
                 path: path.to_path_buf(),
                 line,
                 reason: format!("`{t}` is not a number"),
@@ -233,20 +289,18 @@ fn parse_f64s(path: &Path, line: usize, toks: &[&str]) -> Result<Vec<f64>, Datas
         .collect()
 }
 
-fn parse_int<T: std::str::FromStr>(path: &Path, line: usize, tok: &str) -> Result<T, DatasetError> {
-    tok.parse::<T>().map_err(|_| DatasetError::Parse {
+fn parse_int<T: std::str::FromStr>(path: &Path, line: usize, tok: &str) -> Result<T, ColmapError> {
+    tok.parse::<T>().map_err(|_| ColmapError::Parse {
         path: path.to_path_buf(),
         line,
         reason: format!("`{tok}` is not an integer"),
     })
 }
 
-/// Reads `cameras.txt`, `images.txt`, `points3D.txt` (the last may be missing: no points).
-pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
-    let mut model = ColmapModel::default();
-
-    let path = dir.join("cameras.txt");
-    let text = read_to_string(&path, "COLMAP cameras.txt")?;
+/// Reads one `cameras.txt` (also the `calibration.colmap-cameras.txt` calib exports).
+pub fn read_cameras_text(path: &Path) -> Result<Vec<ColmapCamera>, ColmapError> {
+    let text = read_to_string(path, "COLMAP cameras.txt")?;
+    let mut cameras = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -254,18 +308,18 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         }
         let toks: Vec<&str> = line.split_whitespace().collect();
         if toks.len() < 4 {
-            return Err(DatasetError::Parse {
-                path,
+            return Err(ColmapError::Parse {
+                path: path.to_path_buf(),
                 line: n + 1,
                 reason: "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]".into(),
             });
         }
-        let id: u32 = parse_int(&path, n + 1, toks[0])?;
-        let width: u64 = parse_int(&path, n + 1, toks[2])?;
-        let height: u64 = parse_int(&path, n + 1, toks[3])?;
-        let params = parse_f64s(&path, n + 1, &toks[4..])?;
-        model.cameras.push(colmap_camera(
-            &path,
+        let id: u32 = parse_int(path, n + 1, toks[0])?;
+        let width: u64 = parse_int(path, n + 1, toks[2])?;
+        let height: u64 = parse_int(path, n + 1, toks[3])?;
+        let params = parse_f64s(path, n + 1, &toks[4..])?;
+        cameras.push(colmap_camera(
+            path,
             n + 1,
             id,
             toks[1],
@@ -274,6 +328,34 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
             &params,
         )?);
     }
+    Ok(cameras)
+}
+
+/// The `cameras.txt` text of `cameras` (through [`colmap_params`]: ½-px shift applied).
+pub fn cameras_text(cameras: &[ColmapCamera]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::from("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
+    for c in cameras {
+        let (name, params) = colmap_params(&c.model);
+        let _ = write!(
+            s,
+            "{} {name} {} {}",
+            c.id, c.model.width_px, c.model.height_px
+        );
+        for p in params {
+            let _ = write!(s, " {p:?}");
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Reads `cameras.txt`, `images.txt`, `points3D.txt` (the last may be missing: no points).
+pub fn read_text_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
+    let mut model = ColmapModel {
+        cameras: read_cameras_text(&dir.join("cameras.txt"))?,
+        ..ColmapModel::default()
+    };
 
     let path = dir.join("images.txt");
     let text = read_to_string(&path, "COLMAP images.txt")?;
@@ -293,7 +375,7 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         }
         let toks: Vec<&str> = line.split_whitespace().collect();
         if toks.len() < 10 {
-            return Err(DatasetError::Parse {
+            return Err(ColmapError::Parse {
                 path,
                 line: n + 1,
                 reason: "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME".into(),
@@ -303,7 +385,7 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         let v = parse_f64s(&path, n + 1, &toks[1..8])?;
         let camera_id: u32 = parse_int(&path, n + 1, toks[8])?;
         if v.iter().any(|x| !x.is_finite()) {
-            return Err(DatasetError::Parse {
+            return Err(ColmapError::Parse {
                 path,
                 line: n + 1,
                 reason: "pose is not finite".into(),
@@ -329,7 +411,7 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
             }
             let toks: Vec<&str> = line.split_whitespace().collect();
             if toks.len() < 8 {
-                return Err(DatasetError::Parse {
+                return Err(ColmapError::Parse {
                     path,
                     line: n + 1,
                     reason: "expected POINT3D_ID X Y Z R G B ERROR TRACK[]".into(),
@@ -338,7 +420,7 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
             let id: u64 = parse_int(&path, n + 1, toks[0])?;
             let xyz = parse_f64s(&path, n + 1, &toks[1..4])?;
             if xyz.iter().any(|x| !x.is_finite()) {
-                return Err(DatasetError::NonFinitePoint {
+                return Err(ColmapError::NonFinitePoint {
                     path,
                     line: n + 1,
                     point_id: id,
@@ -367,10 +449,10 @@ struct Cursor<'a> {
 }
 
 impl Cursor<'_> {
-    fn take(&mut self, n: usize) -> Result<&[u8], DatasetError> {
+    fn take(&mut self, n: usize) -> Result<&[u8], ColmapError> {
         let end = self.pos.checked_add(n).filter(|&e| e <= self.data.len());
         let Some(end) = end else {
-            return Err(DatasetError::Parse {
+            return Err(ColmapError::Parse {
                 path: self.path.to_path_buf(),
                 line: 0,
                 reason: format!("truncated at byte {} (wanted {n} more)", self.pos),
@@ -380,30 +462,30 @@ impl Cursor<'_> {
         self.pos = end;
         Ok(s)
     }
-    fn arr<const N: usize>(&mut self) -> Result<[u8; N], DatasetError> {
+    fn arr<const N: usize>(&mut self) -> Result<[u8; N], ColmapError> {
         let s = self.take(N)?;
         let mut a = [0u8; N];
         a.copy_from_slice(s);
         Ok(a)
     }
-    fn u64(&mut self) -> Result<u64, DatasetError> {
+    fn u64(&mut self) -> Result<u64, ColmapError> {
         Ok(u64::from_le_bytes(self.arr()?))
     }
-    fn i32(&mut self) -> Result<i32, DatasetError> {
+    fn i32(&mut self) -> Result<i32, ColmapError> {
         Ok(i32::from_le_bytes(self.arr()?))
     }
-    fn f64(&mut self) -> Result<f64, DatasetError> {
+    fn f64(&mut self) -> Result<f64, ColmapError> {
         Ok(f64::from_le_bytes(self.arr()?))
     }
-    fn u8(&mut self) -> Result<u8, DatasetError> {
+    fn u8(&mut self) -> Result<u8, ColmapError> {
         Ok(self.arr::<1>()?[0])
     }
-    fn count(&mut self, elem_bytes: usize) -> Result<usize, DatasetError> {
+    fn count(&mut self, elem_bytes: usize) -> Result<usize, ColmapError> {
         let n = self.u64()?;
         // A count that cannot fit in the rest of the file is corruption, not an allocation.
         let remaining = (self.data.len() - self.pos) as u64;
         if n.saturating_mul(elem_bytes as u64) > remaining {
-            return Err(DatasetError::Parse {
+            return Err(ColmapError::Parse {
                 path: self.path.to_path_buf(),
                 line: 0,
                 reason: format!("count {n} at byte {} exceeds the file", self.pos - 8),
@@ -413,22 +495,22 @@ impl Cursor<'_> {
     }
 }
 
-fn read_bytes(path: &Path, what: &'static str) -> Result<Vec<u8>, DatasetError> {
+fn read_bytes(path: &Path, what: &'static str) -> Result<Vec<u8>, ColmapError> {
     let mut f = fs::File::open(path).map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
-            DatasetError::MissingFile {
+            ColmapError::MissingFile {
                 path: path.to_path_buf(),
                 what,
             }
         } else {
-            DatasetError::Io {
+            ColmapError::Io {
                 path: path.to_path_buf(),
                 source: e,
             }
         }
     })?;
     let mut v = Vec::new();
-    f.read_to_end(&mut v).map_err(|e| DatasetError::Io {
+    f.read_to_end(&mut v).map_err(|e| ColmapError::Io {
         path: path.to_path_buf(),
         source: e,
     })?;
@@ -436,7 +518,7 @@ fn read_bytes(path: &Path, what: &'static str) -> Result<Vec<u8>, DatasetError> 
 }
 
 /// Reads `cameras.bin`, `images.bin`, `points3D.bin` (the last may be missing).
-pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
+pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
     let mut model = ColmapModel::default();
     let path: PathBuf = dir.join("cameras.bin");
     let data = read_bytes(&path, "COLMAP cameras.bin")?;
@@ -453,7 +535,7 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         let height = c.u64()?;
         let name = model_name(model_id);
         let Some(np) = param_count(model_id) else {
-            return Err(DatasetError::UnsupportedCameraModel {
+            return Err(ColmapError::UnsupportedCameraModel {
                 path: path.clone(),
                 model: name,
             });
@@ -490,7 +572,7 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
         let np = c.count(24)?;
         c.take(np * 24)?;
         if v.iter().any(|x| !x.is_finite()) {
-            return Err(DatasetError::Parse {
+            return Err(ColmapError::Parse {
                 path: path.clone(),
                 line: 0,
                 reason: format!("image {id}: pose is not finite"),
@@ -521,7 +603,7 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
             let track = c.count(8)?;
             c.take(track * 8)?;
             if xyz.iter().any(|x| !x.is_finite()) {
-                return Err(DatasetError::NonFinitePoint {
+                return Err(ColmapError::NonFinitePoint {
                     path: path.clone(),
                     line: 0,
                     point_id: id,
@@ -538,38 +620,46 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, DatasetError> {
 }
 
 /// COLMAP parameter list of a `CameraModel` as `(MODEL, params)` (½-px shift applied): PINHOLE
-/// when undistorted, else OPENCV (k3 must be zero: COLMAP's OPENCV has no k3).
+/// when undistorted, OPENCV when `k3 = 0`, else FULL_OPENCV (with `k4 = k5 = k6 = 0`). The one
+/// place s3tir turns a camera into COLMAP's words: the trainer's datasets, calib's COLMAP export
+/// and the poses stage all write through it.
 pub fn colmap_params(model: &CameraModel) -> (&'static str, Vec<f64>) {
     let i = &model.intrinsics;
     let d = &model.distortion;
     if *d == BrownConrady::default() {
         ("PINHOLE", vec![i.fx, i.fy, i.cx + 0.5, i.cy + 0.5])
-    } else {
+    } else if d.k3 == 0.0 {
         (
             "OPENCV",
             vec![i.fx, i.fy, i.cx + 0.5, i.cy + 0.5, d.k1, d.k2, d.p1, d.p2],
+        )
+    } else {
+        (
+            "FULL_OPENCV",
+            vec![
+                i.fx,
+                i.fy,
+                i.cx + 0.5,
+                i.cy + 0.5,
+                d.k1,
+                d.k2,
+                d.p1,
+                d.p2,
+                d.k3,
+                0.0,
+                0.0,
+                0.0,
+            ],
         )
     }
 }
 
 /// Writes a text model (for the synthetic scene and tests).
-pub fn write_text_model(dir: &Path, model: &ColmapModel) -> Result<(), DatasetError> {
+pub fn write_text_model(dir: &Path, model: &ColmapModel) -> Result<(), ColmapError> {
     use std::fmt::Write as _;
-    let io = |path: PathBuf| move |e| DatasetError::Io { path, source: e };
+    let io = |path: PathBuf| move |e| ColmapError::Io { path, source: e };
     fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
-    let mut s = String::from("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
-    for c in &model.cameras {
-        let (name, params) = colmap_params(&c.model);
-        let _ = write!(
-            s,
-            "{} {name} {} {}",
-            c.id, c.model.width_px, c.model.height_px
-        );
-        for p in params {
-            let _ = write!(s, " {p:?}");
-        }
-        s.push('\n');
-    }
+    let s = cameras_text(&model.cameras);
     let p = dir.join("cameras.txt");
     fs::write(&p, s).map_err(io(p.clone()))?;
 

@@ -1,0 +1,119 @@
+//! `s3tir-calib poses`: part of the `s3tir-calib` binary (not of the library).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use s3tir_calib::calfile::CalibrationFile;
+use s3tir_calib::poses::{self, Matcher, PosesOptions};
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum MatcherArg {
+    /// Exhaustive up to 60 keyframes, sequential above.
+    Auto,
+    Exhaustive,
+    Sequential,
+}
+
+/// Turn a recorded session into a posed thermal dataset (COLMAP layout) for `s3tir-train`.
+///
+/// Structure from motion (COLMAP, CPU) runs on the RGB keyframes with the calibrated RGB
+/// camera fixed; each usable thermal frame gets the RGB pose interpolated to its capture time,
+/// composed with the calibrated rgb_from_thermal. A session without RGB runs COLMAP on the
+/// thermal frames. FFC-frozen and motion-blurred frames are skipped, near-duplicates thinned,
+/// every --holdout-every-th view held out (holdout.txt). The dataset: sparse/0/ (the thermal
+/// camera with its calibrated distortion; the trainer undistorts at load), images/ (16-bit
+/// words untouched), holdout.txt, poses.json (what was kept and why), colmap/ (COLMAP's
+/// workspace and logs). The output folder must not exist or be empty.
+#[derive(Debug, Args)]
+pub struct PosesArgs {
+    /// Recorded session (.mcap, from s3tir-capture).
+    session: PathBuf,
+    /// The rig's calibration.yaml (from s3tir-calib); default: the one attached to the session.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// Dataset folder to write (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    /// COLMAP program.
+    #[arg(long, env = "S3TIR_COLMAP", default_value = "colmap")]
+    colmap: PathBuf,
+    /// Use this COLMAP model (text or binary) of the keyframes instead of running COLMAP; its
+    /// image names must be the stage's own (rgb_SEQUENCE.jpg / thermal_SEQUENCE.png, as in a
+    /// previous run's colmap/images/).
+    #[arg(long)]
+    poses: Option<PathBuf>,
+    /// Keyframes per second for structure from motion.
+    #[arg(long, default_value_t = 2.0)]
+    keyframe_hz: f64,
+    /// At most this many keyframes.
+    #[arg(long, default_value_t = 100)]
+    max_keyframes: usize,
+    /// COLMAP matcher.
+    #[arg(long, value_enum, default_value = "auto")]
+    matcher: MatcherArg,
+    /// A frame is motion-blurred below this fraction of its neighbours' median sharpness.
+    #[arg(long, default_value_t = 0.6)]
+    blur_ratio: f64,
+    /// At most this many thermal views per second before thinning.
+    #[arg(long, default_value_t = 4.0)]
+    thermal_hz: f64,
+    /// Thinning: keep a view that moved this fraction of the median scene depth …
+    #[arg(long, default_value_t = 0.01)]
+    min_baseline: f64,
+    /// … or turned this many degrees since the last kept view.
+    #[arg(long, default_value_t = 2.0)]
+    min_rotation_deg: f64,
+    /// At most this many thermal views.
+    #[arg(long, default_value_t = 300)]
+    max_views: usize,
+    /// Hold out every k-th view for testing (0: none).
+    #[arg(long, default_value_t = 8)]
+    holdout_every: usize,
+    /// Interpolate poses only between registered keyframes at most this far apart, seconds.
+    #[arg(long, default_value_t = 1.5)]
+    max_gap_s: f64,
+    /// Metres per COLMAP world unit, when known: applies the calibrated lever arm between the
+    /// cameras at the right scale (without it the thermal centre is taken at the RGB centre).
+    #[arg(long)]
+    metres_per_unit: Option<f64>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(a: &PosesArgs) -> Result<()> {
+    let cal = match &a.calibration {
+        Some(p) => Some(CalibrationFile::read(p)?),
+        None => None,
+    };
+    let opts = PosesOptions {
+        colmap: a.colmap.clone(),
+        user_model: a.poses.clone(),
+        keyframe_hz: a.keyframe_hz,
+        max_keyframes: a.max_keyframes,
+        matcher: match a.matcher {
+            MatcherArg::Auto => None,
+            MatcherArg::Exhaustive => Some(Matcher::Exhaustive),
+            MatcherArg::Sequential => Some(Matcher::Sequential { overlap: 12 }),
+        },
+        blur_ratio: a.blur_ratio,
+        thermal_hz: a.thermal_hz,
+        min_baseline: a.min_baseline,
+        min_rotation_deg: a.min_rotation_deg,
+        max_views: a.max_views,
+        holdout_every: a.holdout_every,
+        max_gap_s: a.max_gap_s,
+        metres_per_unit: a.metres_per_unit,
+        progress: !a.json,
+        ..PosesOptions::default()
+    };
+    let report = poses::session_to_dataset(&a.session, cal.as_ref(), &a.out, &opts)
+        .with_context(|| format!("poses from {}", a.session.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", poses::summary(&report));
+    }
+    Ok(())
+}

@@ -1,0 +1,520 @@
+//! Poses from a recorded session: a session (`.mcap`) and its rig's calibration become a posed
+//! thermal dataset in COLMAP layout, the trainer's input (feature `poses`, no OpenCV).
+//!
+//! Why here: poses are camera geometry over time. calib already owns the camera model, the
+//! rigid transforms, the calibration file, the COLMAP codec and reading sessions; the trainer
+//! (which depends on calib's OpenCV-free layer) calls this stage in-process for
+//! `s3tir-train SESSION.mcap`, `s3tir-calib poses` runs it alone, and `s3tir-capture export
+//! --dataset` (capture sits below calib) runs `s3tir-calib poses` as a process.
+//!
+//! ## The stage, in order
+//! 1. **Scan** ([`frames`]): one read of the session collects every frame's stream, sequence,
+//!    capture time (`monotonic_ns`, the common clock of both cameras), FFC state and a sharpness
+//!    score (variance of the Laplacian over the image's own contrast). Nothing is kept in
+//!    memory but these numbers; a truncated session is read up to its last complete chunk and
+//!    the report says how much was readable.
+//! 2. **Keyframes** ([`select`]): structure from motion runs on the RGB stream (or, in a
+//!    thermal-only session, on the thermal stream): frames whose sharpness falls below
+//!    `blur_ratio` × the median of their neighbours are motion-blurred and skipped, FFC-frozen
+//!    thermal frames are skipped, and the sharpest frame of each `1 / keyframe_hz` slot is a
+//!    keyframe.
+//! 3. **Structure from motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
+//!    on the keyframes, CPU SIFT, with the calibrated intrinsics and distortion **fixed** (the
+//!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
+//!    user's model (`--poses DIR`) is read instead. The largest reconstruction is kept.
+//! 4. **Thermal poses** ([`interp`]): every usable thermal frame (not FFC-frozen, not blurred)
+//!    gets the SfM camera's pose interpolated to its capture time (slerp of the rotation, linear
+//!    centre) between the two registered keyframes around it (at most `max_gap_s` apart),
+//!    composed with the calibrated `rgb_from_thermal`: `world_from_thermal = world_from_rgb(t)
+//!    ∘ rgb_from_thermal`. The extrinsic is metric and COLMAP's world is not: its translation is
+//!    applied in world units through `metres_per_unit` when the scale is known
+//!    (`--metres-per-unit`). Without it the thermal camera centre is taken at the RGB camera's
+//!    (the rotation is applied, the few-centimetre lever arm is not): a bounded error of the
+//!    lever arm's length, where a guessed scale could be wrong by any factor. The report says
+//!    which. (Metric scale from fiducials in view is not built yet.)
+//! 5. **Views** ([`select`]): near-duplicates are thinned (a view is kept when it moved at least
+//!    `min_baseline` × the median scene depth or turned `min_rotation_deg` since the last kept
+//!    one), every `holdout_every`-th kept view is held out (`holdout.txt`: the trainer never
+//!    trains on them; their poses come from interpolation like every thermal view's, no SfM
+//!    step saw their pixels).
+//! 6. **Dataset** ([`dataset`]): `sparse/0/` (one thermal camera with the calibrated
+//!    distortion, `images.txt`, the SfM points in `points3D.txt`), `images/` (the radiometric
+//!    16-bit words untouched, PNG), `holdout.txt`, and `poses.json` (every frame's decision and
+//!    why, the SfM figures and the timings). Distortion: images stay untouched on disk; the
+//!    trainer undistorts them once at load (`OPENCV`/`FULL_OPENCV` camera, bilinear, same K),
+//!    so the rasterisers stay pinhole and the dataset stays radiometric.
+//!
+//! Nothing already written is lost: the output folder must not exist (or be empty), and the
+//! session is only read.
+
+pub mod dataset;
+pub mod frames;
+pub mod interp;
+pub mod select;
+pub mod sfm;
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::calfile::CalibrationFile;
+use crate::camera::CameraModel;
+
+/// Errors of the poses stage; each says what to install, record or pass.
+#[derive(Debug, Error)]
+pub enum PosesError {
+    #[error("session {path}: {reason}")]
+    Session { path: PathBuf, reason: String },
+    #[error(
+        "the calibration has no {what}: {why} (calibrate the rig with s3tir-calib BOARD --out calibration.yaml, from a board set or a session recorded with the board in view)"
+    )]
+    MissingCalibration { what: &'static str, why: String },
+    #[error(
+        "calibration of another rig: the {camera} camera is calibrated at {calibrated_w}×{calibrated_h} px but session {session} records {session_w}×{session_h} px"
+    )]
+    CalibrationMismatch {
+        camera: &'static str,
+        session: PathBuf,
+        calibrated_w: u32,
+        calibrated_h: u32,
+        session_w: u32,
+        session_h: u32,
+    },
+    #[error(
+        "`{program}` (COLMAP) cannot be run: {reason}. Install Debian's colmap package (scripts/install-deps.sh does), pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR"
+    )]
+    ColmapMissing { program: PathBuf, reason: String },
+    #[error("COLMAP {step} failed ({status}); its log: {log}")]
+    ColmapFailed {
+        step: &'static str,
+        status: String,
+        log: PathBuf,
+    },
+    #[error(
+        "structure from motion registered {registered} of {keyframes} keyframes (at least {needed} needed): the walk may be too fast or blurred, the scene too bland, or the frames too few; record slower, with more texture in view, or lower --blur-ratio. COLMAP's workspace: {workspace}"
+    )]
+    TooFewRegistered {
+        registered: usize,
+        keyframes: usize,
+        needed: usize,
+        workspace: PathBuf,
+    },
+    #[error("{path}: {reason}")]
+    Output { path: PathBuf, reason: String },
+    #[error("the COLMAP model {path}: {source}")]
+    Model {
+        path: PathBuf,
+        #[source]
+        source: crate::colmap::ColmapError,
+    },
+    #[error("session {path}: {reason}")]
+    Nothing { path: PathBuf, reason: String },
+}
+
+/// Which COLMAP matcher pairs the keyframes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Matcher {
+    /// Every keyframe with every other one (best for ≤ ~60 keyframes and loops).
+    Exhaustive,
+    /// Each keyframe with its `overlap` successors (video; scales linearly).
+    Sequential { overlap: usize },
+}
+
+/// Options of the stage (defaults: [`PosesOptions::default`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct PosesOptions {
+    /// The COLMAP program.
+    pub colmap: PathBuf,
+    /// A COLMAP model (text or binary) of the keyframes to use instead of running COLMAP;
+    /// image names as this stage writes them (`rgb_SEQUENCE.jpg`, `thermal_SEQUENCE.png`).
+    pub user_model: Option<PathBuf>,
+    /// Keyframes per second of the SfM stream.
+    pub keyframe_hz: f64,
+    /// At most this many keyframes (the slots widen to fit).
+    pub max_keyframes: usize,
+    /// `None`: exhaustive up to 60 keyframes, sequential (overlap 12) above.
+    pub matcher: Option<Matcher>,
+    /// A frame is motion-blurred when its sharpness is below this fraction of the median of
+    /// its ±`blur_window` neighbours.
+    pub blur_ratio: f64,
+    pub blur_window: usize,
+    /// Thermal views: at most this many per second before thinning.
+    pub thermal_hz: f64,
+    /// Thinning: a view is kept when it moved this fraction of the median scene depth …
+    pub min_baseline: f64,
+    /// … or turned this many degrees since the last kept view.
+    pub min_rotation_deg: f64,
+    /// At most this many thermal views.
+    pub max_views: usize,
+    /// Every k-th kept view is held out (0: none).
+    pub holdout_every: usize,
+    /// Interpolate only between registered keyframes at most this far apart in time.
+    pub max_gap_s: f64,
+    /// At least this fraction of the keyframes (and at least 5) must register.
+    pub min_registered: f64,
+    /// Metres per SfM world unit, when known (module docs, step 4).
+    pub metres_per_unit: Option<f64>,
+    /// CPU threads COLMAP may use.
+    pub threads: usize,
+    /// Draw progress bars.
+    pub progress: bool,
+}
+
+impl Default for PosesOptions {
+    fn default() -> Self {
+        Self {
+            colmap: PathBuf::from("colmap"),
+            user_model: None,
+            keyframe_hz: 2.0,
+            max_keyframes: 100,
+            matcher: None,
+            blur_ratio: 0.6,
+            blur_window: 6,
+            thermal_hz: 4.0,
+            min_baseline: 0.01,
+            min_rotation_deg: 2.0,
+            max_views: 300,
+            holdout_every: 8,
+            max_gap_s: 1.5,
+            min_registered: 0.5,
+            metres_per_unit: None,
+            threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            progress: false,
+        }
+    }
+}
+
+/// Seconds spent per stage.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct StageTimes {
+    pub scan_s: f64,
+    pub keyframes_s: f64,
+    pub colmap_features_s: f64,
+    pub colmap_matching_s: f64,
+    pub colmap_mapper_s: f64,
+    pub interpolate_s: f64,
+    pub scale_s: f64,
+    pub write_s: f64,
+    pub total_s: f64,
+}
+
+/// What the stage did (also `poses.json` in the dataset).
+#[derive(Debug, Clone, Serialize)]
+pub struct PosesReport {
+    pub session: PathBuf,
+    pub dataset: PathBuf,
+    /// "rgb" or "thermal": the stream structure from motion ran on.
+    pub sfm_stream: &'static str,
+    pub session_truncated: bool,
+    pub session_note: Option<String>,
+    pub thermal_frames: usize,
+    pub rgb_frames: usize,
+    pub dropped_frames: u64,
+    pub keyframes: usize,
+    pub registered: usize,
+    pub sfm_points: usize,
+    /// Metres per world unit, when known.
+    pub metres_per_unit: Option<f64>,
+    pub scale_source: String,
+    pub views: usize,
+    pub held_out: usize,
+    /// Count of thermal frames per reason they were not used.
+    pub skipped: std::collections::BTreeMap<String, usize>,
+    pub times: StageTimes,
+    /// One entry per thermal frame and keyframe: what happened to it.
+    pub frames: Vec<select::FrameDecision>,
+}
+
+/// Everything the stage needs of a calibration, checked against the session.
+#[derive(Debug, Clone, Copy)]
+pub struct RigModels {
+    pub thermal: CameraModel,
+    /// RGB camera and `rgb_from_thermal`, when the session records RGB.
+    pub rgb: Option<(CameraModel, crate::geometry::Rigid3)>,
+}
+
+/// Checks the calibration against the frames the session records.
+pub fn rig_models(
+    cal: &CalibrationFile,
+    scan: &frames::SessionScan,
+) -> Result<RigModels, PosesError> {
+    let thermal = cal.thermal.ok_or(PosesError::MissingCalibration {
+        what: "thermal camera",
+        why: "every posed view is a thermal view".into(),
+    })?;
+    let check = |camera: &'static str, m: &CameraModel, size: Option<(u32, u32)>| match size {
+        Some((w, h)) if (w, h) != (m.width_px, m.height_px) => {
+            Err(PosesError::CalibrationMismatch {
+                camera,
+                session: scan.path.clone(),
+                calibrated_w: m.width_px,
+                calibrated_h: m.height_px,
+                session_w: w,
+                session_h: h,
+            })
+        }
+        _ => Ok(()),
+    };
+    check("thermal", &thermal, scan.thermal_size)?;
+    let rgb = match scan.rgb_size {
+        None => None,
+        Some(_) => {
+            let rgb = cal.rgb.ok_or(PosesError::MissingCalibration {
+                what: "RGB camera",
+                why: format!(
+                    "session {} records RGB frames, and structure from motion runs on them",
+                    scan.path.display()
+                ),
+            })?;
+            check("rgb", &rgb, scan.rgb_size)?;
+            let e = cal.rgb_from_thermal.ok_or(PosesError::MissingCalibration {
+                what: "rgb_from_thermal extrinsic",
+                why: "thermal poses are the RGB poses composed with it (calibrate from thermal + RGB pairs)".into(),
+            })?;
+            Some((rgb, e))
+        }
+    };
+    Ok(RigModels { thermal, rgb })
+}
+
+/// The calibration attached to a session (`s3tir-capture --calibration FILE`).
+pub fn attached_calibration(scan: &frames::SessionScan) -> Result<CalibrationFile, PosesError> {
+    let mut problems = Vec::new();
+    for (name, data) in &scan.attachments {
+        if !name.starts_with("calibration") {
+            continue;
+        }
+        let label = scan.path.join(name);
+        match CalibrationFile::parse(&label, &String::from_utf8_lossy(data)) {
+            Ok(c) => return Ok(c),
+            Err(e) => problems.push(e.to_string()),
+        }
+    }
+    Err(PosesError::MissingCalibration {
+        what: "file",
+        why: if problems.is_empty() {
+            format!(
+                "none was given (--calibration FILE) and session {} carries none (record with s3tir-capture --calibration FILE)",
+                scan.path.display()
+            )
+        } else {
+            format!(
+                "none was given (--calibration FILE) and the one attached to session {} does not read: {}",
+                scan.path.display(),
+                problems.join("; ")
+            )
+        },
+    })
+}
+
+fn ensure_empty_output(out: &Path) -> Result<(), PosesError> {
+    if let Ok(mut it) = std::fs::read_dir(out)
+        && it.next().is_some()
+    {
+        return Err(PosesError::Output {
+            path: out.to_path_buf(),
+            reason: "exists and is not empty: the poses stage never overwrites a dataset (choose another --dataset/--out or remove it)".into(),
+        });
+    }
+    std::fs::create_dir_all(out).map_err(|e| PosesError::Output {
+        path: out.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
+/// Runs the whole stage: `session` + `cal` → a posed thermal dataset in `out` (module docs).
+///
+/// `cal`: the rig's calibration; `None` takes the one attached to the session
+/// (`s3tir-capture --calibration FILE`), and fails when there is none.
+pub fn session_to_dataset(
+    session: &Path,
+    cal: Option<&CalibrationFile>,
+    out: &Path,
+    opts: &PosesOptions,
+) -> Result<PosesReport, PosesError> {
+    let t_all = std::time::Instant::now();
+    let mut times = StageTimes::default();
+
+    let t = std::time::Instant::now();
+    let scan = frames::scan_session(session, opts.progress)?;
+    times.scan_s = t.elapsed().as_secs_f64();
+    if scan.thermal.is_empty() {
+        return Err(PosesError::Nothing {
+            path: session.to_path_buf(),
+            reason: "no readable thermal frame".into(),
+        });
+    }
+    let attached;
+    let cal = match cal {
+        Some(c) => c,
+        None => {
+            attached = attached_calibration(&scan)?;
+            &attached
+        }
+    };
+    let rig = rig_models(cal, &scan)?;
+    if opts.user_model.is_none() {
+        sfm::check_colmap(&opts.colmap)?;
+    }
+    // Only now (inputs checked) is anything created.
+    ensure_empty_output(out)?;
+
+    let t = std::time::Instant::now();
+    let sfm_stream = if rig.rgb.is_some() && !scan.rgb.is_empty() {
+        frames::Stream::Rgb
+    } else {
+        frames::Stream::Thermal
+    };
+    let sfm_frames = match sfm_stream {
+        frames::Stream::Rgb => &scan.rgb,
+        frames::Stream::Thermal => &scan.thermal,
+    };
+    let keyframes = select::keyframes(sfm_frames, opts);
+    times.keyframes_s = t.elapsed().as_secs_f64();
+    if keyframes.len() < 5 {
+        return Err(PosesError::TooFewRegistered {
+            registered: 0,
+            keyframes: keyframes.len(),
+            needed: 5,
+            workspace: out.join("colmap"),
+        });
+    }
+
+    let sfm_camera = match (sfm_stream, rig.rgb) {
+        (frames::Stream::Rgb, Some((rgb, _))) => rgb,
+        _ => rig.thermal,
+    };
+    let workspace = out.join("colmap");
+    frames::write_keyframes(session, sfm_stream, &keyframes, &workspace.join("images"))?;
+    let model = match &opts.user_model {
+        Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
+            path: dir.clone(),
+            source,
+        })?,
+        None => sfm::run_colmap(&workspace, &sfm_camera, keyframes.len(), opts, &mut times)?,
+    };
+    let registered = sfm::registered_keyframes(&model, sfm_frames);
+    let needed = ((keyframes.len() as f64 * opts.min_registered).ceil() as usize).max(5);
+    if registered.len() < needed {
+        return Err(PosesError::TooFewRegistered {
+            registered: registered.len(),
+            keyframes: keyframes.len(),
+            needed,
+            workspace,
+        });
+    }
+
+    let t = std::time::Instant::now();
+    let candidates = select::thermal_candidates(&scan.thermal, opts);
+    let track = interp::Track::new(&registered, opts.max_gap_s);
+    times.interpolate_s = t.elapsed().as_secs_f64();
+
+    let t = std::time::Instant::now();
+    let points: Vec<[f64; 3]> = model.points.iter().map(|p| p.position_m).collect();
+    let (units_per_metre, scale_source) = match (opts.metres_per_unit, rig.rgb) {
+        (_, None) => (
+            0.0,
+            "thermal-only SfM: world units are COLMAP's, no lever arm to scale".to_owned(),
+        ),
+        (Some(m), Some(_)) => (1.0 / m, format!("given: {m} m per world unit")),
+        (None, Some((_, e))) => (
+            0.0,
+            format!(
+                "unknown: COLMAP's world has no metric scale, so the {:.3} m thermal-to-RGB lever arm is not applied (thermal centre = RGB centre); pass --metres-per-unit to apply it",
+                e.translation_m.length()
+            ),
+        ),
+    };
+    times.scale_s = t.elapsed().as_secs_f64();
+
+    // rgb_from_thermal with its translation in world units: world_from_thermal =
+    // world_from_rgb(t) ∘ sfm_from_thermal.
+    let sfm_from_thermal = match rig.rgb {
+        Some((_, rgb_from_thermal)) => crate::geometry::Rigid3::new(
+            rgb_from_thermal.rotation,
+            rgb_from_thermal.translation_m * units_per_metre,
+        ),
+        None => crate::geometry::Rigid3::IDENTITY,
+    };
+    let (views, decisions, skipped) =
+        select::thermal_views(&candidates, &track, &sfm_from_thermal, &points, opts);
+    if views.iter().filter(|v| !v.held_out).count() == 0 {
+        return Err(PosesError::Nothing {
+            path: session.to_path_buf(),
+            reason: format!(
+                "no thermal frame falls between registered keyframes ({} registered of {})",
+                registered.len(),
+                keyframes.len()
+            ),
+        });
+    }
+
+    let t = std::time::Instant::now();
+    dataset::write(session, out, &rig.thermal, &views, &model)?;
+    times.write_s = t.elapsed().as_secs_f64();
+    times.total_s = t_all.elapsed().as_secs_f64();
+
+    let report = PosesReport {
+        session: session.to_path_buf(),
+        dataset: out.to_path_buf(),
+        sfm_stream: sfm_stream.name(),
+        session_truncated: scan.truncated,
+        session_note: scan.note.clone(),
+        thermal_frames: scan.thermal.len(),
+        rgb_frames: scan.rgb.len(),
+        dropped_frames: scan.dropped,
+        keyframes: keyframes.len(),
+        registered: registered.len(),
+        sfm_points: model.points.len(),
+        metres_per_unit: opts.metres_per_unit,
+        scale_source,
+        views: views.iter().filter(|v| !v.held_out).count(),
+        held_out: views.iter().filter(|v| v.held_out).count(),
+        skipped,
+        times,
+        frames: decisions,
+    };
+    dataset::write_report(out, &report)?;
+    Ok(report)
+}
+
+/// A few human lines about a report (what the CLIs print).
+pub fn summary(r: &PosesReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    if let Some(note) = &r.session_note {
+        let _ = writeln!(s, "warning: {note}");
+    }
+    let _ = writeln!(
+        s,
+        "session {}: {} thermal, {} RGB frames, {} dropped",
+        r.session.display(),
+        r.thermal_frames,
+        r.rgb_frames,
+        r.dropped_frames
+    );
+    let _ = writeln!(
+        s,
+        "structure from motion on {}: {} of {} keyframes registered, {} points",
+        r.sfm_stream, r.registered, r.keyframes, r.sfm_points
+    );
+    let _ = writeln!(s, "scale: {}", r.scale_source);
+    let _ = writeln!(
+        s,
+        "dataset {}: {} training views, {} held out",
+        r.dataset.display(),
+        r.views,
+        r.held_out
+    );
+    for (why, n) in &r.skipped {
+        let _ = writeln!(s, "  skipped {n}: {why}");
+    }
+    let t = &r.times;
+    let _ = writeln!(
+        s,
+        "time {:.1} s: scan {:.1}, features {:.1}, matching {:.1}, mapper {:.1}, write {:.1}",
+        t.total_s, t.scan_s, t.colmap_features_s, t.colmap_matching_s, t.colmap_mapper_s, t.write_s
+    );
+    s
+}

@@ -1,0 +1,316 @@
+//! Which frames the poses stage uses, and why (module docs of [`super`]): keyframes for
+//! structure from motion, thermal candidates, then thinned and held-out thermal views.
+
+use std::collections::BTreeMap;
+
+use glam::DVec3;
+use serde::Serialize;
+
+use super::PosesOptions;
+use super::frames::FrameInfo;
+use super::interp::Track;
+use crate::geometry::Rigid3;
+
+/// What happened to one frame (`poses.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameDecision {
+    pub stream: &'static str,
+    pub sequence: u32,
+    pub monotonic_ns: u64,
+    /// `keyframe`, `view`, `held_out`, or why it was skipped.
+    pub decision: String,
+}
+
+/// A posed thermal view chosen for the dataset.
+#[derive(Debug, Clone, Copy)]
+pub struct ThermalView {
+    pub sequence: u32,
+    pub monotonic_ns: u64,
+    pub world_from_cam: Rigid3,
+    pub held_out: bool,
+}
+
+/// Median of `v` (0 for an empty slice).
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Whether each frame is motion-blurred: sharpness below `ratio` × the median of its
+/// ±`window` neighbours (the frame itself excluded).
+pub fn blurred(frames: &[FrameInfo], ratio: f64, window: usize) -> Vec<bool> {
+    (0..frames.len())
+        .map(|i| {
+            let lo = i.saturating_sub(window);
+            let hi = (i + window + 1).min(frames.len());
+            let local: Vec<f64> = (lo..hi)
+                .filter(|&j| j != i && !frames[j].ffc_frozen)
+                .map(|j| frames[j].sharpness)
+                .collect();
+            !local.is_empty() && frames[i].sharpness < ratio * median(local)
+        })
+        .collect()
+}
+
+/// Picks the sharpest usable frame of each time slot of `1 / keyframe_hz` seconds (slots widen
+/// so that at most `max_keyframes` are chosen). Frozen (FFC) and blurred frames are never
+/// keyframes.
+pub fn keyframes(frames: &[FrameInfo], opts: &PosesOptions) -> Vec<FrameInfo> {
+    let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
+        return Vec::new();
+    };
+    let blur = blurred(frames, opts.blur_ratio, opts.blur_window);
+    let span_s = (last.monotonic_ns - first.monotonic_ns) as f64 * 1e-9;
+    let mut slot_s = 1.0 / opts.keyframe_hz.max(1e-3);
+    if opts.max_keyframes > 0 && span_s / slot_s > opts.max_keyframes as f64 {
+        slot_s = span_s / opts.max_keyframes as f64;
+    }
+    let mut best: BTreeMap<u64, FrameInfo> = BTreeMap::new();
+    for (f, &b) in frames.iter().zip(&blur) {
+        if b || f.ffc_frozen {
+            continue;
+        }
+        let slot = ((f.monotonic_ns - first.monotonic_ns) as f64 * 1e-9 / slot_s) as u64;
+        let e = best.entry(slot).or_insert(*f);
+        if f.sharpness > e.sharpness {
+            *e = *f;
+        }
+    }
+    let mut out: Vec<FrameInfo> = best.into_values().collect();
+    out.truncate(opts.max_keyframes.max(1));
+    out
+}
+
+/// Thermal frames that may become views: not FFC-frozen, not blurred, at most `thermal_hz`
+/// per second (the sharpest of each slot). Returns them with the reason every other frame was
+/// left out.
+pub fn thermal_candidates(
+    frames: &[FrameInfo],
+    opts: &PosesOptions,
+) -> (Vec<FrameInfo>, Vec<FrameDecision>) {
+    let blur = blurred(frames, opts.blur_ratio, opts.blur_window);
+    let Some(first) = frames.first() else {
+        return (Vec::new(), Vec::new());
+    };
+    let slot_s = 1.0 / opts.thermal_hz.max(1e-3);
+    let mut best: BTreeMap<u64, FrameInfo> = BTreeMap::new();
+    let mut skipped = Vec::new();
+    let skip = |f: &FrameInfo, why: &str| FrameDecision {
+        stream: "thermal",
+        sequence: f.sequence,
+        monotonic_ns: f.monotonic_ns,
+        decision: why.to_owned(),
+    };
+    for (f, &b) in frames.iter().zip(&blur) {
+        if f.ffc_frozen {
+            skipped.push(skip(f, "skipped: FFC-frozen"));
+            continue;
+        }
+        if b {
+            skipped.push(skip(f, "skipped: motion-blurred"));
+            continue;
+        }
+        let slot = ((f.monotonic_ns - first.monotonic_ns) as f64 * 1e-9 / slot_s) as u64;
+        match best.get(&slot) {
+            Some(e) if e.sharpness >= f.sharpness => {
+                skipped.push(skip(f, "skipped: a sharper frame of the same time slot"));
+            }
+            Some(e) => {
+                skipped.push(skip(e, "skipped: a sharper frame of the same time slot"));
+                best.insert(slot, *f);
+            }
+            None => {
+                best.insert(slot, *f);
+            }
+        }
+    }
+    (best.into_values().collect(), skipped)
+}
+
+/// Poses the candidates, thins near-duplicates, caps the count and marks the held-out views.
+/// Returns the views, every candidate's decision (with `skipped` prepended), and counts per
+/// reason.
+pub fn thermal_views(
+    candidates: &(Vec<FrameInfo>, Vec<FrameDecision>),
+    track: &Track,
+    sfm_from_thermal: &Rigid3,
+    points: &[[f64; 3]],
+    opts: &PosesOptions,
+) -> (
+    Vec<ThermalView>,
+    Vec<FrameDecision>,
+    BTreeMap<String, usize>,
+) {
+    let (cands, skipped) = candidates;
+    let mut decisions: Vec<FrameDecision> = skipped.clone();
+    let mut posed: Vec<ThermalView> = Vec::new();
+    for f in cands {
+        match track.world_from_cam(f.monotonic_ns) {
+            Some(world_from_sfm) => posed.push(ThermalView {
+                sequence: f.sequence,
+                monotonic_ns: f.monotonic_ns,
+                world_from_cam: world_from_sfm.compose(sfm_from_thermal),
+                held_out: false,
+            }),
+            None => decisions.push(FrameDecision {
+                stream: "thermal",
+                sequence: f.sequence,
+                monotonic_ns: f.monotonic_ns,
+                decision: "skipped: no registered keyframe within max_gap_s on both sides".into(),
+            }),
+        }
+    }
+    // Scene depth: median distance from the posed cameras to the SfM points' median.
+    let depth = if points.is_empty() {
+        1.0
+    } else {
+        let c = DVec3::new(
+            median(points.iter().map(|p| p[0]).collect()),
+            median(points.iter().map(|p| p[1]).collect()),
+            median(points.iter().map(|p| p[2]).collect()),
+        );
+        median(
+            posed
+                .iter()
+                .map(|v| (v.world_from_cam.translation_m - c).length())
+                .collect(),
+        )
+        .max(1e-9)
+    };
+    let mut kept: Vec<ThermalView> = Vec::new();
+    for v in posed {
+        let moved = kept.last().is_none_or(|k| {
+            let baseline =
+                (v.world_from_cam.translation_m - k.world_from_cam.translation_m).length() / depth;
+            let turn_deg = v
+                .world_from_cam
+                .rotation
+                .angle_between(k.world_from_cam.rotation)
+                .to_degrees();
+            baseline >= opts.min_baseline || turn_deg >= opts.min_rotation_deg
+        });
+        if moved {
+            kept.push(v);
+        } else {
+            decisions.push(FrameDecision {
+                stream: "thermal",
+                sequence: v.sequence,
+                monotonic_ns: v.monotonic_ns,
+                decision: "skipped: near-duplicate of the previous view (baseline and rotation below the thinning thresholds)".into(),
+            });
+        }
+    }
+    if opts.max_views > 0 && kept.len() > opts.max_views {
+        // Evenly spaced subset.
+        let n = kept.len();
+        let keep: Vec<usize> = (0..opts.max_views)
+            .map(|i| i * n / opts.max_views)
+            .collect();
+        let mut subset = Vec::with_capacity(keep.len());
+        for (i, v) in kept.into_iter().enumerate() {
+            if keep.binary_search(&i).is_ok() {
+                subset.push(v);
+            } else {
+                decisions.push(FrameDecision {
+                    stream: "thermal",
+                    sequence: v.sequence,
+                    monotonic_ns: v.monotonic_ns,
+                    decision: format!("skipped: over --max-views {}", opts.max_views),
+                });
+            }
+        }
+        kept = subset;
+    }
+    let k = opts.holdout_every;
+    for (i, v) in kept.iter_mut().enumerate() {
+        // Hold out views k/2, k/2 + k, …: never the first or last (their poses sit at the
+        // ends of the track).
+        v.held_out = k > 1 && i % k == k / 2;
+        decisions.push(FrameDecision {
+            stream: "thermal",
+            sequence: v.sequence,
+            monotonic_ns: v.monotonic_ns,
+            decision: if v.held_out { "held_out" } else { "view" }.into(),
+        });
+    }
+    decisions.sort_by_key(|d| (d.monotonic_ns, d.sequence));
+    let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+    for d in &decisions {
+        if let Some(why) = d.decision.strip_prefix("skipped: ") {
+            *counts
+                .entry(why.split(" (").next().unwrap_or(why).to_owned())
+                .or_default() += 1;
+        }
+    }
+    (kept, decisions, counts)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    fn frames(sharp: &[f64], ffc: &[usize]) -> Vec<FrameInfo> {
+        sharp
+            .iter()
+            .enumerate()
+            .map(|(i, &s)| FrameInfo {
+                sequence: i as u32,
+                monotonic_ns: i as u64 * 100_000_000, // 10 Hz
+                ffc_frozen: ffc.contains(&i),
+                sharpness: s,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn keyframes_skip_blurred_and_frozen_frames_and_fill_slots() {
+        let mut s = vec![1.0; 40];
+        s[5] = 0.2; // blurred
+        s[12] = 1.5; // sharpest of its slot
+        let f = frames(&s, &[20, 21, 22]);
+        let opts = PosesOptions {
+            keyframe_hz: 2.0,
+            ..PosesOptions::default()
+        };
+        let k = keyframes(&f, &opts);
+        assert_eq!(k.len(), 8, "4 s at 2 Hz: 8 slots, got {k:?}");
+        assert!(k.iter().all(|f| f.sequence != 5), "blurred frame 5 chosen");
+        assert!(
+            k.iter().any(|f| f.sequence == 12),
+            "sharpest frame 12 not chosen"
+        );
+        assert!(
+            k.iter().all(|f| !(20..=22).contains(&f.sequence)),
+            "frozen frame chosen"
+        );
+        let capped = keyframes(
+            &f,
+            &PosesOptions {
+                keyframe_hz: 10.0,
+                max_keyframes: 10,
+                ..PosesOptions::default()
+            },
+        );
+        assert!(capped.len() <= 10, "cap: {}", capped.len());
+    }
+
+    #[test]
+    fn candidates_say_why_each_frame_was_left_out() {
+        let mut s = vec![1.0; 20];
+        s[3] = 0.1;
+        let (c, why) = thermal_candidates(&frames(&s, &[7]), &PosesOptions::default());
+        assert_eq!(c.len() + why.len(), 20, "every frame accounted for");
+        let reason = |q: u32| {
+            why.iter()
+                .find(|d| d.sequence == q)
+                .map(|d| d.decision.clone())
+        };
+        assert_eq!(reason(3).as_deref(), Some("skipped: motion-blurred"));
+        assert_eq!(reason(7).as_deref(), Some("skipped: FFC-frozen"));
+        assert_eq!(c.len(), 8, "2 s at 4 Hz");
+    }
+}

@@ -1,0 +1,230 @@
+//! Structure from motion with COLMAP as an external process (Debian's `colmap` 3.8, CPU SIFT):
+//! feature extraction with the calibrated camera fixed (one camera, the calibration's model in
+//! COLMAP's words through [`crate::colmap::colmap_params`]), exhaustive or sequential matching,
+//! the incremental mapper with focal length, principal point and distortion held fixed; the
+//! largest reconstruction is kept. Each step's output goes to `colmap/STEP.log`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+use super::frames::{FrameInfo, Stream};
+use super::{Matcher, PosesError, PosesOptions, StageTimes};
+use crate::camera::CameraModel;
+use crate::colmap::{ColmapModel, colmap_params, read_model};
+use crate::geometry::Rigid3;
+
+fn run_step(
+    program: &Path,
+    workspace: &Path,
+    step: &'static str,
+    args: &[String],
+) -> Result<(), PosesError> {
+    let log = workspace.join(format!("{step}.log"));
+    let file = std::fs::File::create(&log).map_err(|e| PosesError::Output {
+        path: log.clone(),
+        reason: e.to_string(),
+    })?;
+    let err_file = file.try_clone().map_err(|e| PosesError::Output {
+        path: log.clone(),
+        reason: e.to_string(),
+    })?;
+    tracing::info!(step, "colmap {}", args.join(" "));
+    let status = Command::new(program)
+        .arg(step)
+        .args(args)
+        // COLMAP links Qt; without a display it must not try to open one.
+        .env("QT_QPA_PLATFORM", "offscreen")
+        .stdin(Stdio::null())
+        .stdout(Stdio::from(file))
+        .stderr(Stdio::from(err_file))
+        .status()
+        .map_err(|e| PosesError::ColmapMissing {
+            program: program.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(PosesError::ColmapFailed {
+            step,
+            status: status.to_string(),
+            log,
+        })
+    }
+}
+
+/// Checks that `program` runs at all (before anything long starts).
+pub fn check_colmap(program: &Path) -> Result<(), PosesError> {
+    let out = Command::new(program)
+        .arg("help")
+        .env("QT_QPA_PLATFORM", "offscreen")
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| PosesError::ColmapMissing {
+            program: program.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    if text.contains("COLMAP") || text.to_lowercase().contains("colmap") {
+        Ok(())
+    } else {
+        Err(PosesError::ColmapMissing {
+            program: program.to_path_buf(),
+            reason: format!(
+                "`{} help` does not print COLMAP's usage ({})",
+                program.display(),
+                out.status
+            ),
+        })
+    }
+}
+
+/// Runs COLMAP on `workspace/images` and returns the largest reconstruction.
+pub fn run_colmap(
+    workspace: &Path,
+    camera: &CameraModel,
+    keyframes: usize,
+    opts: &PosesOptions,
+    times: &mut StageTimes,
+) -> Result<ColmapModel, PosesError> {
+    let db = workspace.join("database.db");
+    let images = workspace.join("images");
+    let sparse = workspace.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(|e| PosesError::Output {
+        path: sparse.clone(),
+        reason: e.to_string(),
+    })?;
+    let s = |p: &Path| p.display().to_string();
+    let threads = opts.threads.max(1).to_string();
+    let (model, params) = colmap_params(camera);
+    let params = params
+        .iter()
+        .map(|p| format!("{p:?}"))
+        .collect::<Vec<_>>()
+        .join(",");
+
+    let t = Instant::now();
+    run_step(
+        &opts.colmap,
+        workspace,
+        "feature_extractor",
+        &[
+            "--database_path".into(),
+            s(&db),
+            "--image_path".into(),
+            s(&images),
+            "--ImageReader.single_camera".into(),
+            "1".into(),
+            "--ImageReader.camera_model".into(),
+            model.into(),
+            "--ImageReader.camera_params".into(),
+            params,
+            "--SiftExtraction.use_gpu".into(),
+            "0".into(),
+            "--SiftExtraction.num_threads".into(),
+            threads.clone(),
+        ],
+    )?;
+    times.colmap_features_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let matcher = opts.matcher.unwrap_or(if keyframes <= 60 {
+        Matcher::Exhaustive
+    } else {
+        Matcher::Sequential { overlap: 12 }
+    });
+    let mut args = vec![
+        "--database_path".into(),
+        s(&db),
+        "--SiftMatching.use_gpu".into(),
+        "0".into(),
+        "--SiftMatching.num_threads".into(),
+        threads.clone(),
+    ];
+    let step = match matcher {
+        Matcher::Exhaustive => "exhaustive_matcher",
+        Matcher::Sequential { overlap } => {
+            args.extend([
+                "--SequentialMatching.overlap".into(),
+                overlap.to_string(),
+                "--SequentialMatching.loop_detection".into(),
+                "0".into(),
+            ]);
+            "sequential_matcher"
+        }
+    };
+    run_step(&opts.colmap, workspace, step, &args)?;
+    times.colmap_matching_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    run_step(
+        &opts.colmap,
+        workspace,
+        "mapper",
+        &[
+            "--database_path".into(),
+            s(&db),
+            "--image_path".into(),
+            s(&images),
+            "--output_path".into(),
+            s(&sparse),
+            "--Mapper.ba_refine_focal_length".into(),
+            "0".into(),
+            "--Mapper.ba_refine_principal_point".into(),
+            "0".into(),
+            "--Mapper.ba_refine_extra_params".into(),
+            "0".into(),
+            "--Mapper.num_threads".into(),
+            threads,
+        ],
+    )?;
+    times.colmap_mapper_s = t.elapsed().as_secs_f64();
+
+    // The mapper writes one folder per reconstruction (0, 1, …): keep the largest.
+    let mut best: Option<ColmapModel> = None;
+    if let Ok(entries) = std::fs::read_dir(&sparse) {
+        let mut dirs: Vec<_> = entries.flatten().map(|e| e.path()).collect();
+        dirs.sort();
+        for dir in dirs.iter().filter(|d| d.is_dir()) {
+            let m = read_model(dir).map_err(|source| PosesError::Model {
+                path: dir.clone(),
+                source,
+            })?;
+            if best
+                .as_ref()
+                .is_none_or(|b| m.images.len() > b.images.len())
+            {
+                best = Some(m);
+            }
+        }
+    }
+    best.ok_or_else(|| PosesError::TooFewRegistered {
+        registered: 0,
+        keyframes,
+        needed: 5,
+        workspace: workspace.to_path_buf(),
+    })
+}
+
+/// The registered keyframes of `model` as `(monotonic_ns, world_from_cam)`: image names are
+/// the stage's own (`rgb_SEQUENCE.jpg`, `thermal_SEQUENCE.png`), joined to the SfM stream's
+/// frames by sequence. Images of other names are ignored.
+pub fn registered_keyframes(model: &ColmapModel, frames: &[FrameInfo]) -> Vec<(u64, Rigid3)> {
+    let by_seq: BTreeMap<u32, u64> = frames
+        .iter()
+        .map(|f| (f.sequence, f.monotonic_ns))
+        .collect();
+    let mut out: Vec<(u64, Rigid3)> = model
+        .images
+        .iter()
+        .filter_map(|im| {
+            let (_stream, seq): (Stream, u32) = Stream::parse_file_name(&im.name)?;
+            let t = *by_seq.get(&seq)?;
+            Some((t, im.cam_from_world.inverse()))
+        })
+        .collect();
+    out.sort_by_key(|k| k.0);
+    out
+}
