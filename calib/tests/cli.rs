@@ -116,17 +116,73 @@ fn calibrate_command_writes_summary_exports_and_report() {
         yaml.contains("format: s3tir-calibration/1") && yaml.contains("rgb_from_thermal:"),
         "{yaml}"
     );
+    // calibration.yaml reads back through the reader the poses stage and the trainer use, with
+    // the models the COLMAP export carries.
+    let cal = s3tir_calib::calfile::CalibrationFile::read(&out)
+        .unwrap_or_else(|e| panic!("calibration.yaml must read back: {e}"));
+    let (thermal, rgb) = (cal.thermal.expect("thermal"), cal.rgb.expect("rgb"));
+    assert!(cal.rgb_from_thermal.is_some(), "the extrinsic reads back");
+    // The OpenCV exports read back through OpenCV's own FileStorage.
+    {
+        use opencv::core::{FileStorage, FileStorage_Mode, Mat};
+        use opencv::prelude::*;
+        let path = dir.join("calibration.opencv-thermal.yaml");
+        let fs = FileStorage::new(
+            &path.display().to_string(),
+            FileStorage_Mode::READ as i32,
+            "",
+        )
+        .unwrap();
+        assert!(
+            fs.is_opened().unwrap(),
+            "OpenCV cannot open {}",
+            path.display()
+        );
+        let k: Mat = fs.get("camera_matrix").unwrap().mat().unwrap();
+        let fx = *k.at_2d::<f64>(0, 0).unwrap();
+        let cy = *k.at_2d::<f64>(1, 2).unwrap();
+        assert!(
+            (fx - thermal.intrinsics.fx).abs() < 1e-6 * fx
+                && (cy - thermal.intrinsics.cy).abs() < 1e-6,
+            "OpenCV reads fx {fx}, cy {cy}; calibration.yaml has {:?}",
+            thermal.intrinsics
+        );
+        let d: Mat = fs.get("distortion_coefficients").unwrap().mat().unwrap();
+        assert_eq!(d.total(), 5, "5 distortion coefficients");
+        let path = dir.join("calibration.opencv-stereo.yaml");
+        let fs = FileStorage::new(
+            &path.display().to_string(),
+            FileStorage_Mode::READ as i32,
+            "",
+        )
+        .unwrap();
+        let t: Mat = fs.get("T").unwrap().mat().unwrap();
+        let want = cal.rgb_from_thermal.expect("extrinsic").translation_m;
+        assert!(
+            (*t.at::<f64>(0).unwrap() - want.x).abs() < 1e-9,
+            "OpenCV reads T_x {:?}, calibration.yaml {want:?}",
+            t.at::<f64>(0)
+        );
+    }
     // The COLMAP export reads back through the codec the trainer loads datasets with.
     let cams = s3tir_calib::colmap::read_cameras_text(&dir.join("calibration.colmap-cameras.txt"))
         .unwrap_or_else(|e| panic!("the COLMAP export must read back: {e}"));
     assert_eq!(cams.len(), 2, "thermal and rgb cameras expected: {cams:?}");
     for c in &cams {
+        let want = if c.id == 1 { thermal } else { rgb };
         assert_eq!(
             (c.model.width_px, c.model.height_px),
             (640, 480),
             "camera {} size",
             c.id
         );
+        let (a, b) = (c.model.intrinsics, want.intrinsics);
+        assert!(
+            (a.fx - b.fx).abs() < 1e-6 * b.fx && (a.cx - b.cx).abs() < 1e-6,
+            "camera {}: COLMAP export {a:?} and calibration.yaml {b:?} must agree (½-px shift undone)",
+            c.id
+        );
+        assert!((c.model.distortion.k1 - want.distortion.k1).abs() < 1e-8);
     }
     for name in [
         "report.md",
