@@ -128,7 +128,7 @@ fn calibrate_command_writes_summary_exports_and_report() {
         use opencv::prelude::*;
         let path = dir.join("calibration.opencv-thermal.yaml");
         let fs = FileStorage::new(
-            &path.display().to_string(),
+            path.display().to_string(),
             FileStorage_Mode::READ as i32,
             "",
         )
@@ -151,7 +151,7 @@ fn calibrate_command_writes_summary_exports_and_report() {
         assert_eq!(d.total(), 5, "5 distortion coefficients");
         let path = dir.join("calibration.opencv-stereo.yaml");
         let fs = FileStorage::new(
-            &path.display().to_string(),
+            path.display().to_string(),
             FileStorage_Mode::READ as i32,
             "",
         )
