@@ -239,7 +239,8 @@ pub fn write_keyframes(
         let SessionItem::Frame(f) = item else {
             return Ok(());
         };
-        if !wanted.contains(&f.raw.sequence) {
+        let is_thermal = f.raw.stream == s3tir_capture::frame::StreamKind::Thermal;
+        if is_thermal != (stream == Stream::Thermal) || !wanted.contains(&f.raw.sequence) {
             return Ok(());
         }
         let Ok(frame) = parse_recorded(path, &f) else {
@@ -308,7 +309,10 @@ pub fn for_thermal_frames(
         let SessionItem::Frame(f) = item else {
             return Ok(());
         };
-        if failure.is_some() || !sequences.contains(&f.raw.sequence) {
+        if failure.is_some()
+            || f.raw.stream != s3tir_capture::frame::StreamKind::Thermal
+            || !sequences.contains(&f.raw.sequence)
+        {
             return Ok(());
         }
         if let Ok(CapturedFrame::Thermal(t)) = parse_recorded(path, &f)

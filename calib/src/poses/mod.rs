@@ -437,8 +437,20 @@ pub fn session_to_dataset(
         ),
         None => crate::geometry::Rigid3::IDENTITY,
     };
-    let (views, decisions, skipped) =
+    let (views, mut decisions, skipped) =
         select::thermal_views(&candidates, &track, &sfm_from_thermal, &points, opts);
+    let registered_at: std::collections::BTreeSet<u64> = registered.iter().map(|r| r.0).collect();
+    decisions.extend(keyframes.iter().map(|k| select::FrameDecision {
+        stream: sfm_stream.name(),
+        sequence: k.sequence,
+        monotonic_ns: k.monotonic_ns,
+        decision: if registered_at.contains(&k.monotonic_ns) {
+            "keyframe: registered by structure from motion".into()
+        } else {
+            "keyframe: not registered by structure from motion".into()
+        },
+    }));
+    decisions.sort_by_key(|d| (d.monotonic_ns, d.stream));
     if views.iter().filter(|v| !v.held_out).count() == 0 {
         return Err(PosesError::Nothing {
             path: session.to_path_buf(),
