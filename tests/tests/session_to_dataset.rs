@@ -419,6 +419,18 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
         matches!(e, PosesError::TooFewRegistered { registered: 3, .. }),
         "{e}"
     );
+    assert!(
+        !fresh("e").exists(),
+        "no half dataset under the output name"
+    );
+    assert!(
+        fresh("e.partial").join("colmap").is_dir(),
+        "the failed run's workspace stays in OUT.partial for inspection"
+    );
+    // The next run clears that unfinished folder.
+    poses::session_to_dataset(&rec.session, Some(&rig()), &fresh("e"), &opts(&model))
+        .unwrap_or_else(|e| panic!("a run after a failed one: {e}"));
+    assert!(fresh("e").join("sparse/0/images.txt").is_file() && !fresh("e.partial").exists());
 
     // An existing dataset is never overwritten.
     let existing = fresh("f");

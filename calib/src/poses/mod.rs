@@ -44,8 +44,9 @@
 //!    trainer undistorts them once at load (`OPENCV`/`FULL_OPENCV` camera, bilinear, same K),
 //!    so the rasterisers stay pinhole and the dataset stays radiometric.
 //!
-//! Nothing already written is lost: the output folder must not exist (or be empty), and the
-//! session is only read.
+//! Nothing already written is lost: the output folder must not exist (or be empty), the stage
+//! builds in `OUT.partial` (COLMAP's logs stay there when it fails; the next run clears it) and
+//! renames it to `OUT` when everything is written, and the session is only read.
 
 pub mod dataset;
 pub mod frames;
@@ -308,19 +309,59 @@ pub fn attached_calibration(scan: &frames::SessionScan) -> Result<CalibrationFil
     })
 }
 
-fn ensure_empty_output(out: &Path) -> Result<(), PosesError> {
+/// Marks a folder as this stage's unfinished work (safe to remove on the next run).
+const PARTIAL_MARKER: &str = ".s3tir-poses-partial";
+
+/// The folder the stage builds in: `OUT.partial`, renamed to `OUT` when everything is written.
+fn partial_dir(out: &Path) -> PathBuf {
+    let mut name = out.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    out.with_file_name(name)
+}
+
+/// Checks that `out` is free (never overwritten), clears a previous run's unfinished
+/// `OUT.partial` (identified by its marker) and creates a fresh one.
+fn start_output(out: &Path) -> Result<PathBuf, PosesError> {
+    let err = |path: &Path, reason: String| PosesError::Output {
+        path: path.to_path_buf(),
+        reason,
+    };
     if let Ok(mut it) = std::fs::read_dir(out)
         && it.next().is_some()
     {
-        return Err(PosesError::Output {
-            path: out.to_path_buf(),
-            reason: "exists and is not empty: the poses stage never overwrites a dataset (choose another --dataset/--out or remove it)".into(),
-        });
+        return Err(err(
+            out,
+            "exists and is not empty: the poses stage never overwrites a dataset (choose another --dataset/--out or remove it)".into(),
+        ));
     }
-    std::fs::create_dir_all(out).map_err(|e| PosesError::Output {
-        path: out.to_path_buf(),
+    let partial = partial_dir(out);
+    if partial.exists() {
+        if !partial.join(PARTIAL_MARKER).is_file() {
+            return Err(err(
+                &partial,
+                "exists and is not an unfinished poses run of this tool: remove it or choose another output".into(),
+            ));
+        }
+        std::fs::remove_dir_all(&partial).map_err(|e| err(&partial, e.to_string()))?;
+    }
+    std::fs::create_dir_all(&partial).map_err(|e| err(&partial, e.to_string()))?;
+    std::fs::write(partial.join(PARTIAL_MARKER), "unfinished s3tir poses run\n")
+        .map_err(|e| err(&partial, e.to_string()))?;
+    Ok(partial)
+}
+
+/// Renames the finished `partial` folder to `out`.
+fn finish_output(partial: &Path, out: &Path) -> Result<(), PosesError> {
+    let err = |path: &Path, e: std::io::Error| PosesError::Output {
+        path: path.to_path_buf(),
         reason: e.to_string(),
-    })
+    };
+    std::fs::remove_file(partial.join(PARTIAL_MARKER)).map_err(|e| err(partial, e))?;
+    if out.is_dir() {
+        // An empty folder the user made for it.
+        std::fs::remove_dir(out).map_err(|e| err(out, e))?;
+    }
+    std::fs::rename(partial, out).map_err(|e| err(out, e))
 }
 
 /// Runs the whole stage: `session` + `cal` → a posed thermal dataset in `out` (module docs).
@@ -357,8 +398,10 @@ pub fn session_to_dataset(
     if opts.user_model.is_none() {
         sfm::check_colmap(&opts.colmap)?;
     }
-    // Only now (inputs checked) is anything created.
-    ensure_empty_output(out)?;
+    // Only now (inputs checked) is anything created: in OUT.partial, renamed to OUT at the end,
+    // so a failed run leaves its COLMAP logs there and never a half dataset under OUT.
+    let final_out = out;
+    let out = &start_output(final_out)?;
 
     let t = std::time::Instant::now();
     let sfm_stream = if rig.rgb.is_some() && !scan.rgb.is_empty() {
@@ -469,7 +512,7 @@ pub fn session_to_dataset(
 
     let report = PosesReport {
         session: session.to_path_buf(),
-        dataset: out.to_path_buf(),
+        dataset: final_out.to_path_buf(),
         sfm_stream: sfm_stream.name(),
         session_truncated: scan.truncated,
         session_note: scan.note.clone(),
@@ -488,6 +531,7 @@ pub fn session_to_dataset(
         frames: decisions,
     };
     dataset::write_report(out, &report)?;
+    finish_output(out, final_out)?;
     Ok(report)
 }
 
