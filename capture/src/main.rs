@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -80,6 +80,13 @@ struct RecordArgs {
     /// Largest RGB size to negotiate, WIDTHxHEIGHT.
     #[arg(long, default_value = "1920x1080")]
     rgb_max_size: String,
+    /// Simulated rig only: the rig walks through a textured scene (`orbit` or `handheld`) for
+    /// --duration seconds of the walk's clock (default 20) instead of facing the board; the
+    /// recording ends when the walk's last frame is recorded (rendering may run slower than
+    /// real time), and the simulator writes the truth trajectory to OUT_STEM-truth/truth.json
+    /// beside the session. No serial control in a walk.
+    #[arg(long, value_parser = ["orbit", "handheld"])]
+    walk: Option<String>,
     /// Calibration file (s3tir-calib's calibration.yaml) attached to the session, so the poses
     /// stage (`export --dataset`, `s3tir-train SESSION.mcap`) finds it without --calibration.
     #[arg(long)]
@@ -184,6 +191,47 @@ fn main() -> Result<()> {
         Some(Command::Bench { seconds, out, json }) => bench(seconds, out, json),
         None => record(cli.record),
     }
+}
+
+/// Stops the recording when the simulated walk has announced `walk_done: thermal=N rgb=M` and
+/// the writer has recorded that many frames of each stream (or 10 s after the announcement,
+/// when some were rejected on the way).
+fn watch_walk_end(
+    announced: Arc<std::sync::Mutex<std::collections::BTreeMap<String, String>>>,
+    counters: Arc<Counters>,
+    stop: Arc<AtomicBool>,
+) {
+    std::thread::spawn(move || {
+        let done = loop {
+            if stop.load(Ordering::Relaxed) {
+                return;
+            }
+            let v = announced
+                .lock()
+                .ok()
+                .and_then(|m| m.get("walk_done").cloned());
+            if let Some(v) = v {
+                break v;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        let want = |key: &str| -> u64 {
+            done.split_whitespace()
+                .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('=')?.parse().ok())
+                .unwrap_or(0)
+        };
+        let (thermal, rgb) = (want("thermal"), want("rgb"));
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while std::time::Instant::now() < deadline {
+            let got = |k: usize| counters.frames[k].load(Ordering::Relaxed);
+            if got(0) >= thermal && got(1) >= rgb {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        tracing::info!("the simulated walk ended ({done}): stopping");
+        stop.store(true, Ordering::Relaxed);
+    });
 }
 
 /// `export --dataset`: capture sits below calib (ARCHITECTURE.md), so the poses stage runs as
@@ -367,8 +415,23 @@ fn record(a: RecordArgs) -> Result<()> {
     } else {
         ThermalUnits::RawCounts
     };
+    if a.walk.is_some() && SimSpec::parse(&device).is_none() {
+        bail!("--walk moves the simulated rig: it needs --device sim[:PROFILE], not {device}");
+    }
+    let walking = a.walk.is_some();
     if let Some(spec) = SimSpec::parse(&device) {
-        let spec = spec?;
+        let mut spec = spec?;
+        if let Some(kind) = &a.walk {
+            let stem = out
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "walk".into());
+            spec.walk = Some(sim_backend::SimWalk {
+                kind: kind.clone(),
+                duration_s: a.duration.unwrap_or(20.0),
+                truth_dir: out.with_file_name(format!("{stem}-truth")),
+            });
+        }
         let socket = a
             .sim_socket
             .clone()
@@ -492,7 +555,12 @@ fn record(a: RecordArgs) -> Result<()> {
         out: out.clone(),
         info,
         pairing,
-        duration: a.duration.map(Duration::from_secs_f64),
+        // A walk ends when its last frame is recorded (watch_walk_end), not by the wall clock.
+        duration: if walking {
+            None
+        } else {
+            a.duration.map(Duration::from_secs_f64)
+        },
         queue_frames: a.queue_frames,
         status_line: true,
         calibration,
@@ -501,7 +569,11 @@ fn record(a: RecordArgs) -> Result<()> {
         trigger_poll,
         rough_clock,
     };
-    let report = daemon::run(cfg, Arc::new(AtomicBool::new(false)), counters)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    if walking && let Some(p) = &_sim_process {
+        watch_walk_end(p.announcements(), counters.clone(), stop.clone());
+    }
+    let report = daemon::run(cfg, stop, counters)?;
     if let Some(c) = rig
         && a.trigger_rate.is_some()
         && let Err(e) = lock(&c).stop_trigger()

@@ -25,10 +25,22 @@ use crate::frame::{FfcState, RawFrame, StreamKind, ThermalUnits};
 use crate::simwire::{self, StreamId, WireFrame};
 use crate::synth::{Script, SynthRig, ThermalSynth, monotonic_now_ns};
 
-/// A parsed `--device sim[:PROFILE]`.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// A parsed `--device sim[:PROFILE]` (and, with `--walk`, the walk the rig makes).
+#[derive(Debug, Clone, PartialEq)]
 pub struct SimSpec {
     pub profile: String,
+    /// The rig walks through a scene instead of facing the board (`s3tir-firmware-sim run
+    /// --walk`).
+    pub walk: Option<SimWalk>,
+}
+
+/// A simulated walk: its path (`orbit`, `handheld`), length in seconds of the walk's clock,
+/// and where the simulator writes its truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimWalk {
+    pub kind: String,
+    pub duration_s: f64,
+    pub truth_dir: PathBuf,
 }
 
 impl SimSpec {
@@ -49,6 +61,7 @@ impl SimSpec {
         };
         Some(Ok(Self {
             profile: profile.to_owned(),
+            walk: None,
         }))
     }
 }
@@ -190,6 +203,11 @@ impl SimRigProcess {
     pub fn announced(&self, key: &str) -> Option<String> {
         self.announced.lock().ok().and_then(|m| m.get(key).cloned())
     }
+
+    /// The announcements as they keep coming (e.g. a walk's `walk_done`), for a watcher thread.
+    pub fn announcements(&self) -> Arc<std::sync::Mutex<BTreeMap<String, String>>> {
+        self.announced.clone()
+    }
 }
 
 impl Drop for SimRigProcess {
@@ -217,6 +235,15 @@ pub fn ensure_sim_rig(
     socket: &Path,
 ) -> Result<Option<SimRigProcess>, CaptureError> {
     if UnixStream::connect(socket).is_ok() {
+        if spec.walk.is_some() {
+            return Err(CaptureError::DeviceUnavailable {
+                device: format!("sim:{}", spec.profile),
+                reason: format!(
+                    "a simulated rig already answers on {}: a walk needs a rig of its own (stop that one or pass another --sim-socket)",
+                    socket.display()
+                ),
+            });
+        }
         return Ok(None);
     }
     let exe_dir = std::env::current_exe()
@@ -244,6 +271,14 @@ pub fn ensure_sim_rig(
     if spec.profile == "lepton35" {
         // PureThermal's 160×122 mode: telemetry rows below the image.
         cmd.arg("--telemetry");
+    }
+    if let Some(w) = &spec.walk {
+        cmd.arg("--walk")
+            .arg(&w.kind)
+            .arg("--duration")
+            .arg(w.duration_s.to_string())
+            .arg("--truth-dir")
+            .arg(&w.truth_dir);
     }
     cmd.arg("--socket")
         .arg(socket)

@@ -10,6 +10,9 @@
 //! - [`sensor`]: thermal core and RGB camera sensor models and profiles.
 //! - [`rig`]: the thermal + RGB rig geometry and board trajectories.
 //! - [`dataset`]: the `board` calibration set writer.
+//! - [`scene`]: trainer datasets of simple thermal scenes with truth.
+//! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
+//!   (`run --walk`), with the truth trajectory.
 
 pub mod board;
 pub mod dataset;
@@ -20,5 +23,6 @@ pub mod rig;
 pub mod scene;
 pub mod sensor;
 pub mod serve;
+pub mod walk;
 
 pub use error::SimError;

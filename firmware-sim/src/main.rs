@@ -12,6 +12,7 @@ use s3tir_firmware_sim::rig::Rig;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with_layout};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
+use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkSpec, serve_walk};
 
 /// The simulated s3tir rig: a thermal core, an RGB camera and the rig controller firmware,
 /// producing physically plausible frames and ground truth when no hardware is attached.
@@ -158,7 +159,25 @@ enum Command {
         /// Random seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Walk the rig through a textured scene instead of facing the board: `orbit` (a
+        /// circle around it) or `handheld` (a person walking around it: drift, step bob, roll,
+        /// tremor). Frames are rendered per pose (RGB at 10 Hz; slower than real time on a
+        /// small machine, stamped on the walk's clock); --duration is the walk's length
+        /// (default 20 s); no serial ptys. Prints `walk_done: thermal=N rgb=M` when every
+        /// frame is sent. See firmware-sim/README.md, `run --walk`.
+        #[arg(long, value_enum)]
+        walk: Option<WalkArg>,
+        /// With --walk: write the truth (cameras, extrinsic, every frame's pose) to
+        /// DIR/truth.json when the walk ends.
+        #[arg(long, requires = "walk")]
+        truth_dir: Option<PathBuf>,
     },
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum WalkArg {
+    Orbit,
+    Handheld,
 }
 
 fn progress_bar(total: usize, what: &str) -> ProgressBar {
@@ -253,6 +272,8 @@ fn main() -> Result<()> {
             low_light,
             telemetry,
             seed,
+            walk,
+            truth_dir,
         } => {
             let mut thermal = profile.profile();
             if telemetry {
@@ -282,12 +303,31 @@ fn main() -> Result<()> {
                 handle_signals: true,
                 stop: Default::default(),
             };
-            serve(cfg, &mut |key, value| {
+            let mut announce = |key: &str, value: &str| {
                 println!("{key}: {value}");
                 // The parent reads these lines as they come.
                 let _ = std::io::Write::flush(&mut std::io::stdout());
-            })
-            .context("running the simulated rig")?;
+            };
+            if let Some(kind) = walk {
+                let stop = s3tir_firmware_sim::serve::watch_stop(&cfg)?;
+                let rig = WalkRig {
+                    thermal: cfg.thermal,
+                    rgb: cfg.rgb,
+                    seed,
+                };
+                let spec = WalkSpec {
+                    kind: match kind {
+                        WalkArg::Orbit => WalkKind::Orbit,
+                        WalkArg::Handheld => WalkKind::Handheld,
+                    },
+                    duration_s: cfg.duration_s.unwrap_or(20.0),
+                    truth_dir,
+                };
+                serve_walk(&cfg.socket, &rig, &spec, stop, &mut announce)
+                    .context("running the simulated walk")?;
+                return Ok(());
+            }
+            serve(cfg, &mut announce).context("running the simulated rig")?;
             Ok(())
         }
     }

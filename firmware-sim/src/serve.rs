@@ -396,9 +396,9 @@ fn broadcast(clients: &Mutex<Vec<UnixStream>>, frame: &WireFrame, socket: &Path)
     });
 }
 
-/// Runs the rig until stopped. `announce(key, value)` receives the `key: value` lines
-/// (`socket`, `fslp_pty`, `rig_pty`, `thermal`, `rgb`, `ready`).
-pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(), SimError> {
+/// Sets up what stops the rig (signals when `handle_signals`, stdin EOF when
+/// `stop_on_stdin_eof` and stdin is a pipe): returns the stop flag they set.
+pub fn watch_stop(cfg: &ServeConfig) -> Result<Arc<AtomicBool>, SimError> {
     let stop = cfg.stop.clone();
     if cfg.handle_signals {
         let mut set = nix::sys::signal::SigSet::empty();
@@ -432,6 +432,13 @@ pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(
             stop.store(true, Ordering::Relaxed);
         });
     }
+    Ok(stop)
+}
+
+/// Runs the rig until stopped. `announce(key, value)` receives the `key: value` lines
+/// (`socket`, `fslp_pty`, `rig_pty`, `thermal`, `rgb`, `ready`).
+pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(), SimError> {
+    let stop = watch_stop(&cfg)?;
     let fslp_pty = open_pty("open FSLP pty")?;
     let rig_pty = open_pty("open rig controller pty")?;
 

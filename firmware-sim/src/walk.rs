@@ -1,0 +1,694 @@
+//! `run --walk`: the rig moves through a scene, and both cameras see it move.
+//!
+//! **Scene** ([`trace_walk`]): the `objects` layout of [`crate::scene`] (heated pipe, box with an
+//! emissivity edge, floor with an underfloor pipe, finned radiator; its thermal field
+//! unchanged) inside a room: the floor extended to ±[`ROOM_HALF_M`] and four walls
+//! [`ROOM_HEIGHT_M`] high at 290 K (ε 0.9, thermally bland). Every surface carries a seeded,
+//! non-repeating, multi-scale albedo texture ([`texture`]: value noise at 3–40 cycles per metre
+//! times the surface's colour) that feature matchers can use; the thermal images do not see it.
+//!
+//! **Trajectories** ([`world_from_thermal`], the rig frame is the thermal camera):
+//! - `orbit`: a circle of radius 1.7 m at 1.0 m height around (0, 0, 0.2), looking at it,
+//!   0.25 rad/s (≈ 14° per second);
+//! - `handheld`: a person walking the same way around: radius 1.7 ± 0.12 m and height
+//!   1.0 ± 0.06 m drifting slowly, a 1.7 Hz step bob of 1.5 cm, the angular speed varying by
+//!   ± 0.03 rad/s, the aim wandering ± 8 cm around the target, ± 2° of roll and a 3 Hz hand
+//!   tremor of ± 0.3°; all smooth (sums of sines), the phases drawn from the seed.
+//!
+//! **Frames**: the thermal core at its profile's rate, the RGB camera at [`WALK_RGB_HZ`]
+//! (640×360 binned by default). Frame k of a stream is exposed at `k / rate` seconds of sensor
+//! time, rendered at the poses of its exposure (motion blur: the thermal core integrates
+//! 2 instants over 12 ms with 2×2 sub-pixels, the RGB camera 3 instants over 16 ms, one jittered
+//! ray per pixel each), then goes through the same sensor models as every simulated frame
+//! (thermal: PSF, NETD noise, fixed pattern, FFC freezes, telemetry; RGB: PSF, shot and read
+//! noise, sRGB, MJPEG). One FFC is requested at 40 % of the walk. Rendering does not keep up
+//! with real time on a small machine: frames are sent when ready (never before their due
+//! time), stamped at their exposure on the walk's clock, so the recorded content never depends
+//! on the machine's speed.
+//!
+//! **Truth** (`--truth-dir DIR`): `DIR/truth.json` (format `s3tir-walk-truth/1`, written
+//! atomically when the walk ends): both camera models, `rgb_from_thermal`, the scene's centre
+//! and extent, and every frame sent with its stream, sequence, `monotonic_ns` (exactly the
+//! stamp on the wire) and `world_from_cam` at that instant.
+
+use std::io::Write as _;
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use glam::{DMat3, DQuat, DVec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use s3tir_calib::{CameraModel, Rigid3};
+use s3tir_capture::device::FourCc;
+use s3tir_capture::frame::ThermalUnits;
+use s3tir_capture::simwire::{self, StreamId, WireFrame};
+use serde::Serialize;
+
+use crate::dataset::PoseJson;
+use crate::error::SimError;
+use crate::physics::Radiometry;
+use crate::render::{RayGrid, gaussian_blur};
+use crate::rig::Rig;
+use crate::scene::{self, BACKGROUND_K, ENV_K, SceneLayout, SurfaceHit};
+use crate::sensor::{RgbProfile, ThermalOutput, ThermalProfile, ThermalSensor, rgb_to_jpeg};
+use crate::serve::monotonic_ns;
+
+/// Half-size of the room around the scene (floor and walls), metres.
+pub const ROOM_HALF_M: f64 = 3.0;
+/// Height of the room's walls, metres.
+pub const ROOM_HEIGHT_M: f64 = 2.5;
+/// Temperature of the room's walls, kelvin.
+pub const ROOM_WALL_K: f64 = 290.0;
+/// The point every walk looks at, metres.
+pub const WALK_TARGET: DVec3 = DVec3::new(0.0, 0.0, 0.2);
+/// RGB frame rate during a walk.
+pub const WALK_RGB_HZ: f64 = 10.0;
+/// Radius of the walk around [`WALK_TARGET`], metres.
+pub const WALK_RADIUS_M: f64 = 1.7;
+/// Mean angular speed around the scene, rad/s.
+pub const WALK_RATE_RAD_S: f64 = 0.25;
+
+/// Which path the rig walks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WalkKind {
+    Orbit,
+    Handheld,
+}
+
+impl WalkKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            WalkKind::Orbit => "orbit",
+            WalkKind::Handheld => "handheld",
+        }
+    }
+}
+
+/// A walk: its path, length and seed, and where its truth goes.
+#[derive(Debug, Clone)]
+pub struct WalkSpec {
+    pub kind: WalkKind,
+    pub duration_s: f64,
+    pub truth_dir: Option<PathBuf>,
+}
+
+/// Seeded phases of the hand-held path's sines.
+#[derive(Debug, Clone, Copy)]
+pub struct WalkPath {
+    pub kind: WalkKind,
+    phases: [f64; 12],
+}
+
+impl WalkPath {
+    pub fn new(kind: WalkKind, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x3A1C_0DE5);
+        let mut phases = [0.0; 12];
+        for p in &mut phases {
+            *p = rng.random_range(0.0..std::f64::consts::TAU);
+        }
+        Self { kind, phases }
+    }
+
+    /// The rig's (thermal camera's) pose at `t_s` seconds into the walk.
+    pub fn world_from_thermal(&self, t_s: f64) -> Rigid3 {
+        world_from_thermal(self, t_s)
+    }
+}
+
+/// The rig's pose at `t_s` (module docs).
+pub fn world_from_thermal(path: &WalkPath, t_s: f64) -> Rigid3 {
+    let p = &path.phases;
+    let s = |f: f64, k: usize| (f * t_s + p[k]).sin();
+    let (radius, height, angle, aim, roll, tremor) = match path.kind {
+        WalkKind::Orbit => (
+            WALK_RADIUS_M,
+            1.0,
+            WALK_RATE_RAD_S * t_s,
+            WALK_TARGET,
+            0.0,
+            DVec3::ZERO,
+        ),
+        WalkKind::Handheld => {
+            // ∫ (ω + 0.03 sin(0.4 t + φ)) dt
+            let angle =
+                WALK_RATE_RAD_S * t_s - 0.03 / 0.4 * ((0.4 * t_s + p[0]).cos() - p[0].cos());
+            (
+                WALK_RADIUS_M + 0.12 * s(0.5, 1),
+                1.0 + 0.06 * s(0.9, 2) + 0.015 * s(std::f64::consts::TAU * 1.7, 3),
+                angle,
+                WALK_TARGET + DVec3::new(0.08 * s(0.7, 4), 0.08 * s(0.6, 5), 0.04 * s(0.8, 6)),
+                2f64.to_radians() * s(1.1, 7),
+                DVec3::new(
+                    0.3f64.to_radians() * s(std::f64::consts::TAU * 3.0, 8),
+                    0.3f64.to_radians() * s(std::f64::consts::TAU * 2.7, 9),
+                    0.0,
+                ),
+            )
+        }
+    };
+    let a = std::f64::consts::FRAC_PI_2 + angle;
+    let eye = DVec3::new(radius * a.cos(), radius * a.sin(), height);
+    let fwd = (aim - eye).normalize();
+    let right = fwd.cross(DVec3::Z).normalize();
+    let down = fwd.cross(right);
+    let base = DQuat::from_mat3(&DMat3::from_cols(right, down, fwd));
+    // Roll about the optical axis, tremor about the camera's x and y (camera frame).
+    let local = DQuat::from_rotation_z(roll)
+        * DQuat::from_rotation_x(tremor.x)
+        * DQuat::from_rotation_y(tremor.y);
+    Rigid3::new(base * local, eye)
+}
+
+/// 3-D value noise in [0, 1] (smooth, trilinear between hashed lattice values).
+fn value_noise(p: DVec3, seed: u64) -> f64 {
+    let hash = |x: i64, y: i64, z: i64| -> f64 {
+        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ (z as u64).wrapping_mul(0x1656_67B1_9E37_79F9)
+            ^ seed;
+        h ^= h >> 33;
+        h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
+        h ^= h >> 33;
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let f = p.floor();
+    let (x0, y0, z0) = (f.x as i64, f.y as i64, f.z as i64);
+    let t = p - f;
+    let sm = |v: f64| v * v * (3.0 - 2.0 * v);
+    let (u, v, w) = (sm(t.x), sm(t.y), sm(t.z));
+    let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+    let c = |dx, dy, dz| hash(x0 + dx, y0 + dy, z0 + dz);
+    lerp(
+        lerp(
+            lerp(c(0, 0, 0), c(1, 0, 0), u),
+            lerp(c(0, 1, 0), c(1, 1, 0), u),
+            v,
+        ),
+        lerp(
+            lerp(c(0, 0, 1), c(1, 0, 1), u),
+            lerp(c(0, 1, 1), c(1, 1, 1), u),
+            v,
+        ),
+        w,
+    )
+}
+
+/// The walk scene's albedo at world point `p` on a surface of colour `base`: multi-scale
+/// value noise (3, 7, 17, 40 cycles per metre) with a contrast curve, and a second noise field
+/// that tints it, so that no two patches look alike.
+pub fn texture(p: DVec3, base: [f64; 3]) -> [f64; 3] {
+    let mut n = 0.0;
+    for (freq, amp, seed) in [
+        (3.0, 0.35, 11u64),
+        (7.0, 0.3, 23),
+        (17.0, 0.22, 37),
+        (40.0, 0.13, 51),
+    ] {
+        n += amp * value_noise(p * freq, seed);
+    }
+    let n = ((n - 0.5) * 2.2 + 0.5).clamp(0.0, 1.0);
+    let tint = value_noise(p * 2.0 + DVec3::splat(17.3), 77);
+    let shade = 0.25 + 1.5 * n;
+    [
+        (base[0] * shade * (0.75 + 0.5 * tint)).clamp(0.0, 1.0),
+        (base[1] * shade).clamp(0.0, 1.0),
+        (base[2] * shade * (1.25 - 0.5 * tint)).clamp(0.0, 1.0),
+    ]
+}
+
+/// Nearest surface of the walk scene along `o + t d` (module docs), with its texture.
+pub fn trace_walk(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    let mut best = scene::trace(SceneLayout::Objects, o, d);
+    let mut consider = |h: SurfaceHit| {
+        if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
+            best = Some(h);
+        }
+    };
+    // The floor beyond the objects layout's ±2 m.
+    if d.z.abs() > 1e-12 {
+        let t = -o.z / d.z;
+        let p = o + d * t;
+        let outer = p.x.abs().max(p.y.abs());
+        if outer > 2.0 && outer <= ROOM_HALF_M {
+            consider(SurfaceHit {
+                t,
+                temp_k: scene::floor_temp_k(p.x),
+                emissivity: 0.95,
+                albedo: [0.34, 0.32, 0.29],
+                normal: if d.z > 0.0 { DVec3::NEG_Z } else { DVec3::Z },
+                object: scene::SceneObject::Ground,
+            });
+        }
+    }
+    // Walls x = ±ROOM_HALF_M and y = ±ROOM_HALF_M.
+    for axis in [0usize, 1] {
+        if d[axis].abs() <= 1e-12 {
+            continue;
+        }
+        for side in [-1.0, 1.0] {
+            let t = (side * ROOM_HALF_M - o[axis]) / d[axis];
+            let p = o + d * t;
+            let other = p[1 - axis];
+            if other.abs() <= ROOM_HALF_M && p.z >= 0.0 && p.z <= ROOM_HEIGHT_M {
+                let mut n = DVec3::ZERO;
+                n[axis] = -side;
+                let base = if axis == 0 {
+                    [0.55, 0.5, 0.42]
+                } else {
+                    [0.42, 0.5, 0.55]
+                };
+                consider(SurfaceHit {
+                    t,
+                    temp_k: ROOM_WALL_K + 0.5 * (p.z - 1.0),
+                    emissivity: 0.9,
+                    albedo: base,
+                    normal: n,
+                    object: scene::SceneObject::Wall,
+                });
+            }
+        }
+    }
+    best.map(|mut h| {
+        h.albedo = texture(o + d * h.t, h.albedo);
+        h
+    })
+}
+
+/// The scene's centre and the diameter of its bounding sphere (the room), metres.
+pub fn scene_extent() -> (DVec3, f64) {
+    let c = DVec3::new(0.0, 0.0, ROOM_HEIGHT_M / 2.0);
+    let corner = DVec3::new(ROOM_HALF_M, ROOM_HALF_M, ROOM_HEIGHT_M / 2.0);
+    (c, 2.0 * corner.length())
+}
+
+/// Renders the thermal radiance of one frame: 2 instants over the exposure, 2×2 sub-pixels.
+fn render_thermal(grid: &RayGrid, poses: &[Rigid3], radiometry: &Radiometry) -> Vec<f64> {
+    let (w, h) = (grid.width(), grid.height());
+    let l_env = radiometry.radiance(ENV_K);
+    let l_bg = radiometry.radiance(BACKGROUND_K);
+    let mut out = vec![0.0; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, px) in row.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            let mut n = 0.0;
+            for (k, pose) in poses.iter().enumerate() {
+                for j in 0..2 {
+                    for i in 0..2 {
+                        let (a, b) = (0.25 + 0.5 * i as f64, 0.25 + 0.5 * j as f64);
+                        let a = (a + 0.125 * k as f64).fract();
+                        let d = pose.transform_vector(grid.sub_ray(u, v, a, b));
+                        acc += match trace_walk(pose.translation_m, d) {
+                            Some(s) => {
+                                s.emissivity * radiometry.radiance(s.temp_k)
+                                    + (1.0 - s.emissivity) * l_env
+                            }
+                            None => l_bg,
+                        };
+                        n += 1.0;
+                    }
+                }
+            }
+            *px = acc / n;
+        }
+    });
+    out
+}
+
+/// Renders the linear RGB of one frame: one jittered ray per pixel and instant.
+fn render_rgb(grid: &RayGrid, poses: &[Rigid3]) -> [Vec<f64>; 3] {
+    let (w, h) = (grid.width(), grid.height());
+    let light = DVec3::new(0.3, -0.4, 1.0).normalize();
+    let jitter = [(0.3, 0.4), (0.7, 0.6), (0.5, 0.2), (0.2, 0.8)];
+    let mut rgb = vec![[0.0f64; 3]; w * h];
+    rgb.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, px) in row.iter_mut().enumerate() {
+            let mut c = [0.0; 3];
+            for (k, pose) in poses.iter().enumerate() {
+                let (a, b) = jitter[k % jitter.len()];
+                let d = pose.transform_vector(grid.sub_ray(u, v, a, b));
+                match trace_walk(pose.translation_m, d) {
+                    Some(s) => {
+                        let shade = 0.35 + 0.65 * s.normal.dot(light).max(0.0);
+                        for (ch, a) in c.iter_mut().zip(s.albedo) {
+                            *ch += a * shade;
+                        }
+                    }
+                    None => {
+                        for ch in &mut c {
+                            *ch += 0.3;
+                        }
+                    }
+                }
+            }
+            for ch in &mut c {
+                *ch /= poses.len() as f64;
+            }
+            *px = c;
+        }
+    });
+    [0, 1, 2].map(|k| rgb.iter().map(|p| p[k]).collect())
+}
+
+/// Exposure instants (seconds, relative to the frame's stamp) of each camera.
+const THERMAL_INSTANTS_S: [f64; 2] = [-0.006, 0.006];
+const RGB_INSTANTS_S: [f64; 3] = [-0.008, 0.0, 0.008];
+
+/// One frame of the walk, planned.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Planned {
+    t_s: f64,
+    stream: StreamId,
+    sequence: u32,
+}
+
+/// One frame in `truth.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TruthFrame {
+    pub stream: &'static str,
+    pub sequence: u32,
+    pub monotonic_ns: u64,
+    pub ffc_frozen: bool,
+    pub world_from_cam: PoseJson,
+}
+
+#[derive(Debug, Serialize)]
+struct SceneJson {
+    layout: &'static str,
+    centre_m: [f64; 3],
+    extent_m: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct TruthJson<'a> {
+    format: &'static str,
+    trajectory: &'static str,
+    seed: u64,
+    duration_s: f64,
+    thermal_profile: &'static str,
+    thermal: CameraModel,
+    rgb: Option<CameraModel>,
+    rgb_from_thermal: PoseJson,
+    scene: SceneJson,
+    frames: &'a [TruthFrame],
+}
+
+/// What the serving loop needs of the rig.
+#[derive(Debug)]
+pub struct WalkRig {
+    pub thermal: ThermalProfile,
+    pub rgb: Option<RgbProfile>,
+    pub seed: u64,
+}
+
+/// Renders every frame of the walk in time order and hands each to `send` with its truth;
+/// stops early when `stop` is set. Returns the truth of the frames sent.
+pub fn run_walk(
+    rig: &WalkRig,
+    spec: &WalkSpec,
+    stop: &AtomicBool,
+    mut send: impl FnMut(WireFrame, f64) -> Result<(), SimError>,
+) -> Result<Vec<TruthFrame>, SimError> {
+    let path = WalkPath::new(spec.kind, rig.seed);
+    let thermal = rig.thermal;
+    let rgb_profile = rig.rgb;
+    let rgb_from_thermal =
+        Rig::new(thermal, rgb_profile.unwrap_or_else(RgbProfile::hd720)).rgb_from_thermal;
+    let thermal_from_rgb = rgb_from_thermal.inverse();
+    let mut plan: Vec<Planned> = Vec::new();
+    let n_t = (spec.duration_s * thermal.rate_hz).floor() as u32;
+    plan.extend((0..n_t).map(|k| Planned {
+        t_s: f64::from(k) / thermal.rate_hz,
+        stream: StreamId::Thermal,
+        sequence: k,
+    }));
+    if rgb_profile.is_some() {
+        let n_r = (spec.duration_s * WALK_RGB_HZ).floor() as u32;
+        plan.extend((0..n_r).map(|k| Planned {
+            t_s: f64::from(k) / WALK_RGB_HZ,
+            stream: StreamId::Rgb,
+            sequence: k,
+        }));
+    }
+    plan.sort_by(|a, b| {
+        a.t_s
+            .total_cmp(&b.t_s)
+            .then((a.stream as u8).cmp(&(b.stream as u8)))
+    });
+
+    let mut sensor = ThermalSensor::new(
+        ThermalProfile {
+            auto_ffc_period_s: 0.0,
+            ..thermal
+        },
+        rig.seed,
+    );
+    let radiometry = Radiometry::new();
+    let tgrid = RayGrid::new(&thermal.camera);
+    let rgrid = rgb_profile.map(|p| RayGrid::new(&p.camera));
+    let mut rgb_rng = ChaCha8Rng::seed_from_u64(rig.seed ^ 0x0C0F_FEE5);
+    let ffc_at_s = 0.4 * spec.duration_s;
+    let mut ffc_requested = false;
+    let mut truth = Vec::with_capacity(plan.len());
+    for item in plan {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        let instants = |offsets: &[f64], from_thermal: Option<&Rigid3>| -> Vec<Rigid3> {
+            offsets
+                .iter()
+                .map(|dt| {
+                    let p = path.world_from_thermal((item.t_s + dt).max(0.0));
+                    from_thermal.map_or(p, |t| p.compose(t))
+                })
+                .collect()
+        };
+        let (frame, world_from_cam, ffc_frozen) = match item.stream {
+            StreamId::Thermal => {
+                if !ffc_requested && item.t_s >= ffc_at_s {
+                    sensor.request_ffc();
+                    ffc_requested = true;
+                }
+                let poses = instants(&THERMAL_INSTANTS_S, None);
+                let radiance = render_thermal(&tgrid, &poses, &radiometry);
+                let (w, h) = (
+                    thermal.camera.width_px as usize,
+                    thermal.camera.height_px as usize,
+                );
+                let blurred = gaussian_blur(&radiance, w, h, thermal.psf_sigma_px);
+                let ThermalOutput::Frame(f) = sensor.next_frame(&blurred) else {
+                    continue;
+                };
+                let mut flags = 0;
+                if f.ffc_frozen {
+                    flags |= simwire::FLAG_FFC_FROZEN;
+                }
+                if thermal.telemetry_rows > 0 {
+                    flags |= simwire::FLAG_TELEMETRY;
+                }
+                if thermal.units == ThermalUnits::CentiKelvin {
+                    flags |= simwire::FLAG_TLINEAR;
+                }
+                let payload: Vec<u8> = f.words.iter().flat_map(|v| v.to_le_bytes()).collect();
+                (
+                    WireFrame {
+                        stream: StreamId::Thermal,
+                        flags,
+                        fourcc: FourCc::Y16,
+                        width: thermal.camera.width_px,
+                        height: thermal.output_height(),
+                        bytes_per_line: thermal.camera.width_px * 2,
+                        sequence: item.sequence,
+                        monotonic_ns: 0,
+                        payload,
+                    },
+                    path.world_from_thermal(item.t_s),
+                    f.ffc_frozen,
+                )
+            }
+            StreamId::Rgb => {
+                let (Some(p), Some(grid)) = (rgb_profile, rgrid.as_ref()) else {
+                    continue;
+                };
+                let poses = instants(&RGB_INSTANTS_S, Some(&thermal_from_rgb));
+                let lin = render_rgb(grid, &poses);
+                let (w, h) = (p.camera.width_px as usize, p.camera.height_px as usize);
+                let blurred = lin.map(|c| gaussian_blur(&c, w, h, p.psf_sigma_px));
+                let srgb = crate::sensor::expose_rgb_channels(
+                    &p,
+                    [&blurred[0], &blurred[1], &blurred[2]],
+                    &mut rgb_rng,
+                );
+                let payload = rgb_to_jpeg(&srgb, p.camera.width_px, p.camera.height_px)?;
+                (
+                    WireFrame {
+                        stream: StreamId::Rgb,
+                        flags: 0,
+                        fourcc: FourCc::MJPG,
+                        width: p.camera.width_px,
+                        height: p.camera.height_px,
+                        bytes_per_line: 0,
+                        sequence: item.sequence,
+                        monotonic_ns: 0,
+                        payload,
+                    },
+                    path.world_from_thermal(item.t_s).compose(&thermal_from_rgb),
+                    false,
+                )
+            }
+        };
+        let stream = frame.stream;
+        let sequence = frame.sequence;
+        send(frame, item.t_s)?;
+        truth.push(TruthFrame {
+            stream: match stream {
+                StreamId::Thermal => "thermal",
+                StreamId::Rgb => "rgb",
+            },
+            sequence,
+            monotonic_ns: 0,
+            ffc_frozen,
+            world_from_cam: PoseJson::from(&world_from_cam),
+        });
+    }
+    Ok(truth)
+}
+
+/// Writes `dir/truth.json` atomically (module docs).
+pub fn write_truth(
+    dir: &Path,
+    rig: &WalkRig,
+    spec: &WalkSpec,
+    frames: &[TruthFrame],
+) -> Result<(), SimError> {
+    let io = |what: &'static str| {
+        let path = dir.to_path_buf();
+        move |source| SimError::Io { path, what, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io("create truth folder"))?;
+    let rgb_from_thermal =
+        Rig::new(rig.thermal, rig.rgb.unwrap_or_else(RgbProfile::hd720)).rgb_from_thermal;
+    let (centre, extent) = scene_extent();
+    let doc = TruthJson {
+        format: "s3tir-walk-truth/1",
+        trajectory: spec.kind.name(),
+        seed: rig.seed,
+        duration_s: spec.duration_s,
+        thermal_profile: rig.thermal.name,
+        thermal: rig.thermal.camera,
+        rgb: rig.rgb.map(|p| p.camera),
+        rgb_from_thermal: PoseJson::from(&rgb_from_thermal),
+        scene: SceneJson {
+            layout: "walk",
+            centre_m: centre.to_array(),
+            extent_m: extent,
+        },
+        frames,
+    };
+    let text = serde_json::to_string_pretty(&doc).map_err(|e| SimError::Encode {
+        what: "truth.json",
+        reason: e.to_string(),
+    })?;
+    let tmp = dir.join("truth.json.tmp");
+    std::fs::write(&tmp, text).map_err(io("write truth.json"))?;
+    std::fs::rename(&tmp, dir.join("truth.json")).map_err(io("rename truth.json"))
+}
+
+/// Serves a walk on `socket`: announces `socket`, `thermal`, `rgb`, `walk` and `ready`, waits
+/// for the first client, sends every frame (to every client connected by then), writes the
+/// truth, announces `walk_done: thermal=N rgb=M`, then keeps the socket open until `stop`.
+pub fn serve_walk(
+    socket: &Path,
+    rig: &WalkRig,
+    spec: &WalkSpec,
+    stop: Arc<AtomicBool>,
+    announce: &mut dyn FnMut(&str, &str),
+) -> Result<(), SimError> {
+    let io = |what: &'static str| {
+        let path = socket.to_path_buf();
+        move |source| SimError::Io { path, what, source }
+    };
+    let _ = std::fs::remove_file(socket);
+    let listener = UnixListener::bind(socket).map_err(io("bind socket"))?;
+    listener
+        .set_nonblocking(true)
+        .map_err(io("set non-blocking"))?;
+    announce("socket", &socket.display().to_string());
+    announce(
+        "thermal",
+        &format!(
+            "{} {}x{} Y16 {} Hz",
+            rig.thermal.name,
+            rig.thermal.camera.width_px,
+            rig.thermal.camera.height_px,
+            rig.thermal.rate_hz
+        ),
+    );
+    if let Some(p) = rig.rgb {
+        announce(
+            "rgb",
+            &format!(
+                "{}x{} MJPG {WALK_RGB_HZ} Hz",
+                p.camera.width_px, p.camera.height_px
+            ),
+        );
+    }
+    announce(
+        "walk",
+        &format!("{} {} s", spec.kind.name(), spec.duration_s),
+    );
+    announce("ready", "1");
+    let mut clients: Vec<UnixStream> = Vec::new();
+    let accept = |clients: &mut Vec<UnixStream>| {
+        while let Ok((c, _)) = listener.accept() {
+            let _ = c.set_nonblocking(false);
+            clients.push(c);
+        }
+    };
+    // Streaming starts with the first client, as V4L2 streaming starts on STREAMON.
+    while clients.is_empty() {
+        if stop.load(Ordering::Relaxed) {
+            let _ = std::fs::remove_file(socket);
+            return Ok(());
+        }
+        accept(&mut clients);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let start = Instant::now();
+    let start_ns = monotonic_ns();
+    let peer = socket.display().to_string();
+    let mut stamps: Vec<u64> = Vec::new();
+    let mut truth = run_walk(rig, spec, &stop, |mut frame, t_s| {
+        accept(&mut clients);
+        let due = start + Duration::from_secs_f64(t_s);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        frame.monotonic_ns = start_ns + (t_s * 1e9).round() as u64;
+        stamps.push(frame.monotonic_ns);
+        clients.retain_mut(|c| frame.write_to(c, &peer).is_ok());
+        Ok(())
+    })?;
+    for (f, ns) in truth.iter_mut().zip(&stamps) {
+        f.monotonic_ns = *ns;
+    }
+    if let Some(dir) = &spec.truth_dir {
+        write_truth(dir, rig, spec, &truth)?;
+    }
+    let count = |s: &str| truth.iter().filter(|f| f.stream == s).count();
+    announce(
+        "walk_done",
+        &format!("thermal={} rgb={}", count("thermal"), count("rgb")),
+    );
+    for c in &mut clients {
+        let _ = c.flush();
+    }
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = std::fs::remove_file(socket);
+    Ok(())
+}
