@@ -9,7 +9,7 @@ use s3tir_calib::poses::{self, Matcher, PosesOptions};
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum MatcherArg {
-    /// Exhaustive up to 60 keyframes, sequential above.
+    /// Exhaustive up to 30 keyframes, sequential (overlap 10) above.
     Auto,
     Exhaustive,
     Sequential,
@@ -43,7 +43,8 @@ pub struct PosesArgs {
     /// previous run's colmap/images/).
     #[arg(long)]
     poses: Option<PathBuf>,
-    /// Keyframes per second for structure from motion.
+    /// Thermal-only sessions: keyframes per second for structure from motion (with RGB the
+    /// keyframes are the RGB frames nearest the thermal candidates).
     #[arg(long, default_value_t = 2.0)]
     keyframe_hz: f64,
     /// At most this many keyframes.
@@ -55,8 +56,8 @@ pub struct PosesArgs {
     /// A frame is motion-blurred below this fraction of its neighbours' median sharpness.
     #[arg(long, default_value_t = 0.6)]
     blur_ratio: f64,
-    /// At most this many thermal views per second before thinning.
-    #[arg(long, default_value_t = 4.0)]
+    /// Thermal candidates per second (the sharpest of each slot), before thinning.
+    #[arg(long, default_value_t = 2.0)]
     thermal_hz: f64,
     /// Thinning: keep a view that moved this fraction of the median scene depth …
     #[arg(long, default_value_t = 0.01)]
@@ -95,7 +96,7 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         matcher: match a.matcher {
             MatcherArg::Auto => None,
             MatcherArg::Exhaustive => Some(Matcher::Exhaustive),
-            MatcherArg::Sequential => Some(Matcher::Sequential { overlap: 12 }),
+            MatcherArg::Sequential => Some(Matcher::Sequential { overlap: 10 }),
         },
         blur_ratio: a.blur_ratio,
         thermal_hz: a.thermal_hz,

@@ -4,7 +4,8 @@
 //! tested); `s3tir-calib poses` runs COLMAP (CPU) on the RGB keyframes with the rig's
 //! calibration (here the simulator's truth, written through `calfile`), and the thermal poses
 //! in the dataset are scored against the truth trajectory (`walk-truth/truth.json`) after a
-//! similarity alignment (Umeyama): median rotation error < 0.5°, median camera-centre error
+//! similarity alignment (rotation from the cameras' orientations, scale and translation from
+//! their centres: see `similarity`): median rotation error < 0.5°, median camera-centre error
 //! < 1 % of the scene extent. Then the same dataset with the truth poses trains to within
 //! 1 dB of the recovered poses' held-out PSNR at equal iterations.
 //!
@@ -79,29 +80,30 @@ fn read_truth(path: &Path) -> Truth {
     }
 }
 
-/// Umeyama: the similarity `truth ≈ s R est + t` over matched points.
-fn similarity(est: &[DVec3], truth: &[DVec3]) -> (f64, DMat3, DVec3) {
-    use nalgebra::{Matrix3, Vector3};
-    let n = est.len() as f64;
-    let me = est.iter().copied().sum::<DVec3>() / n;
-    let mt = truth.iter().copied().sum::<DVec3>() / n;
-    let mut cov = Matrix3::<f64>::zeros();
-    let mut var_e = 0.0;
+/// The similarity `truth ≈ s R est + t` between two reconstructions of the same cameras: the
+/// rotation is the chordal mean of `R_truth R_estᵀ` over the cameras (their orientations fix
+/// it well; the camera centres of a short arc at one height are nearly coplanar and leave a
+/// centre-only (Umeyama) rotation loose by a degree or more), then scale and translation by
+/// least squares on the centres.
+fn similarity(est: &[Rigid3], truth: &[Rigid3]) -> (f64, DMat3, DVec3) {
+    use nalgebra::Matrix3;
+    let mut m = Matrix3::<f64>::zeros();
     for (e, t) in est.iter().zip(truth) {
-        let (de, dt) = (*e - me, *t - mt);
-        cov += Vector3::new(dt.x, dt.y, dt.z) * Vector3::new(de.x, de.y, de.z).transpose();
-        var_e += de.length_squared();
+        let (re, rt) = (e.rotation_matrix(), t.rotation_matrix());
+        let prod = rt * re.transpose();
+        for i in 0..3 {
+            for j in 0..3 {
+                m[(i, j)] += prod.col(j)[i];
+            }
+        }
     }
-    cov /= n;
-    var_e /= n;
-    let svd = cov.svd(true, true);
+    let svd = m.svd(true, true);
     let (u, vt) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
     let mut d = Matrix3::<f64>::identity();
     if (u * vt).determinant() < 0.0 {
         d[(2, 2)] = -1.0;
     }
     let r = u * d * vt;
-    let s = (svd.singular_values.component_mul(&d.diagonal())).sum() / var_e;
     let rm = DMat3::from_cols_array(&[
         r[(0, 0)],
         r[(1, 0)],
@@ -113,8 +115,17 @@ fn similarity(est: &[DVec3], truth: &[DVec3]) -> (f64, DMat3, DVec3) {
         r[(1, 2)],
         r[(2, 2)],
     ]);
-    let t = mt - s * (rm * me);
-    (s, rm, t)
+    let n = est.len() as f64;
+    let me = est.iter().map(|e| e.translation_m).sum::<DVec3>() / n;
+    let mt = truth.iter().map(|t| t.translation_m).sum::<DVec3>() / n;
+    let (mut num, mut den) = (0.0, 0.0);
+    for (e, t) in est.iter().zip(truth) {
+        let re = rm * (e.translation_m - me);
+        num += re.dot(t.translation_m - mt);
+        den += re.length_squared();
+    }
+    let s = num / den.max(1e-30);
+    (s, rm, mt - s * (rm * me))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -148,7 +159,10 @@ fn score(dataset: &Path, truth: &Truth) -> Score {
         tru.push(t.translation_m);
         pairs.push((e, t));
     }
-    let (s, r, t) = similarity(&est, &tru);
+    let (s, r, t) = similarity(
+        &pairs.iter().map(|p| p.0).collect::<Vec<_>>(),
+        &pairs.iter().map(|p| p.1).collect::<Vec<_>>(),
+    );
     let rq = DQuat::from_mat3(&r);
     let rot: Vec<f64> = pairs
         .iter()
@@ -346,17 +360,14 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
     //    and units (the similarity fixes the recovered poses' gauge, so only their errors
     //    differ).
     let model = read_model(&ds2.join("sparse/0")).expect("model");
-    let (e, t): (Vec<DVec3>, Vec<DVec3>) = model
+    let (e, t): (Vec<Rigid3>, Vec<Rigid3>) = model
         .images
         .iter()
         .map(|im| {
             let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
                 .parse()
                 .expect("name");
-            (
-                im.cam_from_world.inverse().translation_m,
-                truth.thermal[&seq].translation_m,
-            )
+            (im.cam_from_world.inverse(), truth.thermal[&seq])
         })
         .unzip();
     let sim = similarity(&e, &t);

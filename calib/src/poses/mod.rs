@@ -13,11 +13,15 @@
 //!    score (variance of the Laplacian over the image's own contrast). Nothing is kept in
 //!    memory but these numbers; a truncated session is read up to its last complete chunk and
 //!    the report says how much was readable.
-//! 2. **Keyframes** ([`select`]): structure from motion runs on the RGB stream (or, in a
-//!    thermal-only session, on the thermal stream): frames whose sharpness falls below
-//!    `blur_ratio` × the median of their neighbours are motion-blurred and skipped, FFC-frozen
-//!    thermal frames are skipped, and the sharpest frame of each `1 / keyframe_hz` slot is a
-//!    keyframe.
+//! 2. **Keyframes** ([`select`]): frames whose sharpness falls below `blur_ratio` × the median
+//!    of their neighbours are motion-blurred and skipped, FFC-frozen thermal frames are
+//!    skipped; the thermal candidates are the sharpest thermal frame of each `1 / thermal_hz`
+//!    slot. Structure from motion runs on the RGB stream: its keyframes are the RGB frames just
+//!    before and after each thermal candidate (within `max_sync_s`), so every thermal pose is
+//!    interpolated over one RGB period, never across a hand's jitter (on the simulated
+//!    hand-held walk, keyframes nearest the thermal frames but interpolated over up to 0.3 s
+//!    left errors up to 0.7° from its 1.1 Hz, ±2° roll). A thermal-only session runs it on the
+//!    thermal stream, the sharpest frame of each `1 / keyframe_hz` slot.
 //! 3. **Structure from motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
 //!    on the keyframes, CPU SIFT, with the calibrated intrinsics and distortion **fixed** (the
 //!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
@@ -130,11 +134,15 @@ pub struct PosesOptions {
     /// A COLMAP model (text or binary) of the keyframes to use instead of running COLMAP;
     /// image names as this stage writes them (`rgb_SEQUENCE.jpg`, `thermal_SEQUENCE.png`).
     pub user_model: Option<PathBuf>,
-    /// Keyframes per second of the SfM stream.
+    /// Thermal-only sessions: keyframes per second of the thermal stream. (With RGB, the
+    /// keyframes are the RGB frames nearest the thermal candidates: `thermal_hz`.)
     pub keyframe_hz: f64,
+    /// With RGB: a thermal candidate's keyframes are the RGB frames just before and after it,
+    /// each at most this far in time.
+    pub max_sync_s: f64,
     /// At most this many keyframes (the slots widen to fit).
     pub max_keyframes: usize,
-    /// `None`: exhaustive up to 60 keyframes, sequential (overlap 12) above.
+    /// `None`: exhaustive up to 30 keyframes, sequential (overlap 10) above.
     pub matcher: Option<Matcher>,
     /// A frame is motion-blurred when its sharpness is below this fraction of the median of
     /// its ±`blur_window` neighbours.
@@ -168,11 +176,12 @@ impl Default for PosesOptions {
             colmap: PathBuf::from("colmap"),
             user_model: None,
             keyframe_hz: 2.0,
+            max_sync_s: 0.12,
             max_keyframes: 100,
             matcher: None,
             blur_ratio: 0.6,
             blur_window: 6,
-            thermal_hz: 4.0,
+            thermal_hz: 2.0,
             min_baseline: 0.01,
             min_rotation_deg: 2.0,
             max_views: 300,
@@ -413,7 +422,15 @@ pub fn session_to_dataset(
         frames::Stream::Rgb => &scan.rgb,
         frames::Stream::Thermal => &scan.thermal,
     };
-    let keyframes = select::keyframes(sfm_frames, opts);
+    let candidates = select::thermal_candidates(&scan.thermal, opts);
+    let keyframes = match sfm_stream {
+        // The RGB frames around each thermal candidate: its pose is interpolated over one RGB
+        // period, not across a hand's jitter.
+        frames::Stream::Rgb => {
+            select::keyframes_near(sfm_frames, &candidates.0, opts.max_sync_s, opts)
+        }
+        frames::Stream::Thermal => select::keyframes(sfm_frames, opts),
+    };
     times.keyframes_s = t.elapsed().as_secs_f64();
     if keyframes.len() < 5 {
         return Err(PosesError::TooFewRegistered {
@@ -449,7 +466,6 @@ pub fn session_to_dataset(
     }
 
     let t = std::time::Instant::now();
-    let candidates = select::thermal_candidates(&scan.thermal, opts);
     let track = interp::Track::new(&registered, opts.max_gap_s);
     times.interpolate_s = t.elapsed().as_secs_f64();
 

@@ -84,6 +84,45 @@ pub fn keyframes(frames: &[FrameInfo], opts: &PosesOptions) -> Vec<FrameInfo> {
     out
 }
 
+/// Keyframes of the RGB stream for the thermal `targets`: for each target, the usable RGB
+/// frames just before and just after it (each within `max_sync_s`), so that every thermal pose
+/// is interpolated between two SfM poses one RGB period apart, never across a hand's jitter.
+/// Duplicates merge; more than `max_keyframes` are thinned evenly.
+pub fn keyframes_near(
+    frames: &[FrameInfo],
+    targets: &[FrameInfo],
+    max_sync_s: f64,
+    opts: &PosesOptions,
+) -> Vec<FrameInfo> {
+    let blur = blurred(frames, opts.blur_ratio, opts.blur_window);
+    let max_ns = (max_sync_s * 1e9) as u64;
+    let usable = |j: usize| !blur[j] && !frames[j].ffc_frozen;
+    let mut chosen: BTreeMap<u64, FrameInfo> = BTreeMap::new();
+    for t in targets {
+        let i = frames.partition_point(|f| f.monotonic_ns <= t.monotonic_ns);
+        let before = (0..i)
+            .rev()
+            .take(3)
+            .find(|&j| usable(j))
+            .filter(|&j| t.monotonic_ns - frames[j].monotonic_ns <= max_ns);
+        let after = (i..frames.len())
+            .take(3)
+            .find(|&j| usable(j))
+            .filter(|&j| frames[j].monotonic_ns - t.monotonic_ns <= max_ns);
+        for j in before.into_iter().chain(after) {
+            chosen.insert(frames[j].monotonic_ns, frames[j]);
+        }
+    }
+    let all: Vec<FrameInfo> = chosen.into_values().collect();
+    if opts.max_keyframes == 0 || all.len() <= opts.max_keyframes {
+        return all;
+    }
+    let n = all.len();
+    (0..opts.max_keyframes)
+        .map(|i| all[i * n / opts.max_keyframes])
+        .collect()
+}
+
 /// Thermal frames that may become views: not FFC-frozen, not blurred, at most `thermal_hz`
 /// per second (the sharpest of each slot). Returns them with the reason every other frame was
 /// left out.
@@ -299,10 +338,39 @@ mod tests {
     }
 
     #[test]
+    fn rgb_keyframes_bracket_the_thermal_targets() {
+        // RGB at 10 Hz; thermal targets at 8.7 Hz-ish instants.
+        let rgb = frames(&[1.0; 30], &[]);
+        let targets: Vec<FrameInfo> = [0.03, 0.52, 1.249, 2.9, 9.0]
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| FrameInfo {
+                sequence: i as u32,
+                monotonic_ns: (t * 1e9) as u64,
+                ffc_frozen: false,
+                sharpness: 1.0,
+            })
+            .collect();
+        let k = keyframes_near(&rgb, &targets, 0.12, &PosesOptions::default());
+        let seqs: Vec<u32> = k.iter().map(|f| f.sequence).collect();
+        // 0.03 → frames 0, 1; 0.52 → 5, 6; 1.249 → 12, 13; 2.9 → 29 (no frame after);
+        // 9.0 → none.
+        assert_eq!(
+            seqs,
+            vec![0, 1, 5, 6, 12, 13, 29],
+            "the RGB frames around each target, within 120 ms"
+        );
+    }
+
+    #[test]
     fn candidates_say_why_each_frame_was_left_out() {
         let mut s = vec![1.0; 20];
         s[3] = 0.1;
-        let (c, why) = thermal_candidates(&frames(&s, &[7]), &PosesOptions::default());
+        let opts = PosesOptions {
+            thermal_hz: 4.0,
+            ..PosesOptions::default()
+        };
+        let (c, why) = thermal_candidates(&frames(&s, &[7]), &opts);
         assert_eq!(c.len() + why.len(), 20, "every frame accounted for");
         let reason = |q: u32| {
             why.iter()
