@@ -1,4 +1,4 @@
-# s3tir: two commands. `make demo` runs the pipeline on the simulated rig; `make test` runs the
+# s3tir: two commands. `make demo` runs the whole chain on the simulated rig; `make test` runs the
 # whole suite (what CI runs). Both install missing system packages first.
 
 # Build cache outside the clone: rebuilds on a reused machine take seconds. Override freely.
@@ -15,30 +15,39 @@ deps:
 build: deps
 	$(CARGO) build --workspace --bins
 
-# The whole pipeline on the simulated rig: capture a session, calibrate the board set, train and
-# evaluate a small S3-TIR model. Every step runs against s3tir-firmware-sim; outputs in DEMO_DIR.
+# The whole chain on the simulated rig, as a user runs it on a real one: calibrate the rig,
+# record a walk around a scene with the calibration attached, pose the walk (COLMAP on the RGB
+# keyframes), train S3-TIR on the posed thermal views and evaluate the held-out ones. Every
+# device is s3tir-firmware-sim; outputs in DEMO_DIR (walk.mcap, walk-dataset/, walk-run/).
 DEMO_ITERS ?= 300
+DEMO_WALK_S ?= 20
 demo: build
 	@mkdir -p $(DEMO_DIR)
-	@echo "== 1/5 Vulkan devices the trainer can use"
+	@# A previous demo's outputs would be refused (the poses stage and the trainer never overwrite).
+	@for d in walk.mcap walk-truth walk-dataset walk-dataset.partial walk-run board calibration; do \
+	  if [ -e $(DEMO_DIR)/$$d ]; then echo "   (replacing the previous demo's $$d)"; rm -rf $(DEMO_DIR)/$$d; fi; done
+	@echo "== 1/6 Vulkan devices the trainer can use"
 	$(BIN)/s3tir-train devices
-	@echo "== 2/5 Record 5 s from the simulated rig (Lepton 3.5 + RGB): starts s3tir-firmware-sim, stops it at exit"
-	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --out $(DEMO_DIR)/session.mcap --duration 5
-	$(BIN)/s3tir-capture info $(DEMO_DIR)/session.mcap
-	@echo "== 3/5 Calibrate: the simulated emissivity-board set (30 views), joint thermal + RGB solve"
-	$(BIN)/s3tir-firmware-sim board --out $(DEMO_DIR)/board --views 30
+	@echo "== 2/6 Calibrate the rig: the simulated emissivity board (30 views, Lepton 3.5 + RGB at the"
+	@echo "        640x360 the live rig serves), one joint thermal + RGB solve"
+	$(BIN)/s3tir-firmware-sim board --out $(DEMO_DIR)/board --views 30 --rgb-size 640x360
 	$(BIN)/s3tir-calib $(DEMO_DIR)/board --out $(DEMO_DIR)/calibration/calibration.yaml \
 	  --report $(DEMO_DIR)/calibration/report --summary-json $(DEMO_DIR)/calibration/summary.json
-	@echo "== 4/5 Train S3-TIR on the simulated thermal scene ($(DEMO_ITERS) iterations, CPU backend;"
-	@echo "        short warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
-	$(BIN)/s3tir-firmware-sim scene --out $(DEMO_DIR)/scene
-	@# A previous demo's run would make s3tir-train refuse the folder (it never overwrites a run).
-	@if [ -e $(DEMO_DIR)/run ]; then echo "   (replacing the previous demo run in $(DEMO_DIR)/run)"; rm -rf $(DEMO_DIR)/run; fi
-	$(BIN)/s3tir-train $(DEMO_DIR)/scene --out $(DEMO_DIR)/run --iters $(DEMO_ITERS) \
-	  --warmup 100 --budget 1000 --beta-lr 0.05 --eval-every-s 5
-	@echo "== 5/5 Evaluate the held-out views"
-	$(BIN)/s3tir-train eval $(DEMO_DIR)/run
-	@echo "== demo finished: session, calibration, trained model, plots and renders are in $(DEMO_DIR)"
+	@echo "== 3/6 Record a $(DEMO_WALK_S) s hand-held walk around the simulated scene (calibration attached;"
+	@echo "        the simulator renders every frame, so this takes longer than $(DEMO_WALK_S) s)"
+	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration $(DEMO_WALK_S) \
+	  --calibration $(DEMO_DIR)/calibration/calibration.yaml --out $(DEMO_DIR)/walk.mcap
+	$(BIN)/s3tir-capture info $(DEMO_DIR)/walk.mcap
+	@echo "== 4/6 Pose the walk: COLMAP (CPU) on the RGB keyframes, thermal poses from the calibrated extrinsic"
+	$(BIN)/s3tir-capture export $(DEMO_DIR)/walk.mcap --dataset $(DEMO_DIR)/walk-dataset
+	@echo "== 5/6 Train S3-TIR on the posed thermal views ($(DEMO_ITERS) iterations, CPU backend; short"
+	@echo "        warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
+	$(BIN)/s3tir-train $(DEMO_DIR)/walk-dataset --out $(DEMO_DIR)/walk-run --iters $(DEMO_ITERS) \
+	  --warmup 100 --budget 3000 --beta-lr 0.05 --eval-every-s 5
+	@echo "== 6/6 Evaluate the held-out views (never seen by the poses or the training)"
+	$(BIN)/s3tir-train eval $(DEMO_DIR)/walk-run
+	@echo "== demo finished in $(DEMO_DIR): walk.mcap (+ walk-truth/), walk-dataset/ (poses.json says what"
+	@echo "   was kept and why), walk-run/ (eval.json, error-vs-time plots, renders), calibration/"
 
 lint:
 	$(CARGO) fmt --all --check

@@ -47,8 +47,9 @@ pub struct PosesArgs {
     /// keyframes are the RGB frames nearest the thermal candidates).
     #[arg(long, default_value_t = 2.0)]
     keyframe_hz: f64,
-    /// At most this many keyframes.
-    #[arg(long, default_value_t = 100)]
+    /// At most this many keyframes (two per thermal candidate with RGB; candidates are
+    /// thinned to fit). Structure-from-motion time grows with it.
+    #[arg(long, default_value_t = 240)]
     max_keyframes: usize,
     /// COLMAP matcher.
     #[arg(long, value_enum, default_value = "auto")]

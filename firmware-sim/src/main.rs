@@ -100,6 +100,10 @@ enum Command {
         /// Random seed (poses, noise).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// RGB image size: the full 1280×720, or 640×360 (2×2 binned, what `run` serves by
+        /// default: calibrate with this size to pose the live rig's sessions).
+        #[arg(long, value_enum, default_value = "1280x720")]
+        rgb_size: RgbSizeArg,
     },
     /// Write a small thermal scene dataset for the trainer (--layout objects: heated pipe, box
     /// with an emissivity edge, radiator panel, ground plane, seen from an orbit; --layout wall:
@@ -203,12 +207,17 @@ fn main() -> Result<()> {
             profile,
             polarity,
             seed,
+            rgb_size,
         } => {
             let start = Instant::now();
+            let rgb = match rgb_size {
+                RgbSizeArg::Full => RgbProfile::hd720(),
+                RgbSizeArg::Binned => RgbProfile::hd720().binned2(),
+            };
             let cfg = BoardSetConfig {
                 out_dir: out.clone(),
                 views,
-                rig: Rig::new(profile.profile(), RgbProfile::hd720()),
+                rig: Rig::new(profile.profile(), rgb),
                 board: BoardSpec::default(),
                 polarity: match polarity {
                     PolarityArg::Cooled => Polarity::Cooled,

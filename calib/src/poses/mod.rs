@@ -140,7 +140,9 @@ pub struct PosesOptions {
     /// With RGB: a thermal candidate's keyframes are the RGB frames just before and after it,
     /// each at most this far in time.
     pub max_sync_s: f64,
-    /// At most this many keyframes (the slots widen to fit).
+    /// At most this many keyframes (with RGB: two per thermal candidate, candidates thinned
+    /// evenly to fit; thermal-only: the slots widen to fit). Matching and mapping time grow
+    /// with it (module docs of `sfm`).
     pub max_keyframes: usize,
     /// `None`: exhaustive up to 30 keyframes, sequential (overlap 10) above.
     pub matcher: Option<Matcher>,
@@ -177,7 +179,7 @@ impl Default for PosesOptions {
             user_model: None,
             keyframe_hz: 2.0,
             max_sync_s: 0.12,
-            max_keyframes: 100,
+            max_keyframes: 240,
             matcher: None,
             blur_ratio: 0.6,
             blur_window: 6,
@@ -422,7 +424,10 @@ pub fn session_to_dataset(
         frames::Stream::Rgb => &scan.rgb,
         frames::Stream::Thermal => &scan.thermal,
     };
-    let candidates = select::thermal_candidates(&scan.thermal, opts);
+    let mut candidates = select::thermal_candidates(&scan.thermal, opts);
+    if sfm_stream == frames::Stream::Rgb {
+        select::fit_keyframe_budget(&mut candidates, opts.max_keyframes / 2);
+    }
     let keyframes = match sfm_stream {
         // The RGB frames around each thermal candidate: its pose is interpolated over one RGB
         // period, not across a hand's jitter.

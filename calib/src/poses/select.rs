@@ -169,6 +169,29 @@ pub fn thermal_candidates(
     (best.into_values().collect(), skipped)
 }
 
+/// Keeps at most `max` candidates (evenly spaced in time); the others are left out with the
+/// reason (each RGB keyframe pair costs structure-from-motion time).
+pub fn fit_keyframe_budget(candidates: &mut (Vec<FrameInfo>, Vec<FrameDecision>), max: usize) {
+    let n = candidates.0.len();
+    if max == 0 || n <= max {
+        return;
+    }
+    let keep: Vec<usize> = (0..max).map(|i| i * n / max).collect();
+    let all = std::mem::take(&mut candidates.0);
+    for (i, f) in all.into_iter().enumerate() {
+        if keep.binary_search(&i).is_ok() {
+            candidates.0.push(f);
+        } else {
+            candidates.1.push(FrameDecision {
+                stream: "thermal",
+                sequence: f.sequence,
+                monotonic_ns: f.monotonic_ns,
+                decision: "skipped: over the keyframe budget (--max-keyframes)".into(),
+            });
+        }
+    }
+}
+
 /// Poses the candidates, thins near-duplicates, caps the count and marks the held-out views.
 /// Returns the views, every candidate's decision (with `skipped` prepended), and counts per
 /// reason.
