@@ -488,6 +488,9 @@ fn read_loop(
                 }
             }
             Ok(None) => {}
+            // Stopped while waiting (e.g. a simulated walk that has sent its last frame): the
+            // source did not fail, the recording ended.
+            Err(_) if stop.load(Ordering::Relaxed) => break,
             Err(e) => {
                 tracing::warn!(device = %name, "device failed ({e}); reconnecting");
                 source = None;
