@@ -139,6 +139,61 @@ fn camera(path: &Path, name: &'static str, y: &Yaml) -> Result<CameraModel, CalF
     Ok(model)
 }
 
+/// Formats a number as every calibration file writes it (10 significant digits, `.nan`).
+pub fn yaml_number(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.10e}")
+    } else {
+        ".nan".into()
+    }
+}
+
+/// Writes a camera's block under `cameras:` (`  NAME:`, size, model, intrinsics, distortion):
+/// the lines [`CalibrationFile::read`] reads. calib's full writer appends its sigmas and RMS.
+pub fn write_camera_block(s: &mut String, name: &str, m: &CameraModel) {
+    use std::fmt::Write as _;
+    let f = yaml_number;
+    let (i, d) = (m.intrinsics, m.distortion);
+    let _ = writeln!(s, "  {name}:");
+    let _ = writeln!(s, "    image_size_px: [{}, {}]", m.width_px, m.height_px);
+    let _ = writeln!(s, "    model: pinhole+brown-conrady");
+    let _ = writeln!(
+        s,
+        "    intrinsics: {{fx: {}, fy: {}, cx: {}, cy: {}}}",
+        f(i.fx),
+        f(i.fy),
+        f(i.cx),
+        f(i.cy)
+    );
+    let _ = writeln!(
+        s,
+        "    distortion: {{k1: {}, k2: {}, p1: {}, p2: {}, k3: {}}}",
+        f(d.k1),
+        f(d.k2),
+        f(d.p1),
+        f(d.p2),
+        f(d.k3)
+    );
+}
+
+/// Writes the `rgb_from_thermal:` block's rotation, quaternion and translation lines.
+pub fn write_extrinsic_block(s: &mut String, t: &Rigid3) {
+    use std::fmt::Write as _;
+    let f = yaml_number;
+    let list = |v: &[f64]| {
+        format!(
+            "[{}]",
+            v.iter().map(|x| f(*x)).collect::<Vec<_>>().join(", ")
+        )
+    };
+    let m = t.rotation_matrix();
+    let row = |r: usize| list(&m.row(r).to_array());
+    let _ = writeln!(s, "rgb_from_thermal:");
+    let _ = writeln!(s, "  rotation: [{}, {}, {}]", row(0), row(1), row(2));
+    let _ = writeln!(s, "  quaternion_xyzw: {}", list(&t.rotation.to_array()));
+    let _ = writeln!(s, "  translation_m: {}", list(&t.translation_m.to_array()));
+}
+
 impl CalibrationFile {
     /// Reads `path` (see module docs for what is read).
     pub fn read(path: &Path) -> Result<Self, CalFileError> {
@@ -241,7 +296,6 @@ impl CalibrationFile {
     /// read it. For ground truth (the simulated rig) and tests.
     pub fn to_yaml(&self) -> String {
         use std::fmt::Write as _;
-        let f = |v: f64| format!("{v:.10e}");
         let mut s = String::from(
             "# s3tir calibration (models only). Pixels: origin at the centre of the top-left pixel (OpenCV).\n",
         );
@@ -249,54 +303,12 @@ impl CalibrationFile {
         let _ = writeln!(s, "pixel_origin: centre-of-top-left-pixel");
         let _ = writeln!(s, "cameras:");
         for (name, m) in [("thermal", &self.thermal), ("rgb", &self.rgb)] {
-            let Some(m) = m else { continue };
-            let (i, d) = (m.intrinsics, m.distortion);
-            let _ = writeln!(s, "  {name}:");
-            let _ = writeln!(s, "    image_size_px: [{}, {}]", m.width_px, m.height_px);
-            let _ = writeln!(s, "    model: pinhole+brown-conrady");
-            let _ = writeln!(
-                s,
-                "    intrinsics: {{fx: {}, fy: {}, cx: {}, cy: {}}}",
-                f(i.fx),
-                f(i.fy),
-                f(i.cx),
-                f(i.cy)
-            );
-            let _ = writeln!(
-                s,
-                "    distortion: {{k1: {}, k2: {}, p1: {}, p2: {}, k3: {}}}",
-                f(d.k1),
-                f(d.k2),
-                f(d.p1),
-                f(d.p2),
-                f(d.k3)
-            );
+            if let Some(m) = m {
+                write_camera_block(&mut s, name, m);
+            }
         }
         if let Some(t) = &self.rgb_from_thermal {
-            let m = t.rotation_matrix();
-            let row = |r: usize| {
-                let v = m.row(r);
-                format!("[{}, {}, {}]", f(v.x), f(v.y), f(v.z))
-            };
-            let q = t.rotation.to_array();
-            let tr = t.translation_m;
-            let _ = writeln!(s, "rgb_from_thermal:");
-            let _ = writeln!(s, "  rotation: [{}, {}, {}]", row(0), row(1), row(2));
-            let _ = writeln!(
-                s,
-                "  quaternion_xyzw: [{}, {}, {}, {}]",
-                f(q[0]),
-                f(q[1]),
-                f(q[2]),
-                f(q[3])
-            );
-            let _ = writeln!(
-                s,
-                "  translation_m: [{}, {}, {}]",
-                f(tr.x),
-                f(tr.y),
-                f(tr.z)
-            );
+            write_extrinsic_block(&mut s, t);
         }
         s
     }

@@ -109,13 +109,7 @@ fn q(s: &str) -> String {
     serde_json::to_string(s).unwrap_or_else(|_| "\"\"".into())
 }
 
-fn f(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v:.10e}")
-    } else {
-        ".nan".into()
-    }
-}
+use crate::calfile::yaml_number as f;
 
 fn arr(v: &[f64]) -> String {
     format!(
@@ -142,28 +136,8 @@ pub fn calibration_yaml(c: &Calibration) -> String {
     );
     let _ = writeln!(s, "cameras:");
     for r in c.cameras.iter().flatten() {
-        let m = &r.model;
-        let (i, d, sg) = (m.intrinsics, m.distortion, r.sigma);
-        let _ = writeln!(s, "  {}:", r.camera.name());
-        let _ = writeln!(s, "    image_size_px: [{}, {}]", m.width_px, m.height_px);
-        let _ = writeln!(s, "    model: pinhole+brown-conrady");
-        let _ = writeln!(
-            s,
-            "    intrinsics: {{fx: {}, fy: {}, cx: {}, cy: {}}}",
-            f(i.fx),
-            f(i.fy),
-            f(i.cx),
-            f(i.cy)
-        );
-        let _ = writeln!(
-            s,
-            "    distortion: {{k1: {}, k2: {}, p1: {}, p2: {}, k3: {}}}",
-            f(d.k1),
-            f(d.k2),
-            f(d.p1),
-            f(d.p2),
-            f(d.k3)
-        );
+        let sg = r.sigma;
+        crate::calfile::write_camera_block(&mut s, r.camera.name(), &r.model);
         let _ = writeln!(
             s,
             "    sigma: {{fx: {}, fy: {}, cx: {}, cy: {}, k1: {}, k2: {}, p1: {}, p2: {}, k3: {}}}",
@@ -181,17 +155,7 @@ pub fn calibration_yaml(c: &Calibration) -> String {
         let _ = writeln!(s, "    views_used: {}", r.views_used);
     }
     if let Some(t) = c.rgb_from_thermal {
-        let rows = rot_rows(&t);
-        let _ = writeln!(s, "rgb_from_thermal:");
-        let _ = writeln!(
-            s,
-            "  rotation: [{}, {}, {}]",
-            arr(&rows[0]),
-            arr(&rows[1]),
-            arr(&rows[2])
-        );
-        let _ = writeln!(s, "  quaternion_xyzw: {}", arr(&t.rotation.to_array()));
-        let _ = writeln!(s, "  translation_m: {}", arr(&t.translation_m.to_array()));
+        crate::calfile::write_extrinsic_block(&mut s, &t);
         if let Some(sg) = c.extrinsic_sigma {
             let _ = writeln!(s, "  sigma_rotation_deg: {}", arr(&sg.rotation_deg));
             let _ = writeln!(s, "  sigma_translation_m: {}", arr(&sg.translation_m));

@@ -233,9 +233,14 @@ fn slow_disk_becomes_counted_queue_drops() {
         "queue drops in the session"
     );
     let gaps = info.streams["thermal"].drops;
+    // Drops after the last recorded frame leave no gap: when the reader takes all 400 instant
+    // frames before the writer frees a slot, only the queue's first frames are recorded and
+    // every drop is trailing (seen under load: 5 recorded, 395 dropped, 0 gaps).
+    let all_trailing = report.thermal.frames <= 4 + 2;
     assert!(
-        gaps > 0 && gaps <= q,
-        "queue drops show as sequence gaps (except trailing ones): gaps {gaps}, queue drops {q}"
+        gaps <= q && (gaps > 0 || all_trailing),
+        "queue drops show as sequence gaps (except trailing ones): gaps {gaps}, queue drops {q}, recorded {}",
+        report.thermal.frames
     );
 }
 
