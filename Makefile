@@ -21,17 +21,20 @@ build: deps
 # device is s3tir-firmware-sim; outputs in DEMO_DIR (walk.mcap, walk-dataset/, walk-run/).
 DEMO_ITERS ?= 300
 DEMO_WALK_S ?= 20
+DEMO_BOARD_S ?= 40
 demo: build
 	@mkdir -p $(DEMO_DIR)
 	@# A previous demo's outputs would be refused (the poses stage and the trainer never overwrite).
-	@for d in walk.mcap walk-truth walk-dataset walk-dataset.partial walk-run board calibration; do \
+	@for d in board.mcap board-truth walk.mcap walk-truth walk-dataset walk-dataset.partial walk-run calibration; do \
 	  if [ -e $(DEMO_DIR)/$$d ]; then echo "   (replacing the previous demo's $$d)"; rm -rf $(DEMO_DIR)/$$d; fi; done
 	@echo "== 1/6 Vulkan devices the trainer can use"
 	$(BIN)/s3tir-train devices
-	@echo "== 2/6 Calibrate the rig: the simulated emissivity board (30 views, Lepton 3.5 + RGB at the"
-	@echo "        640x360 the live rig serves), one joint thermal + RGB solve"
-	$(BIN)/s3tir-firmware-sim board --out $(DEMO_DIR)/board --views 30 --rgb-size 640x360
-	$(BIN)/s3tir-calib $(DEMO_DIR)/board --out $(DEMO_DIR)/calibration/calibration.yaml \
+	@echo "== 2/6 Calibrate the rig: record $(DEMO_BOARD_S) s of the emissivity board waved in front of it"
+	@echo "        (Lepton 3.5 + RGB), then one joint thermal + RGB solve from that session"
+	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk board --duration $(DEMO_BOARD_S) \
+	  --out $(DEMO_DIR)/board.mcap
+	$(BIN)/s3tir-calib $(DEMO_DIR)/board.mcap --board $(DEMO_DIR)/board-truth/board.toml \
+	  --out $(DEMO_DIR)/calibration/calibration.yaml \
 	  --report $(DEMO_DIR)/calibration/report --summary-json $(DEMO_DIR)/calibration/summary.json
 	@echo "== 3/6 Record a $(DEMO_WALK_S) s hand-held walk around the simulated scene (calibration attached;"
 	@echo "        the simulator renders every frame, so this takes longer than $(DEMO_WALK_S) s)"

@@ -80,12 +80,13 @@ struct RecordArgs {
     /// Largest RGB size to negotiate, WIDTHxHEIGHT.
     #[arg(long, default_value = "1920x1080")]
     rgb_max_size: String,
-    /// Simulated rig only: the rig walks through a textured scene (`orbit` or `handheld`) for
+    /// Simulated rig only: the rig walks through a textured scene (`orbit` or `handheld`), or
+    /// stands while the board is waved in front of it (`board`: a calibration session), for
     /// --duration seconds of the walk's clock (default 20) instead of facing the board; the
     /// recording ends when the walk's last frame is recorded (rendering may run slower than
     /// real time), and the simulator writes the truth trajectory to OUT_STEM-truth/truth.json
     /// beside the session. No serial control in a walk.
-    #[arg(long, value_parser = ["orbit", "handheld"])]
+    #[arg(long, value_parser = ["orbit", "handheld", "board"])]
     walk: Option<String>,
     /// Calibration file (s3tir-calib's calibration.yaml) attached to the session, so the poses
     /// stage (`export --dataset`, `s3tir-train SESSION.mcap`) finds it without --calibration.

@@ -165,7 +165,8 @@ enum Command {
         seed: u64,
         /// Walk the rig through a textured scene instead of facing the board: `orbit` (a
         /// circle around it) or `handheld` (a person walking around it: drift, step bob, roll,
-        /// tremor). Frames are rendered per pose (RGB at 10 Hz; slower than real time on a
+        /// tremor); or `board`: the rig still and the board waved through 1 s poses (a
+        /// calibration session). Frames are rendered per pose (RGB at 10 Hz; slower than real time on a
         /// small machine, stamped on the walk's clock); --duration is the walk's length
         /// (default 20 s); no serial ptys. Prints `walk_done: thermal=N rgb=M` when every
         /// frame is sent. See firmware-sim/README.md, `run --walk`.
@@ -182,6 +183,9 @@ enum Command {
 enum WalkArg {
     Orbit,
     Handheld,
+    /// The rig still, the emissivity board waved in front of it (a calibration session;
+    /// board.toml beside the truth).
+    Board,
 }
 
 fn progress_bar(total: usize, what: &str) -> ProgressBar {
@@ -328,6 +332,7 @@ fn main() -> Result<()> {
                     kind: match kind {
                         WalkArg::Orbit => WalkKind::Orbit,
                         WalkArg::Handheld => WalkKind::Handheld,
+                        WalkArg::Board => WalkKind::Board,
                     },
                     duration_s: cfg.duration_s.unwrap_or(20.0),
                     truth_dir,

@@ -77,6 +77,11 @@ pub const WALK_RATE_RAD_S: f64 = 0.25;
 pub enum WalkKind {
     Orbit,
     Handheld,
+    /// The rig stands still and a person waves the emissivity board in front of it: the board
+    /// set's poses ([`crate::rig::plan_board_views`]), each held [`BOARD_HOLD_S`], the board's
+    /// heat model running from 60 s after the temperature step (`cooled`). A calibration
+    /// session (`s3tir-calib SESSION --board board.toml`).
+    Board,
 }
 
 impl WalkKind {
@@ -84,9 +89,13 @@ impl WalkKind {
         match self {
             WalkKind::Orbit => "orbit",
             WalkKind::Handheld => "handheld",
+            WalkKind::Board => "board",
         }
     }
 }
+
+/// How long the waved board holds each pose, seconds.
+pub const BOARD_HOLD_S: f64 = 1.0;
 
 /// A walk: its path, length and seed, and where its truth goes.
 #[derive(Debug, Clone)]
@@ -124,6 +133,8 @@ pub fn world_from_thermal(path: &WalkPath, t_s: f64) -> Rigid3 {
     let p = &path.phases;
     let s = |f: f64, k: usize| (f * t_s + p[k]).sin();
     let (radius, height, angle, aim, roll, tremor) = match path.kind {
+        // The board wave's world is the board frame: see `run_board_wave`.
+        WalkKind::Board => return Rigid3::IDENTITY,
         WalkKind::Orbit => (
             WALK_RADIUS_M,
             1.0,
@@ -412,32 +423,16 @@ pub fn run_walk(
     stop: &AtomicBool,
     mut send: impl FnMut(WireFrame, f64) -> Result<(), SimError>,
 ) -> Result<Vec<TruthFrame>, SimError> {
+    if spec.kind == WalkKind::Board {
+        return run_board_wave(rig, spec, stop, send);
+    }
     let path = WalkPath::new(spec.kind, rig.seed);
     let thermal = rig.thermal;
     let rgb_profile = rig.rgb;
     let rgb_from_thermal =
         Rig::new(thermal, rgb_profile.unwrap_or_else(RgbProfile::hd720)).rgb_from_thermal;
     let thermal_from_rgb = rgb_from_thermal.inverse();
-    let mut plan: Vec<Planned> = Vec::new();
-    let n_t = (spec.duration_s * thermal.rate_hz).floor() as u32;
-    plan.extend((0..n_t).map(|k| Planned {
-        t_s: f64::from(k) / thermal.rate_hz,
-        stream: StreamId::Thermal,
-        sequence: k,
-    }));
-    if rgb_profile.is_some() {
-        let n_r = (spec.duration_s * WALK_RGB_HZ).floor() as u32;
-        plan.extend((0..n_r).map(|k| Planned {
-            t_s: f64::from(k) / WALK_RGB_HZ,
-            stream: StreamId::Rgb,
-            sequence: k,
-        }));
-    }
-    plan.sort_by(|a, b| {
-        a.t_s
-            .total_cmp(&b.t_s)
-            .then((a.stream as u8).cmp(&(b.stream as u8)))
-    });
+    let plan = plan_frames(rig, spec.duration_s);
 
     let mut sensor = ThermalSensor::new(
         ThermalProfile {
@@ -482,29 +477,8 @@ pub fn run_walk(
                 let ThermalOutput::Frame(f) = sensor.next_frame(&blurred) else {
                     continue;
                 };
-                let mut flags = 0;
-                if f.ffc_frozen {
-                    flags |= simwire::FLAG_FFC_FROZEN;
-                }
-                if thermal.telemetry_rows > 0 {
-                    flags |= simwire::FLAG_TELEMETRY;
-                }
-                if thermal.units == ThermalUnits::CentiKelvin {
-                    flags |= simwire::FLAG_TLINEAR;
-                }
-                let payload: Vec<u8> = f.words.iter().flat_map(|v| v.to_le_bytes()).collect();
                 (
-                    WireFrame {
-                        stream: StreamId::Thermal,
-                        flags,
-                        fourcc: FourCc::Y16,
-                        width: thermal.camera.width_px,
-                        height: thermal.output_height(),
-                        bytes_per_line: thermal.camera.width_px * 2,
-                        sequence: item.sequence,
-                        monotonic_ns: 0,
-                        payload,
-                    },
+                    thermal_wire(&thermal, item.sequence, &f.words, f.ffc_frozen),
                     path.world_from_thermal(item.t_s),
                     f.ffc_frozen,
                 )
@@ -524,17 +498,7 @@ pub fn run_walk(
                 );
                 let payload = rgb_to_jpeg(&srgb, p.camera.width_px, p.camera.height_px)?;
                 (
-                    WireFrame {
-                        stream: StreamId::Rgb,
-                        flags: 0,
-                        fourcc: FourCc::MJPG,
-                        width: p.camera.width_px,
-                        height: p.camera.height_px,
-                        bytes_per_line: 0,
-                        sequence: item.sequence,
-                        monotonic_ns: 0,
-                        payload,
-                    },
+                    rgb_wire(&p, item.sequence, payload),
                     path.world_from_thermal(item.t_s).compose(&thermal_from_rgb),
                     false,
                 )
@@ -557,6 +521,158 @@ pub fn run_walk(
     Ok(truth)
 }
 
+/// The frame plan of a walk: every frame of both streams in time order.
+fn plan_frames(rig: &WalkRig, duration_s: f64) -> Vec<Planned> {
+    let thermal = rig.thermal;
+    let mut plan: Vec<Planned> = Vec::new();
+    let n_t = (duration_s * thermal.rate_hz).floor() as u32;
+    plan.extend((0..n_t).map(|k| Planned {
+        t_s: f64::from(k) / thermal.rate_hz,
+        stream: StreamId::Thermal,
+        sequence: k,
+    }));
+    if rig.rgb.is_some() {
+        let n_r = (duration_s * WALK_RGB_HZ).floor() as u32;
+        plan.extend((0..n_r).map(|k| Planned {
+            t_s: f64::from(k) / WALK_RGB_HZ,
+            stream: StreamId::Rgb,
+            sequence: k,
+        }));
+    }
+    plan.sort_by(|a, b| {
+        a.t_s
+            .total_cmp(&b.t_s)
+            .then((a.stream as u8).cmp(&(b.stream as u8)))
+    });
+    plan
+}
+
+fn thermal_wire(profile: &ThermalProfile, sequence: u32, words: &[u16], frozen: bool) -> WireFrame {
+    let mut flags = 0;
+    if frozen {
+        flags |= simwire::FLAG_FFC_FROZEN;
+    }
+    if profile.telemetry_rows > 0 {
+        flags |= simwire::FLAG_TELEMETRY;
+    }
+    if profile.units == ThermalUnits::CentiKelvin {
+        flags |= simwire::FLAG_TLINEAR;
+    }
+    WireFrame {
+        stream: StreamId::Thermal,
+        flags,
+        fourcc: FourCc::Y16,
+        width: profile.camera.width_px,
+        height: profile.output_height(),
+        bytes_per_line: profile.camera.width_px * 2,
+        sequence,
+        monotonic_ns: 0,
+        payload: words.iter().flat_map(|v| v.to_le_bytes()).collect(),
+    }
+}
+
+fn rgb_wire(profile: &RgbProfile, sequence: u32, payload: Vec<u8>) -> WireFrame {
+    WireFrame {
+        stream: StreamId::Rgb,
+        flags: 0,
+        fourcc: FourCc::MJPG,
+        width: profile.camera.width_px,
+        height: profile.camera.height_px,
+        bytes_per_line: 0,
+        sequence,
+        monotonic_ns: 0,
+        payload,
+    }
+}
+
+/// [`WalkKind::Board`]: the rig still, the board waved through the board set's poses. The
+/// truth's world frame is the board's (`world_from_cam = board_from_cam`).
+fn run_board_wave(
+    rig: &WalkRig,
+    spec: &WalkSpec,
+    stop: &AtomicBool,
+    mut send: impl FnMut(WireFrame, f64) -> Result<(), SimError>,
+) -> Result<Vec<TruthFrame>, SimError> {
+    use crate::board::{BoardSpec, BoardThermal};
+    use crate::rig::{plan_board_views, render_rgb_board, render_thermal_board};
+    let board = BoardSpec::default();
+    let rgb_profile = rig.rgb.unwrap_or_else(|| RgbProfile::hd720().binned2());
+    let the_rig = Rig::new(rig.thermal, rgb_profile);
+    let n_views = ((spec.duration_s / BOARD_HOLD_S).ceil() as usize).max(1);
+    let views = plan_board_views(&the_rig, &board, n_views, rig.seed)?;
+    let mut heat = BoardThermal::cooled(board);
+    let first_view_s = 60.0;
+    let mut sensor = ThermalSensor::new(
+        ThermalProfile {
+            auto_ffc_period_s: 0.0,
+            ..rig.thermal
+        },
+        rig.seed,
+    );
+    let tgrid = RayGrid::new(&rig.thermal.camera);
+    let rgrid = RayGrid::new(&rgb_profile.camera);
+    let mut rgb_rng = ChaCha8Rng::seed_from_u64(rig.seed ^ 0x0052_4742);
+    let thermal_from_rgb = the_rig.rgb_from_thermal.inverse();
+    let ffc_at_s = 0.4 * spec.duration_s;
+    let mut ffc_requested = false;
+    let mut truth = Vec::new();
+    for item in plan_frames(rig, spec.duration_s) {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        let view = &views[((item.t_s / BOARD_HOLD_S) as usize).min(views.len() - 1)];
+        let board_from_thermal = view.thermal_from_board.inverse();
+        let (frame, world_from_cam, frozen) = match item.stream {
+            StreamId::Thermal => {
+                if !ffc_requested && item.t_s >= ffc_at_s {
+                    sensor.request_ffc();
+                    ffc_requested = true;
+                }
+                heat.advance(first_view_s + item.t_s - heat.time_s);
+                let frozen = sensor.ffc_in_progress();
+                let Some(words) =
+                    render_thermal_board(&tgrid, &mut sensor, &heat, &view.thermal_from_board)
+                else {
+                    continue;
+                };
+                (
+                    thermal_wire(&rig.thermal, item.sequence, &words, frozen),
+                    board_from_thermal,
+                    frozen,
+                )
+            }
+            StreamId::Rgb => {
+                let rgb_from_board = the_rig.rgb_from_thermal.compose(&view.thermal_from_board);
+                let px =
+                    render_rgb_board(&rgrid, &rgb_profile, &board, &rgb_from_board, &mut rgb_rng);
+                let jpeg = rgb_to_jpeg(
+                    &px,
+                    rgb_profile.camera.width_px,
+                    rgb_profile.camera.height_px,
+                )?;
+                (
+                    rgb_wire(&rgb_profile, item.sequence, jpeg),
+                    board_from_thermal.compose(&thermal_from_rgb),
+                    false,
+                )
+            }
+        };
+        let stream = frame.stream;
+        send(frame, item.t_s)?;
+        truth.push(TruthFrame {
+            stream: match stream {
+                StreamId::Thermal => "thermal",
+                StreamId::Rgb => "rgb",
+            },
+            sequence: item.sequence,
+            monotonic_ns: 0,
+            ffc_frozen: frozen,
+            world_from_cam: PoseJson::from(&world_from_cam),
+        });
+    }
+    Ok(truth)
+}
+
 /// Writes `dir/truth.json` atomically (module docs).
 pub fn write_truth(
     dir: &Path,
@@ -571,7 +687,19 @@ pub fn write_truth(
     std::fs::create_dir_all(dir).map_err(io("create truth folder"))?;
     let rgb_from_thermal =
         Rig::new(rig.thermal, rig.rgb.unwrap_or_else(RgbProfile::hd720)).rgb_from_thermal;
-    let (centre, extent) = scene_extent();
+    let (centre, extent) = if spec.kind == WalkKind::Board {
+        // The board wave: the scene is the board (its own frame); board.toml beside the truth.
+        let b = crate::board::BoardSpec::default();
+        let toml = crate::dataset::board_toml(&b, crate::dataset::Polarity::Cooled);
+        std::fs::write(dir.join("board.toml"), toml).map_err(io("write board.toml"))?;
+        let (x0, y0, x1, y1) = b.extent_m();
+        (
+            DVec3::new((x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0),
+            ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt(),
+        )
+    } else {
+        scene_extent()
+    };
     let doc = TruthJson {
         format: "s3tir-walk-truth/1",
         trajectory: spec.kind.name(),
@@ -582,7 +710,11 @@ pub fn write_truth(
         rgb: rig.rgb.map(|p| p.camera),
         rgb_from_thermal: PoseJson::from(&rgb_from_thermal),
         scene: SceneJson {
-            layout: "walk",
+            layout: if spec.kind == WalkKind::Board {
+                "board"
+            } else {
+                "walk"
+            },
             centre_m: centre.to_array(),
             extent_m: extent,
         },
