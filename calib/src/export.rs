@@ -58,6 +58,9 @@ pub fn summary_json(c: &Calibration) -> Value {
                 "views_used": r.views_used,
                 "rms_px": r.rms_px,
                 "rms_all_corners_px": r.rms_all_px,
+                "mono_rms_px": r.mono_rms_px,
+                "mono_rms_all_corners_px": r.mono_rms_all_px,
+                "corner_refinement": r.refinement,
                 "fx": r.model.intrinsics.fx,
                 "fy": r.model.intrinsics.fy,
                 "cx": r.model.intrinsics.cx,
@@ -72,6 +75,10 @@ pub fn summary_json(c: &Calibration) -> Value {
     }
     root.insert("joint_rms_px".into(), json!(c.joint_rms_px));
     root.insert("pairs_used".into(), json!(c.pairs_used));
+    root.insert("pairs_found".into(), json!(c.pairs_found));
+    // NaN (a figure a test did not produce) becomes null in JSON.
+    root.insert("pairs_inconsistent".into(), json!(c.pairs_inconsistent));
+    root.insert("pair_thresholds".into(), json!(c.pair_thresholds));
     root.insert(
         "rgb_from_thermal".into(),
         match c.rgb_from_thermal {

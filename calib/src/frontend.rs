@@ -12,27 +12,29 @@
 //! 3. **Detection**: small images (longest side < 480 px, e.g. Lepton 160×120) are upscaled
 //!    by an integer factor with cubic interpolation for the search, large ones (> 1000 px)
 //!    searched at half size; if nothing is found, once more at the next finer scale (one
-//!    step more upscaling, or full size). The classic detector (`findChessboardCorners`,
-//!    adaptive threshold) always runs; `findChessboardCornersSB` (exhaustive, accuracy flags)
-//!    runs as well on small images (a few tens of milliseconds there), and on large ones only
-//!    when the classic detector fails, and not on their full-resolution retry; when both fail,
-//!    the classic detector again on the inverted image (the other polarity; the SB detector is
-//!    polarity-agnostic), except in that full-resolution retry (at 720p each full-resolution
-//!    search of an image without a whole board costs ~7 s). Every candidate is refined (below) and the one with the smaller grid
-//!    roughness (RMS second difference along rows and columns) is kept.
-//! 4. **Sub-pixel refinement**, two stages. First `cornerSubPix` on an unquantised float copy
-//!    of the stretched image (at full resolution, or cubic-upscaled like the search for small
-//!    images), window half-size 0.4 × the smallest corner spacing (0.5 for upscaled small
-//!    images); a move of more than a quarter square is discarded. Then the saddle-model fit
-//!    of [`crate::saddle`] on the float image at its own resolution (no resampling): the
-//!    image's edge width is estimated as the median of short free-width fits over the board,
-//!    then every corner is fitted with that width held fixed, starting from its
-//!    `cornerSubPix` position, else the detector's position, else where its neighbours put it
-//!    (the window's grid steps come from the neighbours, so one corner misplaced by the
-//!    detector cannot shrink or skew its own window). A corner whose fits are all rejected
-//!    keeps its `cornerSubPix` position. On the simulated Lepton board sets (5–9 px squares)
-//!    this takes the thermal corner error against the simulator's truth from 0.19 px RMS
-//!    (`cornerSubPix` alone, with corners up to 1 px off) to 0.01 px.
+//!    step more upscaling, or full size, where only the classic detector runs: at 720p each
+//!    full-resolution SB search of an image without a whole board costs seconds). At each
+//!    scale `findChessboardCornersSB` runs first (exhaustive, *without* OpenCV's histogram
+//!    normalisation, which loses 13 of the 47 real sun-board thermal boards), then, where it
+//!    fails, the classic detector on the image and on its inverse (`run_detectors`).
+//!    Small upscaled images run both and keep the better. An SB grid that fits no homography
+//!    (RMS above [`SUSPECT_PLANAR_FIT`] of the corner spacing: a corner caught on the wrong
+//!    saddle) gets the classic detector's second opinion.
+//! 4. **Sub-pixel refinements**, each kept as a variant of the detection
+//!    ([`BoardDetection::variants`]): the SB detector's own corners; `cornerSubPix` on an
+//!    unquantised float copy of the stretched image (at full resolution, or cubic-upscaled
+//!    like the search for small images), window half-size 0.4 × the smallest corner spacing
+//!    (0.5 for upscaled small images; a move of more than a quarter square is discarded); and
+//!    the saddle-model fit of [`crate::saddle`] on the float image at its own resolution (the
+//!    image's edge width is the median of short free-width fits on up to 12 corners, then
+//!    every corner is fitted with that width held fixed, starting from its `cornerSubPix`
+//!    position, else the detector's, else where its neighbours put it). No refinement wins
+//!    everywhere: on the simulated Lepton boards the saddle fit takes the corner error from
+//!    0.19 px (`cornerSubPix`) to 0.01 px, and on OpenCV's stereo samples it gives 0.18 px
+//!    RMS against SB's 0.24; on the real, blurry sun-board thermal JPEGs the SB detector's own
+//!    corners give 0.457 px, `cornerSubPix` 0.65 and the saddle fit 0.89. The per-image
+//!    default is the variant with the smallest homography-fit RMS; the pipeline then chooses
+//!    per camera by that camera's own calibration RMS (`pipeline`).
 //! 5. **Score and ambiguity check**: OpenCV's `estimateChessboardSharpness` (edge rise in px)
 //!    and the square contrast: mean of even- vs odd-parity inner squares, sampled at their
 //!    centres, over the pooled standard deviation. Detections whose squares cannot be told
@@ -365,9 +367,44 @@ pub struct BoardDetection {
     pub contrast_z: f64,
     /// RMS second difference along rows/columns (px): grid roughness, lower is better.
     pub roughness_px: f64,
+    /// RMS distance of the corners from the best homography of the board grid (px): how
+    /// well they fit one plane seen through a pinhole (lens distortion adds to it equally
+    /// for every refinement, so it ranks refinements of one image).
+    pub planar_fit_px: f64,
+    /// Which sub-pixel refinement `corners_px` holds (per image, the one with the smallest
+    /// planar fit; the pipeline may choose another per camera, see [`Self::variants`]).
+    pub refinement: Refinement,
+    /// Every refinement computed for this image, in the same canonical order as `corners_px`.
+    /// The planar fit cannot rank them when lens distortion dominates it (the simulated
+    /// Lepton: 0.15–0.4 px for every refinement), so the pipeline ranks them per camera by
+    /// the camera's own calibration RMS.
+    #[serde(skip)]
+    pub variants: Vec<(Refinement, Vec<DVec2>)>,
     /// Whether the ordering was fixed by square colour (false: image-orientation fallback).
     pub ordered_by_colour: bool,
 }
+
+/// Sub-pixel corner refinements, ranked per image by how well the corners fit a plane.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Refinement {
+    /// The SB detector's own sub-pixel corners.
+    Detector,
+    /// `cornerSubPix` on the unquantised stretched image.
+    CornerSubPix,
+    /// The blurred-saddle model fit of [`crate::saddle`].
+    Saddle,
+}
+
+/// The saddle fit runs only on boards whose median corner spacing is below this (px): on the
+/// simulated Lepton boards (5–9 px squares) it takes the corner error from 0.19 px
+/// (`cornerSubPix`) to 0.01 px; on the real sun-board thermal images (blurry 8-bit JPEG,
+/// 15–40 px squares) it never ranked first and cost 0.2 s per image.
+pub const SADDLE_MAX_SPACING_PX: f64 = f64::INFINITY;
+
+/// An SB detection whose corners are further than this fraction of the corner spacing (RMS)
+/// from the best homography of the grid is checked against the classic detector.
+pub const SUSPECT_PLANAR_FIT: f64 = 0.03;
 
 /// Why a detection was not found or rejected.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -404,6 +441,52 @@ fn roughness(corners: &[DVec2], cols: usize, rows: usize) -> f64 {
     if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 
+/// Median distance between neighbouring corners along rows (px).
+fn median_spacing(corners: &[DVec2], cols: usize) -> f64 {
+    let mut d: Vec<f64> = corners
+        .windows(2)
+        .enumerate()
+        .filter(|(i, _)| (i + 1) % cols != 0)
+        .map(|(_, w)| (w[1] - w[0]).length())
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// RMS distance (px) of the corners from the least-squares homography of the board grid.
+fn planar_fit_rms(corners: &[DVec2], cols: usize) -> Result<f64, CalibError> {
+    let grid: Vector<Point2f> = (0..corners.len())
+        .map(|i| Point2f::new((i % cols) as f32, (i / cols) as f32))
+        .collect();
+    let image: Vector<Point2f> = corners
+        .iter()
+        .map(|p| Point2f::new(p.x as f32, p.y as f32))
+        .collect();
+    let h = calib3d::find_homography(&grid, &image, &mut Mat::default(), 0, 3.0)
+        .map_err(cv("findHomography"))?;
+    if h.empty() {
+        return Ok(f64::INFINITY);
+    }
+    let at = |r: i32, c: i32| h.at_2d::<f64>(r, c).copied().map_err(cv("homography"));
+    let m = [
+        [at(0, 0)?, at(0, 1)?, at(0, 2)?],
+        [at(1, 0)?, at(1, 1)?, at(1, 2)?],
+        [at(2, 0)?, at(2, 1)?, at(2, 2)?],
+    ];
+    let mut ss = 0.0;
+    for (i, p) in corners.iter().enumerate() {
+        let (x, y) = ((i % cols) as f64, (i / cols) as f64);
+        let w = m[2][0] * x + m[2][1] * y + m[2][2];
+        let q = DVec2::new(
+            (m[0][0] * x + m[0][1] * y + m[0][2]) / w,
+            (m[1][0] * x + m[1][1] * y + m[1][2]) / w,
+        );
+        ss += (q - *p).length_squared();
+    }
+    let fit = (ss / corners.len().max(1) as f64).sqrt();
+    Ok(if fit.is_finite() { fit } else { f64::INFINITY })
+}
+
 fn min_spacing(corners: &[DVec2], cols: usize) -> f64 {
     corners
         .windows(2)
@@ -419,47 +502,78 @@ struct Candidate {
     inverted: bool,
 }
 
-/// Runs the detectors on `up` and appends what they find. The classic detector always runs;
-/// the sector-based one when the classic one fails, or in addition when `both` (small images,
-/// where it costs a few tens of milliseconds): every candidate is refined and the better one
-/// kept (see [`detect_board`]).
+/// Runs the detectors on `up` and appends what they find, cheapest and most general first.
+///
+/// 1. `findChessboardCornersSB` with `CALIB_CB_EXHAUSTIVE` only, on the stretched grey image.
+///    It answers to saddle points of either polarity, so one search covers coated-dark and
+///    coated-bright thermal boards. No `CALIB_CB_NORMALIZE_IMAGE`: its histogram equalisation
+///    loses 13 of the 47 real sun-board thermal boards (OpenCV 4.6: 34/47 with it, 47/47
+///    without, 27 ms per 640×480 image), and no `CALIB_CB_ACCURACY`: it costs 4× and the
+///    sub-pixel refinement below supersedes it.
+/// 2. Only when that fails, or in addition when `both` (small upscaled images, where both are
+///    cheap and the smoother refined grid is kept): the classic detector
+///    (`findChessboardCorners`, adaptive threshold, polarity-dependent), then on the inverted
+///    image when nothing was found yet. On the real sun-board RGB photos at half size the
+///    classic detector finds 47/47 at 25 ms where SB finds 41/47.
+///
+/// `sb = false` skips step 1 (a large image's full-resolution retry, where SB's exhaustive
+/// search costs seconds per partial view); `invert = false` skips the inverted classic search.
 fn run_detectors(
     up: &Mat,
     pattern: Size,
-    inverted: bool,
     both: bool,
     sb: bool,
+    invert: bool,
     out: &mut Vec<Candidate>,
 ) -> Result<(), CalibError> {
-    let mut corners = Vector::<Point2f>::new();
+    let found_before = out.len();
+    if sb {
+        let mut corners = Vector::<Point2f>::new();
+        if calib3d::find_chessboard_corners_sb(
+            up,
+            pattern,
+            &mut corners,
+            calib3d::CALIB_CB_EXHAUSTIVE,
+        )
+        .map_err(cv("findChessboardCornersSB"))?
+        {
+            out.push(Candidate {
+                corners_up: corners.to_vec(),
+                detector: Detector::SectorBased,
+                inverted: false,
+            });
+            if !both {
+                return Ok(());
+            }
+        }
+    }
     let classic_flags = calib3d::CALIB_CB_ADAPTIVE_THRESH
         | calib3d::CALIB_CB_NORMALIZE_IMAGE
         | calib3d::CALIB_CB_FILTER_QUADS;
-    let classic = calib3d::find_chessboard_corners(up, pattern, &mut corners, classic_flags)
-        .map_err(cv("findChessboardCorners"))?;
-    if classic {
-        out.push(Candidate {
-            corners_up: corners.to_vec(),
-            detector: Detector::Classic,
-            inverted,
-        });
-    }
-    // The sector-based detector responds to saddle points of either polarity, so on the
-    // inverted image only the (polarity-dependent) classic detector is worth running.
-    if inverted || !sb || (classic && !both) {
-        return Ok(());
-    }
     let mut corners = Vector::<Point2f>::new();
-    let sb_flags = calib3d::CALIB_CB_NORMALIZE_IMAGE
-        | calib3d::CALIB_CB_EXHAUSTIVE
-        | calib3d::CALIB_CB_ACCURACY;
-    if calib3d::find_chessboard_corners_sb(up, pattern, &mut corners, sb_flags)
-        .map_err(cv("findChessboardCornersSB"))?
+    if calib3d::find_chessboard_corners(up, pattern, &mut corners, classic_flags)
+        .map_err(cv("findChessboardCorners"))?
     {
         out.push(Candidate {
             corners_up: corners.to_vec(),
-            detector: Detector::SectorBased,
-            inverted,
+            detector: Detector::Classic,
+            inverted: false,
+        });
+        return Ok(());
+    }
+    if !invert || out.len() > found_before {
+        return Ok(());
+    }
+    let mut inv = Mat::default();
+    opencv::core::bitwise_not_def(up, &mut inv).map_err(cv("bitwise_not"))?;
+    let mut corners = Vector::<Point2f>::new();
+    if calib3d::find_chessboard_corners(&inv, pattern, &mut corners, classic_flags)
+        .map_err(cv("findChessboardCorners"))?
+    {
+        out.push(Candidate {
+            corners_up: corners.to_vec(),
+            detector: Detector::Classic,
+            inverted: true,
         });
     }
     Ok(())
@@ -697,8 +811,11 @@ fn saddle_refine(
         let l = &local[i];
         crate::saddle::fit_saddle(img, start, l.step_row, l.step_col, width)
     };
-    // The image's edge width: median over the corners of a short free-width fit.
+    // The image's edge width: median over (at most 12, spread over the board) corners of a
+    // short free-width fit.
+    let stride = pts.len().div_ceil(12).max(1);
     let mut widths: Vec<f64> = (0..pts.len())
+        .step_by(stride)
         .filter_map(|i| {
             fit(
                 i,
@@ -778,25 +895,18 @@ pub fn detect_board(
             base.clone()
         };
         let both = attempt > 1.0;
-        // A large image's full-resolution retry runs the classic detector only: the SB
-        // detector already searched the half-size image, and at full 720p+ resolution its
-        // exhaustive search costs seconds per image without a whole board (partial views).
+        // A large image's full-resolution retry runs the classic detector on the image as it
+        // is only: the half-size search already ran SB and both polarities, and at 720p+ each
+        // exhaustive full-resolution search costs seconds per view without a whole board.
         let full_res_retry = primary < 1.0 && attempt >= 1.0;
         run_detectors(
             &search,
             pattern,
-            false,
             both,
+            !full_res_retry,
             !full_res_retry,
             &mut candidates,
         )?;
-        // The inverted image is not searched again at full resolution either (another ~8 s
-        // per partial view at 720p; the half-size search covered both polarities).
-        if candidates.is_empty() && !full_res_retry {
-            let mut inv = Mat::default();
-            opencv::core::bitwise_not_def(&search, &mut inv).map_err(cv("bitwise_not"))?;
-            run_detectors(&inv, pattern, true, both, true, &mut candidates)?;
-        }
         if !candidates.is_empty() {
             break;
         }
@@ -808,8 +918,31 @@ pub fn detect_board(
             (f64::from(p.y) + 0.5) / s - 0.5,
         )
     };
+    // An SB grid that does not fit one plane (a corner caught on the wrong saddle: on the real
+    // sun-board RGB photo Img31 the half-size SB grid is 2.7 px RMS off any homography) gets
+    // a second opinion from the classic detector; the candidate with the better fit is kept.
+    if let [only] = candidates.as_slice()
+        && only.detector == Detector::SectorBased
+    {
+        let pts: Vec<DVec2> = only.corners_up.iter().map(to_orig).collect();
+        if pts.len() == cols * rows {
+            let fit = planar_fit_rms(&pts, cols)?;
+            let spacing = median_spacing(&pts, cols);
+            tracing::trace!(fit, spacing, ratio = fit / spacing, "SB planar fit");
+            if fit > SUSPECT_PLANAR_FIT * spacing {
+                run_detectors(&search, pattern, true, false, true, &mut candidates)?;
+            }
+        }
+    }
     let float_img = stretched_f32(img)?;
-    let mut best: Option<(f64, Vec<DVec2>, &Candidate)> = None;
+    struct Best<'a> {
+        fit: f64,
+        pts: Vec<DVec2>,
+        cand: &'a Candidate,
+        refinement: Refinement,
+        variants: Vec<(Refinement, Vec<DVec2>)>,
+    }
+    let mut best: Option<Best> = None;
     for cand in &candidates {
         let pts: Vec<DVec2> = cand.corners_up.iter().map(to_orig).collect();
         if pts.len() != cols * rows
@@ -826,20 +959,52 @@ pub fn detect_board(
             .zip(&pts)
             .map(|(a, b)| (*a - *b).length())
             .fold(0.0, f64::max);
-        let pts = if max_move < 0.25 * min_spacing(&pts, cols) {
+        let mut variants: Vec<(Refinement, Vec<DVec2>)> = Vec::with_capacity(3);
+        // The SB detector's own corners are sub-pixel already; the classic detector's are not.
+        if cand.detector == Detector::SectorBased {
+            variants.push((Refinement::Detector, raw.clone()));
+        }
+        let subpix = if max_move < 0.25 * min_spacing(&pts, cols) {
             refined
         } else {
             pts
         };
-        let pts = saddle_refine(&float_img, &pts, &raw, cols, rows)?;
-        let rough = roughness(&pts, cols, rows);
-        if best.as_ref().is_none_or(|(r, _, _)| rough < *r) {
-            best = Some((rough, pts, cand));
+        if median_spacing(&subpix, cols) < SADDLE_MAX_SPACING_PX {
+            let saddle = saddle_refine(&float_img, &subpix, &raw, cols, rows)?;
+            variants.push((Refinement::Saddle, saddle));
+        }
+        variants.push((Refinement::CornerSubPix, subpix));
+        let mut pick: Option<(f64, usize)> = None;
+        for (i, (refinement, pts)) in variants.iter().enumerate() {
+            let fit = planar_fit_rms(pts, cols)?;
+            tracing::trace!(?refinement, planar_fit_px = fit, "refinement candidate");
+            if pick.is_none_or(|(f, _)| fit < f) {
+                pick = Some((fit, i));
+            }
+        }
+        if let Some((fit, i)) = pick
+            && best.as_ref().is_none_or(|b| fit < b.fit)
+        {
+            best = Some(Best {
+                fit,
+                pts: variants[i].1.clone(),
+                cand,
+                refinement: variants[i].0,
+                variants,
+            });
         }
     }
-    let Some((rough, mut pts, cand)) = best else {
+    let Some(Best {
+        fit: planar_fit_px,
+        mut pts,
+        cand,
+        refinement,
+        mut variants,
+    }) = best
+    else {
         return Ok(Err(DetectFailure::NotFound));
     };
+    let rough = roughness(&pts, cols, rows);
     let up = search;
     if min_spacing(&pts, cols) < 2.0 {
         return Ok(Err(DetectFailure::Ambiguous(
@@ -851,6 +1016,9 @@ pub fn detect_board(
     let b = pts[cols] - pts[0];
     if a.perp_dot(b) < 0.0 {
         pts = flip_rows(&pts, cols, rows);
+        for (_, v) in &mut variants {
+            *v = flip_rows(v, cols, rows);
+        }
     }
     let (m_even, m_odd, spread) = square_parity_stats(img, &pts, cols, rows);
     let contrast_z = (m_even - m_odd).abs() / spread.max(1e-9);
@@ -869,6 +1037,9 @@ pub fn detect_board(
     };
     if rotate {
         pts.reverse();
+        for (_, v) in &mut variants {
+            v.reverse();
+        }
     }
     // Sharpness on the 8-bit original-resolution-mapped corners (upscaled image, then rescaled).
     let up_corners: Vector<Point2f> = pts
@@ -893,6 +1064,9 @@ pub fn detect_board(
         sharpness_px: sharp,
         contrast_z,
         roughness_px: rough,
+        planar_fit_px,
+        refinement,
+        variants,
         ordered_by_colour,
     }))
 }
@@ -901,6 +1075,29 @@ pub fn detect_board(
 /// squares turn out to be the bright ones in thermal images.
 pub fn rotate_180(det: &mut BoardDetection) {
     det.corners_px.reverse();
+    for (_, v) in &mut det.variants {
+        v.reverse();
+    }
+}
+
+impl BoardDetection {
+    /// The corners of refinement `r`, or `corners_px` when `r` was not computed here (the
+    /// classic detector has no sub-pixel corners of its own; the saddle fit runs on small
+    /// squares only).
+    pub fn corners_of(&self, r: Refinement) -> &[DVec2] {
+        self.variants
+            .iter()
+            .find(|(v, _)| *v == r)
+            .map_or(self.corners_px.as_slice(), |(_, c)| c.as_slice())
+    }
+
+    /// Makes refinement `r` the one in `corners_px` (no change when it was not computed).
+    pub fn choose(&mut self, r: Refinement) {
+        if let Some((_, c)) = self.variants.iter().find(|(v, _)| *v == r) {
+            self.corners_px = c.clone();
+            self.refinement = r;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -21,6 +21,8 @@ pub mod export;
 pub mod frontend;
 pub mod geometry;
 #[cfg(feature = "opencv")]
+pub mod pairs;
+#[cfg(feature = "opencv")]
 pub mod pipeline;
 #[cfg(feature = "poses")]
 pub mod poses;
@@ -36,6 +38,8 @@ pub mod solve;
 pub mod synth;
 #[cfg(feature = "opencv")]
 pub mod tags;
+#[cfg(feature = "opencv")]
+pub mod views;
 
 pub use camera::{BrownConrady, CameraModel, Intrinsics};
 pub use error::CalibError;

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
+use s3tir_calib::pairs::PairThresholds;
 use s3tir_calib::pipeline::{self, PipelineOptions};
 use s3tir_calib::session::SessionOptions;
 use s3tir_calib::solve::SolveOptions;
@@ -69,6 +70,13 @@ struct CalibrateArgs {
     /// Huber threshold of the robust loss, pixels.
     #[arg(long, default_value_t = 1.0)]
     huber_px: f64,
+    /// Pair consistency: a thermal/RGB pair is left out of the extrinsic when, with one
+    /// board pose and the pairs' consensus extrinsic, an image's RMS exceeds this many times
+    /// (and 0.5 px more than) what that image reaches with its own pose. Tested before the
+    /// joint solve (the RGB pose carried into the thermal camera) and after it. Left-out
+    /// pairs still calibrate their own cameras; the summary lists them with their figures.
+    #[arg(long, default_value_t = 3.0)]
+    pair_residual_ratio: f64,
 }
 
 #[derive(Debug, Subcommand)]
@@ -176,6 +184,10 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
             reject_sigma: args.reject_sigma,
             ..SolveOptions::default()
         },
+        pairs: PairThresholds {
+            residual_ratio: args.pair_residual_ratio,
+            ..PairThresholds::default()
+        },
         progress: true,
     };
     let cal = if pipeline::is_session(dir) {
@@ -215,12 +227,13 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
     for r in cal.cameras.iter().flatten() {
         let (i, s) = (r.model.intrinsics, r.sigma);
         println!(
-            "{:7}: {} images, board in {}, used {}; RMS {:.3} px; fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
+            "{:7}: {} images, board in {}, used {}; RMS {:.3} px (alone: {:.3} px); fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
             r.camera.name(),
             r.images,
             r.views_found,
             r.views_used,
             r.rms_px,
+            r.mono_rms_px,
             i.fx,
             s.fx,
             i.fy,
@@ -242,6 +255,9 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
             t.translation_m.z,
             cal.joint_rms_px
         );
+    }
+    for p in &cal.pairs_inconsistent {
+        println!("inconsistent pair: {}", p.describe());
     }
     for w in &cal.warnings {
         println!("warning: {w}");

@@ -5,305 +5,30 @@
 //! RMS figures follow OpenCV: `sqrt(Σ|r|² / N)` over corners (not per axis). The joint RMS
 //! is over every inlier corner of both cameras (paired and unpaired views).
 
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::path::Path;
 
 use glam::{DQuat, DVec2, DVec3};
 use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
 use serde::Serialize;
 
-use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
+use crate::board::{BoardSpec, Camera, FileProblem};
 use crate::camera::{BrownConrady, CameraModel, Intrinsics};
 use crate::error::CalibError;
-use crate::frontend::ScalarImage;
-use crate::frontend::{
-    BoardDetection, DetectFailure, SourceKind, ThermalPolarity, detect_board, load_scalar,
-    rotate_180,
-};
+use crate::frontend::{BoardDetection, Refinement};
 use crate::geometry::Rigid3;
-use crate::session::{SessionOptions, SessionViews};
+use crate::pairs::{
+    InconsistentPair, MAX_RESIDUAL_ROUNDS, PairEvidence, PairTest, PairThresholds, residual_fails,
+    rotation_diff_deg, transfer_test,
+};
+use crate::session::SessionOptions;
 use crate::solve::{
     ExtrinsicSigma, IntrinsicSigma, IterationLog, Observation, PoseFrame, Problem, RejectedCorner,
     SolveOptions, solve,
 };
-
-/// One view's files and detections.
-#[derive(Debug, Clone)]
-pub struct DetectedView {
-    pub key: String,
-    pub files: [Option<PathBuf>; 2],
-    pub detections: [Option<BoardDetection>; 2],
-}
-
-/// Everything detection produced for a folder.
-#[derive(Debug, Clone)]
-pub struct DetectedSet {
-    pub dir: PathBuf,
-    pub board: BoardSpec,
-    pub views: Vec<DetectedView>,
-    /// Image size per camera (`None`: no readable image).
-    pub image_size: [Option<(u32, u32)>; 2],
-    /// Image counts per camera (files listed).
-    pub images: [usize; 2],
-    pub problems: Vec<FileProblem>,
-    /// How thermal ordering was fixed, in words.
-    pub polarity_note: String,
-    pub source_kinds: Vec<(Camera, SourceKind)>,
-    pub detection_wall_s: f64,
-    /// Input notes that become warnings (e.g. a truncated session).
-    pub notes: Vec<String>,
-}
-
-/// Options of a run.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct PipelineOptions {
-    pub solve: SolveOptions,
-    /// Draw an indicatif progress bar over detection.
-    pub progress: bool,
-}
-
-fn problem(path: &Path, reason: impl Into<String>) -> FileProblem {
-    FileProblem {
-        path: path.to_path_buf(),
-        reason: reason.into(),
-    }
-}
-
-/// True when `path` names a recorded session (`.mcap`).
-pub fn is_session(path: &Path) -> bool {
-    path.extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
-}
-
-/// Loads `board.toml` and detects the board in every image of `dir`. A session path
-/// (`.mcap`) is refused with [`CalibError::SessionNeedsBoard`]: use [`detect_session`].
-pub fn detect_folder(dir: &Path, progress: bool) -> Result<DetectedSet, CalibError> {
-    if is_session(dir) {
-        return Err(CalibError::SessionNeedsBoard {
-            path: dir.to_path_buf(),
-        });
-    }
-    let board = BoardSpec::load(&dir.join("board.toml"))?;
-    let (files, mut problems) = list_views(dir)?;
-    let thermal_palette = board.thermal_palette;
-    detect_views(
-        dir,
-        board,
-        files,
-        &mut problems,
-        progress,
-        |path, camera| load_scalar(path, camera == Camera::Thermal, thermal_palette),
-    )
-}
-
-/// Reads a recorded session (see [`crate::session`]) and detects the board described by
-/// `board_toml` in its views.
-pub fn detect_session(
-    session: &Path,
-    board_toml: &Path,
-    session_opts: &SessionOptions,
-    progress: bool,
-) -> Result<DetectedSet, CalibError> {
-    let board = BoardSpec::load(board_toml)?;
-    let SessionViews {
-        views,
-        images,
-        mut problems,
-        notes,
-    } = crate::session::read_views(session, session_opts)?;
-    let mut set = detect_views(
-        session,
-        board,
-        views,
-        &mut problems,
-        progress,
-        |name, camera| images.load(name, camera),
-    )?;
-    set.notes.extend(notes);
-    Ok(set)
-}
-
-/// Detection over listed views; `load` decodes a listed image (a file, or a session frame).
-pub fn detect_views(
-    dir: &Path,
-    board: BoardSpec,
-    files: Vec<ViewFiles>,
-    problems: &mut Vec<FileProblem>,
-    progress: bool,
-    mut load: impl FnMut(&Path, Camera) -> Result<ScalarImage, CalibError>,
-) -> Result<DetectedSet, CalibError> {
-    let start = Instant::now();
-    let total: usize = files.iter().map(|v| v.files.iter().flatten().count()).sum();
-    let bar = if progress {
-        let b = indicatif::ProgressBar::new(total as u64);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "detecting {bar:40} {pos}/{len} images {elapsed}/{eta} {msg}",
-        ) {
-            b.set_style(style);
-        }
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
-    let mut images = [0usize; 2];
-    let mut source_kinds = Vec::new();
-    let mut views = Vec::with_capacity(files.len());
-    for vf in files {
-        let mut detections: [Option<BoardDetection>; 2] = [None, None];
-        for camera in Camera::BOTH {
-            let Some(path) = &vf.files[camera.index()] else {
-                continue;
-            };
-            images[camera.index()] += 1;
-            bar.set_message(
-                path.file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default(),
-            );
-            bar.inc(1);
-            let img = match load(path, camera) {
-                Ok(i) => i,
-                Err(e) => {
-                    problems.push(problem(path, format!("unreadable: {e}")));
-                    continue;
-                }
-            };
-            let size = (img.width_px, img.height_px);
-            match image_size[camera.index()] {
-                None => image_size[camera.index()] = Some(size),
-                Some(s) if s != size => {
-                    problems.push(problem(
-                        path,
-                        format!(
-                            "wrong size {}x{}: the {} camera's images are {}x{}",
-                            size.0,
-                            size.1,
-                            camera.name(),
-                            s.0,
-                            s.1
-                        ),
-                    ));
-                    continue;
-                }
-                Some(_) => {}
-            }
-            if !source_kinds.contains(&(camera, img.source)) {
-                source_kinds.push((camera, img.source));
-            }
-            let span = tracing::trace_span!("detect", file = %path.display());
-            let _g = span.enter();
-            match detect_board(&img, &board)? {
-                Ok(d) => detections[camera.index()] = Some(d),
-                Err(DetectFailure::NotFound) => problems.push(problem(
-                    path,
-                    format!(
-                        "no {}x{} board found (both polarities, SB and classic detectors)",
-                        board.cols(),
-                        board.rows()
-                    ),
-                )),
-                Err(DetectFailure::Ambiguous(why)) => problems.push(problem(
-                    path,
-                    format!("ambiguous detection rejected: {why}"),
-                )),
-            }
-        }
-        views.push(DetectedView {
-            key: vf.key,
-            files: vf.files,
-            detections,
-        });
-    }
-    bar.finish_and_clear();
-    let polarity_note = resolve_thermal_order(&board, &mut views, problems);
-    Ok(DetectedSet {
-        dir: dir.to_path_buf(),
-        board,
-        views,
-        image_size,
-        images,
-        problems: std::mem::take(problems),
-        polarity_note,
-        source_kinds,
-        detection_wall_s: start.elapsed().as_secs_f64(),
-        notes: Vec::new(),
-    })
-}
-
-/// Makes thermal corner order agree with RGB (see `frontend` docs): fixed polarity from
-/// `board.toml`, or for `auto` a vote over pairs on whether corner 0 → corner N points the
-/// same way in both images. Pairs that disagree with the majority are unpaired (reported).
-fn resolve_thermal_order(
-    board: &BoardSpec,
-    views: &mut [DetectedView],
-    problems: &mut Vec<FileProblem>,
-) -> String {
-    if board.is_colour_symmetric() {
-        return "board is colour-symmetric (cols + rows even): both cameras ordered with corner 0 nearest the image's top-left".into();
-    }
-    let direction = |d: &BoardDetection| {
-        let n = d.corners_px.len();
-        (d.corners_px[n - 1] - d.corners_px[0]).normalize_or_zero()
-    };
-    let (rotate, note) = match board.thermal_polarity {
-        ThermalPolarity::CoatedDark => (
-            false,
-            "thermal_polarity = coated_dark (board.toml)".to_string(),
-        ),
-        ThermalPolarity::CoatedBright => (
-            true,
-            "thermal_polarity = coated_bright (board.toml)".to_string(),
-        ),
-        ThermalPolarity::Auto => {
-            let (mut dark, mut bright) = (0usize, 0usize);
-            for v in views.iter() {
-                if let [Some(t), Some(r)] = &v.detections {
-                    if direction(t).dot(direction(r)) > 0.0 {
-                        dark += 1;
-                    } else {
-                        bright += 1;
-                    }
-                }
-            }
-            if dark + bright == 0 {
-                (false, "thermal_polarity = auto with no pairs: assumed coated_dark (ordering does not matter for one camera)".into())
-            } else {
-                (
-                    bright > dark,
-                    format!(
-                        "thermal_polarity = auto: {} by vote over pairs ({dark} say coated_dark, {bright} coated_bright)",
-                        if bright > dark {
-                            "coated_bright"
-                        } else {
-                            "coated_dark"
-                        }
-                    ),
-                )
-            }
-        }
-    };
-    for v in views.iter_mut() {
-        if rotate && let Some(t) = v.detections[0].as_mut() {
-            rotate_180(t);
-        }
-        if let [Some(t), Some(r)] = &v.detections
-            && direction(t).dot(direction(r)) <= 0.0
-        {
-            if let Some(path) = &v.files[0] {
-                problems.push(problem(
-                    path,
-                    "corner order disagrees with its RGB pair (polarity differs from the session's): used for thermal intrinsics only, not as a pair",
-                ));
-            }
-            // Keep it as a thermal-only view under a distinct key.
-            v.key = format!("{}#thermal-only", v.key);
-            v.detections[1] = None;
-        }
-    }
-    note
-}
+pub use crate::views::{
+    DetectedSet, DetectedView, detect_folder, detect_session, detect_views, is_session,
+};
 
 /// Result for one camera.
 #[derive(Debug, Clone, Serialize)]
@@ -319,6 +44,12 @@ pub struct CameraResult {
     pub rms_all_px: f64,
     /// OpenCV `calibrateCamera` RMS of the initialisation (px).
     pub init_rms_px: f64,
+    /// This camera calibrated alone on its own views: RMS over inlier corners (px) ...
+    pub mono_rms_px: f64,
+    /// ... and over every detected corner (px; what OpenCV's `calibrateCamera` reports).
+    pub mono_rms_all_px: f64,
+    /// The sub-pixel refinement kept for this camera and why.
+    pub refinement: Option<RefinementChoice>,
     /// Per view: (key, RMS px, inliers).
     pub per_view: Vec<ViewRms>,
 }
@@ -349,6 +80,11 @@ pub struct Calibration {
     pub extrinsic_sigma: Option<ExtrinsicSigma>,
     pub joint_rms_px: f64,
     pub pairs_used: usize,
+    /// Pairs (views with the board in both cameras) before the consistency tests.
+    pub pairs_found: usize,
+    /// Pairs left out of the extrinsic, with their figures ([`crate::pairs`]).
+    pub pairs_inconsistent: Vec<InconsistentPair>,
+    pub pair_thresholds: PairThresholds,
     pub warnings: Vec<String>,
     pub problems: Vec<FileProblem>,
     pub rejected: Vec<RejectedCorner>,
@@ -551,34 +287,198 @@ fn calib3d_flags_few() -> i32 {
     opencv::calib3d::CALIB_FIX_K3 | opencv::calib3d::CALIB_ZERO_TANGENT_DIST
 }
 
-/// Averages rigid transforms (sign-aligned quaternion mean, component-wise median translation).
-fn average_rigid(ts: &[Rigid3]) -> Rigid3 {
-    let Some(first) = ts.first() else {
-        return Rigid3::IDENTITY;
-    };
-    let mut q = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
-    for t in ts {
-        let r = if t.rotation.dot(first.rotation) < 0.0 {
-            -t.rotation
-        } else {
-            t.rotation
-        };
-        q += r;
-    }
-    let median = |f: fn(&DVec3) -> f64| {
-        let mut v: Vec<f64> = ts.iter().map(|t| f(&t.translation_m)).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    Rigid3::new(
-        q.normalize(),
-        DVec3::new(median(|v| v.x), median(|v| v.y), median(|v| v.z)),
-    )
-}
-
 fn tilt_deg(cam_from_board: &Rigid3) -> f64 {
     let n = cam_from_board.transform_vector(DVec3::Z);
     n.z.abs().clamp(0.0, 1.0).acos().to_degrees()
+}
+
+/// Options of a run.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PipelineOptions {
+    pub solve: SolveOptions,
+    /// Thresholds of the pair-consistency tests ([`crate::pairs`]).
+    pub pairs: PairThresholds,
+    /// Draw an indicatif progress bar over detection.
+    pub progress: bool,
+}
+
+/// Which sub-pixel refinement a camera's corners use, and the figures that chose it.
+#[derive(Debug, Clone, Serialize)]
+pub struct RefinementChoice {
+    pub kept: Refinement,
+    /// Each refinement tried and the camera's mono RMS over every corner with it (px).
+    pub mono_rms_all_px: Vec<(Refinement, f64)>,
+}
+
+/// One camera calibrated alone on its own views (robust LM with the joint solver's rejection).
+#[derive(Debug, Clone)]
+struct MonoSolve {
+    model: CameraModel,
+    /// `(set view index, cam_from_board)`.
+    poses: Vec<(usize, Rigid3)>,
+    /// `(set view index, inlier RMS px)`.
+    view_rms: Vec<(usize, f64)>,
+    rms_px: f64,
+    rms_all_px: f64,
+}
+
+impl MonoSolve {
+    fn pose(&self, view: usize) -> Option<Rigid3> {
+        self.poses.iter().find(|(v, _)| *v == view).map(|(_, p)| *p)
+    }
+    fn view_rms(&self, view: usize) -> f64 {
+        self.view_rms
+            .iter()
+            .find(|(v, _)| *v == view)
+            .map_or(f64::NAN, |(_, r)| *r)
+    }
+}
+
+fn solve_mono(
+    views: &[&[DVec2]],
+    object: &[DVec3],
+    camera: Camera,
+    model: CameraModel,
+    init: &[(usize, Rigid3)],
+    opts: &SolveOptions,
+) -> MonoSolve {
+    let k = camera.index();
+    let frame = match camera {
+        Camera::Thermal => PoseFrame::Thermal,
+        Camera::Rgb => PoseFrame::Rgb,
+    };
+    let mut cameras = [None, None];
+    cameras[k] = Some(model);
+    let mut problem = Problem {
+        object_points_m: object.to_vec(),
+        cameras,
+        rgb_from_thermal: None,
+        poses: init.iter().map(|(_, p)| (frame, *p)).collect(),
+        observations: views
+            .iter()
+            .enumerate()
+            .map(|(i, corners)| Observation {
+                camera,
+                view: i,
+                corners_px: corners.to_vec(),
+                inlier: vec![true; corners.len()],
+            })
+            .collect(),
+    };
+    solve(&mut problem, opts);
+    let res = crate::solve::residuals(&problem);
+    let (mut ss, mut n, mut ss_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    let mut view_rms = Vec::new();
+    for (o, r) in problem.observations.iter().zip(&res) {
+        let (mut vs, mut vn) = (0.0, 0usize);
+        for (e, inl) in r.iter().zip(&o.inlier) {
+            ss_all += e.length_squared();
+            n_all += 1;
+            if *inl {
+                vs += e.length_squared();
+                vn += 1;
+            }
+        }
+        ss += vs;
+        n += vn;
+        view_rms.push((init[o.view].0, (vs / vn.max(1) as f64).sqrt()));
+    }
+    MonoSolve {
+        model: problem.cameras[k].unwrap_or(model),
+        poses: init
+            .iter()
+            .zip(&problem.poses)
+            .map(|((v, _), (_, p))| (*v, *p))
+            .collect(),
+        view_rms,
+        rms_px: (ss / n.max(1) as f64).sqrt(),
+        rms_all_px: (ss_all / n_all.max(1) as f64).sqrt(),
+    }
+}
+
+/// The joint problem from the mono solutions: a view in both cameras and not `split` is a
+/// pair (one board pose, RGB through the extrinsic); any other view is one or two
+/// single-camera views. Returns the problem, the solver views' keys, the set view each came
+/// from, and the number of pairs.
+fn joint_problem(
+    set: &DetectedSet,
+    object: &[DVec3],
+    mono: &[Option<MonoSolve>; 2],
+    split: &[bool],
+    rgb_from_thermal: Option<Rigid3>,
+) -> (Problem, Vec<String>, Vec<usize>, usize) {
+    let mut poses = Vec::new();
+    let mut observations = Vec::new();
+    let mut keys = Vec::new();
+    let mut source = Vec::new();
+    let mut pairs = 0usize;
+    let pose = |k: usize, v: usize| mono[k].as_ref().and_then(|m| m.pose(v));
+    let mut observe = |camera: Camera, view: usize, d: &BoardDetection| {
+        observations.push(Observation {
+            camera,
+            view,
+            corners_px: d.corners_px.clone(),
+            inlier: vec![true; d.corners_px.len()],
+        });
+    };
+    for (v, view) in set.views.iter().enumerate() {
+        let dets = &view.detections;
+        match (pose(0, v), pose(1, v)) {
+            (Some(t), Some(_)) if !split[v] && rgb_from_thermal.is_some() => {
+                let index = poses.len();
+                poses.push((PoseFrame::Thermal, t));
+                keys.push(view.key.clone());
+                source.push(v);
+                for camera in Camera::BOTH {
+                    if let Some(d) = &dets[camera.index()] {
+                        observe(camera, index, d);
+                    }
+                }
+                pairs += 1;
+            }
+            (t, r) => {
+                for (camera, frame, p) in [
+                    (Camera::Thermal, PoseFrame::Thermal, t),
+                    (Camera::Rgb, PoseFrame::Rgb, r),
+                ] {
+                    if let (Some(p), Some(d)) = (p, &dets[camera.index()]) {
+                        let index = poses.len();
+                        poses.push((frame, p));
+                        keys.push(view.key.clone());
+                        source.push(v);
+                        observe(camera, index, d);
+                    }
+                }
+            }
+        }
+    }
+    let problem = Problem {
+        object_points_m: object.to_vec(),
+        cameras: [
+            mono[0].as_ref().map(|m| m.model),
+            mono[1].as_ref().map(|m| m.model),
+        ],
+        rgb_from_thermal: if pairs > 0 { rgb_from_thermal } else { None },
+        poses,
+        observations,
+    };
+    (problem, keys, source, pairs)
+}
+
+/// Inlier RMS per solver view and camera (`[thermal, rgb]`, NaN where the camera is absent).
+fn view_rms(p: &Problem) -> Vec<[f64; 2]> {
+    let mut out = vec![[f64::NAN; 2]; p.poses.len()];
+    for (o, r) in p.observations.iter().zip(crate::solve::residuals(p)) {
+        let (ss, n) = r
+            .iter()
+            .zip(&o.inlier)
+            .filter(|(_, i)| **i)
+            .fold((0.0, 0usize), |(s, n), (e, _)| {
+                (s + e.length_squared(), n + 1)
+            });
+        out[o.view][o.camera.index()] = (ss / n.max(1) as f64).sqrt();
+    }
+    out
 }
 
 /// Solves the detections of a folder.
@@ -586,7 +486,12 @@ pub fn calibrate_detections(
     set: &DetectedSet,
     opts: &PipelineOptions,
 ) -> Result<Calibration, CalibError> {
+    let mut set = set.clone();
+    let set = &mut set;
     let mut warnings = set.notes.clone();
+    let mut warnings_init: [Vec<String>; 2] = [Vec::new(), Vec::new()];
+    let mut refinement: [Option<RefinementChoice>; 2] = [None, None];
+    let mut mono: [Option<MonoSolve>; 2] = [None, None];
     let object = set.board.object_points_m();
     let mut cameras: [Option<CameraModel>; 2] = [None, None];
     let mut init_poses: [Vec<(usize, Rigid3)>; 2] = [Vec::new(), Vec::new()];
@@ -625,19 +530,58 @@ pub fn calibrate_detections(
                 idx.len()
             ));
         }
-        let views: Vec<&[DVec2]> = idx
-            .iter()
-            .filter_map(|&i| {
-                set.views[i].detections[k]
-                    .as_ref()
-                    .map(|d| d.corners_px.as_slice())
-            })
-            .collect();
-        let (model, poses, rms) = init_camera(&object, &views, size, &mut warnings, camera.name())?;
-        cameras[k] = Some(model);
-        init_rms[k] = rms;
-        init_poses[k] = idx.into_iter().zip(poses).collect();
+        // Sub-pixel refinement per camera: every refinement the detections carry is tried,
+        // and the one whose corners this camera's own calibration explains best (lowest mono
+        // RMS over every corner) is kept for the joint solve. See `frontend::Refinement`.
+        let mut options: Vec<Refinement> = Vec::new();
+        for &i in &idx {
+            for (r, _) in set.views[i].detections[k].iter().flat_map(|d| &d.variants) {
+                if !options.contains(r) {
+                    options.push(*r);
+                }
+            }
+        }
+        if options.is_empty() {
+            options.push(Refinement::CornerSubPix);
+        }
+        let mut tried: Vec<(Refinement, f64)> = Vec::new();
+        let mut best: Option<(Refinement, CameraModel, Vec<Rigid3>, f64, MonoSolve)> = None;
+        for r in options {
+            let views: Vec<&[DVec2]> = idx
+                .iter()
+                .filter_map(|&i| set.views[i].detections[k].as_ref().map(|d| d.corners_of(r)))
+                .collect();
+            let mut init_warnings = Vec::new();
+            let (model, poses, rms) =
+                init_camera(&object, &views, size, &mut init_warnings, camera.name())?;
+            let init: Vec<(usize, Rigid3)> = idx.iter().copied().zip(poses.clone()).collect();
+            let m = solve_mono(&views, &object, camera, model, &init, &opts.solve);
+            tried.push((r, m.rms_all_px));
+            if best
+                .as_ref()
+                .is_none_or(|b| m.rms_all_px < b.4.rms_all_px || !b.4.rms_all_px.is_finite())
+            {
+                warnings_init[k] = init_warnings;
+                best = Some((r, model, poses, rms, m));
+            }
+        }
+        if let Some((r, model, poses, rms, m)) = best {
+            for &i in &idx {
+                if let Some(d) = set.views[i].detections[k].as_mut() {
+                    d.choose(r);
+                }
+            }
+            refinement[k] = Some(RefinementChoice {
+                kept: r,
+                mono_rms_all_px: tried,
+            });
+            cameras[k] = Some(model);
+            init_rms[k] = rms;
+            init_poses[k] = idx.into_iter().zip(poses).collect();
+            mono[k] = Some(m);
+        }
     }
+    warnings.extend(warnings_init.into_iter().flatten());
     if cameras.iter().all(Option::is_none) {
         let reason = if set.problems.is_empty() {
             "no images in thermal/ or rgb/".to_string()
@@ -654,67 +598,111 @@ pub fn calibrate_detections(
             reason,
         });
     }
-    let pose_of = |k: usize, view: usize| {
-        init_poses[k]
+    let both = mono.iter().all(Option::is_some);
+    // Pairs: views with the board in both cameras. Test 1 (pose difference) on mono poses.
+    let pair_views: Vec<usize> = (0..set.views.len())
+        .filter(|&v| {
+            mono.iter().flatten().count() == 2 && mono.iter().flatten().all(|m| m.pose(v).is_some())
+        })
+        .collect();
+    let mut split = vec![false; set.views.len()];
+    let mut inconsistent = Vec::new();
+    let mut rgb_from_thermal = None;
+    if let [Some(mt), Some(mr)] = &mono {
+        let mut used = Vec::new();
+        let evidence: Vec<PairEvidence> = pair_views
             .iter()
-            .find(|(v, _)| *v == view)
-            .map(|(_, p)| *p)
-    };
-    // Views for the solver.
-    let mut poses = Vec::new();
-    let mut observations = Vec::new();
-    let mut view_keys = Vec::new();
-    let mut pair_extrinsics = Vec::new();
-    for (vi, v) in set.views.iter().enumerate() {
-        let t = if cameras[0].is_some() {
-            pose_of(0, vi)
-        } else {
-            None
-        };
-        let r = if cameras[1].is_some() {
-            pose_of(1, vi)
-        } else {
-            None
-        };
-        let (frame, pose) = match (t, r) {
-            (Some(t), Some(r)) => {
-                pair_extrinsics.push(r.compose(&t.inverse()));
-                (PoseFrame::Thermal, t)
+            .filter_map(|&v| {
+                let corners = set.views[v].detections[0].as_ref()?.corners_px.as_slice();
+                used.push(v);
+                Some(PairEvidence {
+                    thermal_from_board: mt.pose(v)?,
+                    rgb_from_board: mr.pose(v)?,
+                    thermal_corners_px: corners,
+                    thermal_mono_rms_px: mt.view_rms(v),
+                })
+            })
+            .collect();
+        let test = transfer_test(&evidence, &mt.model, &object, &opts.pairs);
+        for (i, &v) in used.iter().enumerate() {
+            if test.agrees[i] {
+                continue;
             }
-            (Some(t), None) => (PoseFrame::Thermal, t),
-            (None, Some(r)) => (PoseFrame::Rgb, r),
-            (None, None) => continue,
-        };
-        let index = poses.len();
-        poses.push((frame, pose));
-        view_keys.push(v.key.clone());
-        for (k, present) in [t.is_some(), r.is_some()].into_iter().enumerate() {
-            if present && let Some(d) = &v.detections[k] {
-                observations.push(Observation {
-                    camera: Camera::BOTH[k],
-                    view: index,
-                    corners_px: d.corners_px.clone(),
-                    inlier: vec![true; d.corners_px.len()],
-                });
-            }
+            split[v] = true;
+            let own = evidence[i].extrinsic();
+            inconsistent.push(InconsistentPair {
+                key: set.views[v].key.clone(),
+                test: PairTest::Transfer,
+                rotation_diff_deg: rotation_diff_deg(own.rotation, test.consensus.rotation),
+                translation_diff_m: (own.translation_m - test.consensus.translation_m).length(),
+                transfer_rms_px: test.transfer_rms_px[i],
+                joint_rms_px: [f64::NAN; 2],
+                mono_rms_px: [mt.view_rms(v), mr.view_rms(v)],
+            });
+        }
+        if !evidence.is_empty() {
+            rgb_from_thermal = Some(test.consensus);
         }
     }
-    let pairs_used = pair_extrinsics.len();
-    let both = cameras.iter().all(Option::is_some);
-    let rgb_from_thermal = (both && pairs_used > 0).then(|| average_rigid(&pair_extrinsics));
-    if both && pairs_used == 0 {
-        warnings.push("no view has the board in both cameras: the thermal↔RGB extrinsic cannot be solved; intrinsics only".into());
-    } else if both && pairs_used < 5 {
-        warnings.push(format!("only {pairs_used} pairs: the thermal↔RGB extrinsic is weakly constrained (want ≥ 5 pairs at varied poses)"));
-    }
-    let mut problem = Problem {
-        object_points_m: object.clone(),
-        cameras,
-        rgb_from_thermal,
-        poses,
-        observations,
+    // Joint solve; test 2 (residual) on its result, splitting failing pairs and solving again.
+    let mut round = 0;
+    let (problem, view_keys, report, pairs_used) = loop {
+        let (mut problem, view_keys, source, pairs_used) =
+            joint_problem(set, &object, &mono, &split, rgb_from_thermal);
+        let report = solve(&mut problem, &opts.solve);
+        round += 1;
+        let mut newly = Vec::new();
+        if let [Some(mt), Some(mr)] = &mono
+            && round <= MAX_RESIDUAL_ROUNDS
+            && problem.rgb_from_thermal.is_some()
+        {
+            let per_view = view_rms(&problem);
+            for (pv, &v) in source.iter().enumerate() {
+                if split[v] || !pair_views.contains(&v) {
+                    continue;
+                }
+                let joint = [per_view[pv][0], per_view[pv][1]];
+                let mono_rms = [mt.view_rms(v), mr.view_rms(v)];
+                if residual_fails(joint, mono_rms, &opts.pairs) {
+                    let ext = problem.rgb_from_thermal.unwrap_or(Rigid3::IDENTITY);
+                    let own = match (mt.pose(v), mr.pose(v)) {
+                        (Some(t), Some(r)) => r.compose(&t.inverse()),
+                        _ => ext,
+                    };
+                    newly.push(v);
+                    inconsistent.push(InconsistentPair {
+                        key: set.views[v].key.clone(),
+                        test: PairTest::Residual,
+                        rotation_diff_deg: rotation_diff_deg(own.rotation, ext.rotation),
+                        translation_diff_m: (own.translation_m - ext.translation_m).length(),
+                        transfer_rms_px: f64::NAN,
+                        joint_rms_px: joint,
+                        mono_rms_px: mono_rms,
+                    });
+                }
+            }
+        }
+        if newly.is_empty() {
+            break (problem, view_keys, report, pairs_used);
+        }
+        for v in newly {
+            split[v] = true;
+        }
+        // The next round starts from this round's extrinsic.
+        rgb_from_thermal = problem.rgb_from_thermal;
     };
-    let report = solve(&mut problem, &opts.solve);
+    if both && pairs_used == 0 {
+        warnings.push("no view has the board in both cameras (or no pair is consistent): the thermal↔RGB extrinsic cannot be solved; intrinsics only".into());
+    } else if both && pairs_used < 5 {
+        warnings.push(format!("only {pairs_used} consistent pairs: the thermal↔RGB extrinsic is weakly constrained (want ≥ 5 pairs at varied poses)"));
+    }
+    if !inconsistent.is_empty() {
+        warnings.push(format!(
+            "{} of {} pairs are not one rigid instant (transfer or residual test, see the report) and were left out of the extrinsic; their images still calibrate their own camera",
+            inconsistent.len(),
+            pair_views.len()
+        ));
+    }
     if !report.converged {
         warnings.push(format!(
             "the solver stopped after {} iterations without converging",
@@ -809,6 +797,9 @@ pub fn calibrate_detections(
             rms_px: (ss / n.max(1) as f64).sqrt(),
             rms_all_px: (ss_all / n_all.max(1) as f64).sqrt(),
             init_rms_px: init_rms[k],
+            mono_rms_px: mono[k].as_ref().map_or(f64::NAN, |m| m.rms_px),
+            mono_rms_all_px: mono[k].as_ref().map_or(f64::NAN, |m| m.rms_all_px),
+            refinement: refinement[k].clone(),
             per_view,
         });
     }
@@ -827,6 +818,9 @@ pub fn calibrate_detections(
         extrinsic_sigma: report.extrinsic_sigma,
         joint_rms_px: (all_ss / all_n.max(1) as f64).sqrt(),
         pairs_used,
+        pairs_found: pair_views.len(),
+        pairs_inconsistent: inconsistent,
+        pair_thresholds: opts.pairs,
         warnings,
         problems: set.problems.clone(),
         rejected: report.rejected,

@@ -259,19 +259,31 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
     );
     let _ = writeln!(
         md,
-        "## Result\n\n| camera | images | views found | views used | RMS px | OpenCV init RMS px | fx ± σ | fy ± σ | cx ± σ | cy ± σ |\n|---|---|---|---|---|---|---|---|---|---|"
+        "## Result\n\n| camera | images | views found | views used | RMS px | alone: RMS px (all corners) | corners | fx ± σ | fy ± σ | cx ± σ | cy ± σ |\n|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for r in c.cameras.iter().flatten() {
         let (i, s) = (r.model.intrinsics, r.sigma);
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:.4} | {:.4} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} |",
+            "| {} | {} | {} | {} | {:.4} | {:.4} ({:.4}) | {} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} |",
             r.camera.name(),
             r.images,
             r.views_found,
             r.views_used,
             r.rms_px,
-            r.init_rms_px,
+            r.mono_rms_px,
+            r.mono_rms_all_px,
+            r.refinement.as_ref().map_or_else(
+                || "-".to_string(),
+                |f| {
+                    let tried: Vec<String> = f
+                        .mono_rms_all_px
+                        .iter()
+                        .map(|(r, rms)| format!("{r:?} {rms:.3}"))
+                        .collect();
+                    format!("{:?} (alone, all corners: {})", f.kept, tried.join(", "))
+                }
+            ),
             i.fx,
             s.fx,
             i.fy,
@@ -313,7 +325,18 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
             );
         }
     }
-    let _ = writeln!(md, "## Warnings\n");
+    let _ = writeln!(
+        md,
+        "## Pair consistency\n\n{} pairs found, {} used for the extrinsic, {} left out (thresholds: {:?}; see `pairs` in the crate docs).\n",
+        c.pairs_found,
+        c.pairs_used,
+        c.pairs_inconsistent.len(),
+        c.pair_thresholds
+    );
+    for p in &c.pairs_inconsistent {
+        let _ = writeln!(md, "- {}", p.describe());
+    }
+    let _ = writeln!(md, "\n## Warnings\n");
     if c.warnings.is_empty() {
         let _ = writeln!(md, "None.");
     }

@@ -72,15 +72,47 @@ struct Pixel {
     weight: f64,
 }
 
+/// The parameter-dependent constants of [`eval`], computed once per parameter vector.
+struct Pre {
+    x0: f64,
+    y0: f64,
+    s: f64,
+    c1: f64,
+    s1: f64,
+    c2: f64,
+    s2: f64,
+}
+
+impl Pre {
+    fn new(params: &Vec9) -> Self {
+        let (s1, c1) = params[2].sin_cos();
+        let (s2, c2) = params[3].sin_cos();
+        Self {
+            x0: params[0],
+            y0: params[1],
+            s: params[4].exp(),
+            c1,
+            s1,
+            c2,
+            s2,
+        }
+    }
+}
+
 /// Model value and gradient with respect to the parameters
 /// `[x₀, y₀, a₁, a₂, ln s, m, c, gₓ, g_y]`.
-fn eval(params: &Vec9, centre: DVec2, p: DVec2) -> (f64, Vec9) {
-    let (x0, y0, a1, a2) = (params[0], params[1], params[2], params[3]);
-    let s = params[4].exp();
+fn eval(params: &Vec9, pre: &Pre, centre: DVec2, p: DVec2) -> (f64, Vec9) {
+    let Pre {
+        x0,
+        y0,
+        s,
+        c1,
+        s1,
+        c2,
+        s2,
+    } = *pre;
     let (m, c, gx, gy) = (params[5], params[6], params[7], params[8]);
     let q = p - DVec2::new(x0, y0);
-    let (s1, c1) = a1.sin_cos();
-    let (s2, c2) = a2.sin_cos();
     let d1 = c1 * q.x + s1 * q.y;
     let d2 = c2 * q.x + s2 * q.y;
     let t1 = (d1 / s).tanh();
@@ -108,13 +140,13 @@ fn eval(params: &Vec9, centre: DVec2, p: DVec2) -> (f64, Vec9) {
 /// than the edge width (4 for edges ≥ 0.3 px wide, up to 8 for the sharpest, 0.15 px), so the
 /// average varies smoothly with the corner position instead of in coverage steps.
 fn subsamples(edge_width_px: f64) -> usize {
-    (1.2 / edge_width_px.max(1e-3)).ceil().clamp(4.0, 8.0) as usize
+    (1.2 / edge_width_px.max(1e-3)).ceil().clamp(1.0, 8.0) as usize
 }
 
 /// The model averaged over a pixel's area (a pixel integrates light over its whole surface;
 /// sampling the model at the pixel centre alone makes the cost a staircase in the corner
 /// position as soon as the edges are sharper than a pixel), with `n × n` sub-samples.
-fn eval_pixel(params: &Vec9, centre: DVec2, p: DVec2, n: usize) -> (f64, Vec9) {
+fn eval_pixel(params: &Vec9, pre: &Pre, centre: DVec2, p: DVec2, n: usize) -> (f64, Vec9) {
     let mut value = 0.0;
     let mut grad = Vec9::zeros();
     let step = 1.0 / n as f64;
@@ -122,7 +154,7 @@ fn eval_pixel(params: &Vec9, centre: DVec2, p: DVec2, n: usize) -> (f64, Vec9) {
         let dy = (sy as f64 + 0.5) * step - 0.5;
         for sx in 0..n {
             let dx = (sx as f64 + 0.5) * step - 0.5;
-            let (v, g) = eval(params, centre, p + DVec2::new(dx, dy));
+            let (v, g) = eval(params, pre, centre, p + DVec2::new(dx, dy));
             value += v;
             grad += g;
         }
@@ -133,10 +165,11 @@ fn eval_pixel(params: &Vec9, centre: DVec2, p: DVec2, n: usize) -> (f64, Vec9) {
 
 fn cost(params: &Vec9, centre: DVec2, pixels: &[Pixel]) -> f64 {
     let n = subsamples(params[4].exp());
+    let pre = Pre::new(params);
     pixels
         .iter()
         .map(|px| {
-            let (v, _) = eval_pixel(params, centre, px.p, n);
+            let (v, _) = eval_pixel(params, &pre, centre, px.p, n);
             px.weight * (v - px.value).powi(2)
         })
         .sum()
@@ -274,8 +307,9 @@ pub fn fit_saddle(
     {
         let mut ata = SMatrix::<f64, 4, 4>::zeros();
         let mut atb = SVector::<f64, 4>::zeros();
+        let pre = Pre::new(&params);
         for px in &pixels {
-            let (_, g) = eval_pixel(&params, start, px.p, subsamples(params[4].exp()));
+            let (_, g) = eval_pixel(&params, &pre, start, px.p, subsamples(params[4].exp()));
             let row = SVector::<f64, 4>::new(g[5], g[6], g[7], g[8]);
             ata += px.weight * row * row.transpose();
             atb += px.weight * px.value * row;
@@ -295,8 +329,9 @@ pub fn fit_saddle(
         let mut jtj = Mat9::zeros();
         let mut jtr = Vec9::zeros();
         let n = subsamples(params[4].exp());
+        let pre = Pre::new(&params);
         for px in &pixels {
-            let (v, mut g) = eval_pixel(&params, start, px.p, n);
+            let (v, mut g) = eval_pixel(&params, &pre, start, px.p, n);
             if !fit_width {
                 g[4] = 0.0;
             }

@@ -94,7 +94,9 @@ fn a_camera_seeing_the_board_in_only_3_views_still_calibrates_with_warnings() {
         cal.warnings
     );
     assert!(
-        cal.warnings.iter().any(|w| w.contains("only 3 pairs")),
+        cal.warnings
+            .iter()
+            .any(|w| w.contains("only 3 consistent pairs")),
         "warnings: {:#?}",
         cal.warnings
     );

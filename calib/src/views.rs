@@ -1,0 +1,330 @@
+//! Board detection over a whole board folder or recorded session: every image decoded and
+//! searched (in parallel), the outcomes collected in listing order with a stated reason for
+//! every image that gives no board, and the thermal corner order made to agree with RGB.
+//! Single-image detection is [`crate::frontend`]; solving is [`crate::pipeline`].
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
+use crate::error::CalibError;
+use crate::frontend::{
+    BoardDetection, DetectFailure, ScalarImage, SourceKind, ThermalPolarity, detect_board,
+    load_scalar, rotate_180,
+};
+use crate::session::{SessionOptions, SessionViews};
+
+/// One view's files and detections.
+#[derive(Debug, Clone)]
+pub struct DetectedView {
+    pub key: String,
+    pub files: [Option<PathBuf>; 2],
+    pub detections: [Option<BoardDetection>; 2],
+}
+
+/// Everything detection produced for a folder.
+#[derive(Debug, Clone)]
+pub struct DetectedSet {
+    pub dir: PathBuf,
+    pub board: BoardSpec,
+    pub views: Vec<DetectedView>,
+    /// Image size per camera (`None`: no readable image).
+    pub image_size: [Option<(u32, u32)>; 2],
+    /// Image counts per camera (files listed).
+    pub images: [usize; 2],
+    pub problems: Vec<FileProblem>,
+    /// How thermal ordering was fixed, in words.
+    pub polarity_note: String,
+    pub source_kinds: Vec<(Camera, SourceKind)>,
+    pub detection_wall_s: f64,
+    /// Input notes that become warnings (e.g. a truncated session).
+    pub notes: Vec<String>,
+}
+
+fn problem(path: &Path, reason: impl Into<String>) -> FileProblem {
+    FileProblem {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+/// True when `path` names a recorded session (`.mcap`).
+pub fn is_session(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+}
+
+/// Loads `board.toml` and detects the board in every image of `dir`. A session path
+/// (`.mcap`) is refused with [`CalibError::SessionNeedsBoard`]: use [`detect_session`].
+pub fn detect_folder(dir: &Path, progress: bool) -> Result<DetectedSet, CalibError> {
+    if is_session(dir) {
+        return Err(CalibError::SessionNeedsBoard {
+            path: dir.to_path_buf(),
+        });
+    }
+    let board = BoardSpec::load(&dir.join("board.toml"))?;
+    let (files, mut problems) = list_views(dir)?;
+    let thermal_palette = board.thermal_palette;
+    detect_views(
+        dir,
+        board,
+        files,
+        &mut problems,
+        progress,
+        |path, camera| load_scalar(path, camera == Camera::Thermal, thermal_palette),
+    )
+}
+
+/// Reads a recorded session (see [`crate::session`]) and detects the board described by
+/// `board_toml` in its views.
+pub fn detect_session(
+    session: &Path,
+    board_toml: &Path,
+    session_opts: &SessionOptions,
+    progress: bool,
+) -> Result<DetectedSet, CalibError> {
+    let board = BoardSpec::load(board_toml)?;
+    let SessionViews {
+        views,
+        images,
+        mut problems,
+        notes,
+    } = crate::session::read_views(session, session_opts)?;
+    let mut set = detect_views(
+        session,
+        board,
+        views,
+        &mut problems,
+        progress,
+        |name, camera| images.load(name, camera),
+    )?;
+    set.notes.extend(notes);
+    Ok(set)
+}
+
+/// What detection made of one image.
+enum ImageOutcome {
+    Unreadable(String),
+    Detected {
+        size: (u32, u32),
+        source: SourceKind,
+        result: Result<BoardDetection, DetectFailure>,
+    },
+}
+
+/// Detection over listed views; `load` decodes a listed image (a file, or a session frame).
+///
+/// Images are decoded and searched in parallel (rayon, one image per worker at a time, so
+/// memory stays bounded by the worker count whatever the number of views); the outcomes are
+/// then taken in listing order, so the problems, the image size of each camera (set by its
+/// first readable image) and the views come out exactly as a sequential run gives them.
+pub fn detect_views(
+    dir: &Path,
+    board: BoardSpec,
+    files: Vec<ViewFiles>,
+    problems: &mut Vec<FileProblem>,
+    progress: bool,
+    load: impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError> + Sync,
+) -> Result<DetectedSet, CalibError> {
+    let start = Instant::now();
+    let jobs: Vec<(usize, Camera, PathBuf)> = files
+        .iter()
+        .enumerate()
+        .flat_map(|(v, vf)| {
+            Camera::BOTH
+                .into_iter()
+                .filter_map(move |c| vf.files[c.index()].clone().map(|p| (v, c, p)))
+        })
+        .collect();
+    let bar = if progress {
+        let b = indicatif::ProgressBar::new(jobs.len() as u64);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "detecting {bar:40} {pos}/{len} images {elapsed}/{eta} {msg}",
+        ) {
+            b.set_style(style);
+        }
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let outcomes: Vec<ImageOutcome> = jobs
+        .par_iter()
+        .map(|(_, camera, path)| {
+            let (camera, path) = (*camera, path.as_path());
+            let span = tracing::trace_span!("detect", file = %path.display());
+            let _g = span.enter();
+            let outcome = match load(path, camera) {
+                Err(e) => Ok(ImageOutcome::Unreadable(e.to_string())),
+                Ok(img) => detect_board(&img, &board).map(|result| ImageOutcome::Detected {
+                    size: (img.width_px, img.height_px),
+                    source: img.source,
+                    result,
+                }),
+            };
+            bar.set_message(
+                path.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+            );
+            bar.inc(1);
+            outcome
+        })
+        .collect::<Result<_, CalibError>>()?;
+    bar.finish_and_clear();
+    let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
+    let mut images = [0usize; 2];
+    let mut source_kinds = Vec::new();
+    let mut views: Vec<DetectedView> = files
+        .into_iter()
+        .map(|vf| DetectedView {
+            key: vf.key,
+            files: vf.files,
+            detections: [None, None],
+        })
+        .collect();
+    for ((v, camera, path), outcome) in jobs.iter().zip(outcomes) {
+        let (v, camera, path) = (*v, *camera, path.as_path());
+        images[camera.index()] += 1;
+        let (size, source, result) = match outcome {
+            ImageOutcome::Unreadable(e) => {
+                problems.push(problem(path, format!("unreadable: {e}")));
+                continue;
+            }
+            ImageOutcome::Detected {
+                size,
+                source,
+                result,
+            } => (size, source, result),
+        };
+        match image_size[camera.index()] {
+            None => image_size[camera.index()] = Some(size),
+            Some(s) if s != size => {
+                problems.push(problem(
+                    path,
+                    format!(
+                        "wrong size {}x{}: the {} camera's images are {}x{}",
+                        size.0,
+                        size.1,
+                        camera.name(),
+                        s.0,
+                        s.1
+                    ),
+                ));
+                continue;
+            }
+            Some(_) => {}
+        }
+        if !source_kinds.contains(&(camera, source)) {
+            source_kinds.push((camera, source));
+        }
+        match result {
+            Ok(d) => views[v].detections[camera.index()] = Some(d),
+            Err(DetectFailure::NotFound) => problems.push(problem(
+                path,
+                format!(
+                    "no {}x{} board found (SB detector, classic detector on both polarities)",
+                    board.cols(),
+                    board.rows()
+                ),
+            )),
+            Err(DetectFailure::Ambiguous(why)) => problems.push(problem(
+                path,
+                format!("ambiguous detection rejected: {why}"),
+            )),
+        }
+    }
+    let polarity_note = resolve_thermal_order(&board, &mut views, problems);
+    Ok(DetectedSet {
+        dir: dir.to_path_buf(),
+        board,
+        views,
+        image_size,
+        images,
+        problems: std::mem::take(problems),
+        polarity_note,
+        source_kinds,
+        detection_wall_s: start.elapsed().as_secs_f64(),
+        notes: Vec::new(),
+    })
+}
+
+/// Makes thermal corner order agree with RGB (see `frontend` docs): fixed polarity from
+/// `board.toml`, or for `auto` a vote over pairs on whether corner 0 → corner N points the
+/// same way in both images. Pairs that disagree with the majority are unpaired (reported).
+fn resolve_thermal_order(
+    board: &BoardSpec,
+    views: &mut Vec<DetectedView>,
+    problems: &mut Vec<FileProblem>,
+) -> String {
+    if board.is_colour_symmetric() {
+        return "board is colour-symmetric (cols + rows even): both cameras ordered with corner 0 nearest the image's top-left".into();
+    }
+    let direction = |d: &BoardDetection| {
+        let n = d.corners_px.len();
+        (d.corners_px[n - 1] - d.corners_px[0]).normalize_or_zero()
+    };
+    let (rotate, note) = match board.thermal_polarity {
+        ThermalPolarity::CoatedDark => (
+            false,
+            "thermal_polarity = coated_dark (board.toml)".to_string(),
+        ),
+        ThermalPolarity::CoatedBright => (
+            true,
+            "thermal_polarity = coated_bright (board.toml)".to_string(),
+        ),
+        ThermalPolarity::Auto => {
+            let (mut dark, mut bright) = (0usize, 0usize);
+            for v in views.iter() {
+                if let [Some(t), Some(r)] = &v.detections {
+                    if direction(t).dot(direction(r)) > 0.0 {
+                        dark += 1;
+                    } else {
+                        bright += 1;
+                    }
+                }
+            }
+            if dark + bright == 0 {
+                (false, "thermal_polarity = auto with no pairs: assumed coated_dark (ordering does not matter for one camera)".into())
+            } else {
+                (
+                    bright > dark,
+                    format!(
+                        "thermal_polarity = auto: {} by vote over pairs ({dark} say coated_dark, {bright} coated_bright)",
+                        if bright > dark {
+                            "coated_bright"
+                        } else {
+                            "coated_dark"
+                        }
+                    ),
+                )
+            }
+        }
+    };
+    let mut rgb_only = Vec::new();
+    for v in views.iter_mut() {
+        if rotate && let Some(t) = v.detections[0].as_mut() {
+            rotate_180(t);
+        }
+        if let [Some(t), Some(r)] = &v.detections
+            && direction(t).dot(direction(r)) <= 0.0
+        {
+            if let Some(path) = &v.files[0] {
+                problems.push(problem(
+                    path,
+                    "corner order disagrees with its RGB pair (polarity differs from the session's): not used as a pair; each image still calibrates its own camera",
+                ));
+            }
+            // Two single-camera views under distinct keys.
+            rgb_only.push(DetectedView {
+                key: format!("{}#rgb-only", v.key),
+                files: [None, v.files[1].take()],
+                detections: [None, v.detections[1].take()],
+            });
+            v.key = format!("{}#thermal-only", v.key);
+        }
+    }
+    views.extend(rgb_only);
+    note
+}
