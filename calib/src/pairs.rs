@@ -342,19 +342,22 @@ mod tests {
         (out, object, ext)
     }
 
-    #[test]
-    fn pairs_off_by_a_fraction_of_a_degree_fail_and_the_rest_agree() {
-        let errors = [0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.0, 0.0, -0.8, 0.0];
-        let (data, object, ext) = pairs(&errors);
-        let evidence: Vec<PairEvidence> = data
-            .iter()
+    fn evidence(data: &PairData, mono_rms_px: f64) -> Vec<PairEvidence<'_>> {
+        data.iter()
             .map(|(t, r, c)| PairEvidence {
                 thermal_from_board: *t,
                 rgb_from_board: *r,
                 thermal_corners_px: c,
-                thermal_mono_rms_px: 0.3,
+                thermal_mono_rms_px: mono_rms_px,
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn pairs_off_by_a_fraction_of_a_degree_fail_and_the_rest_agree() {
+        let errors = [0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.0, 0.0, -0.8, 0.0];
+        let (data, object, ext) = pairs(&errors);
+        let evidence = evidence(&data, 0.3);
         let test = transfer_test(&evidence, &camera(), &object, &PairThresholds::default());
         let failed: Vec<usize> = (0..errors.len()).filter(|&i| !test.agrees[i]).collect();
         assert_eq!(
@@ -373,15 +376,7 @@ mod tests {
     #[test]
     fn perfect_pairs_all_agree() {
         let (data, object, _) = pairs(&[0.0; 6]);
-        let evidence: Vec<PairEvidence> = data
-            .iter()
-            .map(|(t, r, c)| PairEvidence {
-                thermal_from_board: *t,
-                rgb_from_board: *r,
-                thermal_corners_px: c,
-                thermal_mono_rms_px: 0.0,
-            })
-            .collect();
+        let evidence = evidence(&data, 0.0);
         let test = transfer_test(&evidence, &camera(), &object, &PairThresholds::default());
         assert!(
             test.agrees.iter().all(|a| *a),

@@ -600,11 +600,13 @@ pub fn calibrate_detections(
     }
     let both = mono.iter().all(Option::is_some);
     // Pairs: views with the board in both cameras. Test 1 (pose difference) on mono poses.
-    let pair_views: Vec<usize> = (0..set.views.len())
-        .filter(|&v| {
-            mono.iter().flatten().count() == 2 && mono.iter().flatten().all(|m| m.pose(v).is_some())
+    let is_pair: Vec<bool> = (0..set.views.len())
+        .map(|v| match &mono {
+            [Some(t), Some(r)] => t.pose(v).is_some() && r.pose(v).is_some(),
+            _ => false,
         })
         .collect();
+    let pair_views: Vec<usize> = (0..set.views.len()).filter(|&v| is_pair[v]).collect();
     let mut split = vec![false; set.views.len()];
     let mut inconsistent = Vec::new();
     let mut rgb_from_thermal = None;
@@ -658,7 +660,7 @@ pub fn calibrate_detections(
         {
             let per_view = view_rms(&problem);
             for (pv, &v) in source.iter().enumerate() {
-                if split[v] || !pair_views.contains(&v) {
+                if split[v] || !is_pair[v] {
                     continue;
                 }
                 let joint = [per_view[pv][0], per_view[pv][1]];

@@ -76,7 +76,28 @@ fn calibrate_command_writes_summary_exports_and_report() {
             assert!(v.is_finite() && v > 0.0, "{camera}.{key} = {v}");
         }
         assert_eq!(json[camera]["images"], 8, "{camera} images");
+        for key in ["mono_rms_px", "mono_rms_all_corners_px"] {
+            let v = json[camera][key].as_f64().unwrap_or_else(|| {
+                panic!("summary {camera}.{key} missing or not a number: {json}")
+            });
+            assert!(
+                v.is_finite() && v > 0.0 && v < 1.0,
+                "{camera}.{key} = {v}: the camera alone on OpenCV's samples is well under 1 px"
+            );
+        }
+        assert!(
+            json[camera]["corner_refinement"]["kept"].is_string(),
+            "{camera}.corner_refinement.kept names the refinement: {}",
+            json[camera]["corner_refinement"]
+        );
     }
+    assert_eq!(json["pairs_found"], 8, "pairs_found");
+    assert_eq!(
+        json["pairs_inconsistent"].as_array().map(Vec::len),
+        Some(0),
+        "OpenCV's stereo samples are rigid pairs: none inconsistent ({})",
+        json["pairs_inconsistent"]
+    );
     assert_eq!(json["pairs_used"], 8, "pairs_used");
     assert!(
         json["joint_rms_px"].as_f64().unwrap() < 0.5,

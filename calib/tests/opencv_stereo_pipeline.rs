@@ -8,6 +8,8 @@
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::path::PathBuf;
 
 use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
@@ -15,10 +17,7 @@ use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
 const MARGIN_PX: f64 = 0.01;
 
 fn data_dir() -> PathBuf {
-    std::env::var_os("S3TIR_SHARED_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-        .join("data/opencv-stereo")
+    common::shared_data("opencv-stereo")
 }
 
 #[test]

@@ -15,16 +15,15 @@
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::path::PathBuf;
 
 use s3tir_calib::pairs::PairTest;
 use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
 
 fn data_dir() -> PathBuf {
-    std::env::var_os("S3TIR_SHARED_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-        .join("data/sun-board")
+    common::shared_data("sun-board")
 }
 
 #[test]

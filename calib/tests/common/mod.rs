@@ -2,6 +2,8 @@
 //! synthetic set's known rig.
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
+use std::path::PathBuf;
+
 use s3tir_calib::board::Camera;
 use s3tir_calib::pipeline::Calibration;
 use s3tir_calib::synth::SynthRig;
@@ -119,4 +121,13 @@ pub fn assert_truth(label: &str, cal: &Calibration, truth: &SynthRig) {
             "{label}: extrinsic component {i} (rx, ry, rz, tx, ty, tz) is {v:.2}σ off, want inside 3σ"
         );
     }
+}
+
+/// A real data set in `shared/data/` (beside the clone, or under `$S3TIR_SHARED_DIR`).
+pub fn shared_data(set: &str) -> PathBuf {
+    std::env::var_os("S3TIR_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
+        .join("data")
+        .join(set)
 }
