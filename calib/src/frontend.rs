@@ -325,23 +325,30 @@ pub fn load_scalar(
     })
 }
 
+/// The `lo` and `hi` quantiles (nearest rank) of the finite values, `(0, 0)` when there are
+/// none. Two selections instead of a sort: this runs twice per image.
+fn quantiles(values: &[f32], lo: f64, hi: f64) -> (f32, f32) {
+    let mut finite: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.is_empty() {
+        return (0.0, 0.0);
+    }
+    let rank = |f: f64| (((finite.len() - 1) as f64 * f).round() as usize).min(finite.len() - 1);
+    let (i_lo, i_hi) = (rank(lo.min(hi)), rank(lo.max(hi)));
+    let (_, &mut b, _) = finite.select_nth_unstable_by(i_hi, f32::total_cmp);
+    // Everything left of i_hi is ≤ b, so the lower quantile is selected within that part.
+    let a = if i_lo < i_hi {
+        *finite[..i_hi]
+            .select_nth_unstable_by(i_lo, f32::total_cmp)
+            .1
+    } else {
+        b
+    };
+    if lo <= hi { (a, b) } else { (b, a) }
+}
+
 /// Percentile stretch to 8 bits: the `lo`/`hi` quantiles map to 0/255.
 pub fn stretch_to_u8(img: &ScalarImage, lo: f64, hi: f64) -> image::GrayImage {
-    let mut sorted: Vec<f32> = img
-        .values
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    sorted.sort_by(f32::total_cmp);
-    let q = |f: f64| -> f32 {
-        if sorted.is_empty() {
-            return 0.0;
-        }
-        let i = ((sorted.len() - 1) as f64 * f).round() as usize;
-        sorted[i.min(sorted.len() - 1)]
-    };
-    let (a, b) = (q(lo), q(hi));
+    let (a, b) = quantiles(&img.values, lo, hi);
     let scale = if b > a { 255.0 / (b - a) } else { 0.0 };
     let data = img
         .values
@@ -616,20 +623,7 @@ fn square_parity_stats(
 
 /// Float copy of the image stretched like [`stretch_to_u8`] (0..255, not quantised).
 fn stretched_f32(img: &ScalarImage) -> Result<Mat, CalibError> {
-    let mut sorted: Vec<f32> = img
-        .values
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    sorted.sort_by(f32::total_cmp);
-    let q = |f: f64| {
-        sorted
-            .get(((sorted.len().max(1) - 1) as f64 * f).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    let (a, b) = (q(0.005), q(0.995));
+    let (a, b) = quantiles(&img.values, 0.005, 0.995);
     let scale = if b > a { 255.0 / (b - a) } else { 0.0 };
     let mut mat = Mat::new_rows_cols_with_default(
         img.height_px as i32,

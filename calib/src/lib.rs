@@ -31,6 +31,8 @@ pub mod report;
 #[cfg(feature = "opencv")]
 pub mod saddle;
 #[cfg(feature = "opencv")]
+pub mod schur;
+#[cfg(feature = "opencv")]
 pub mod session;
 #[cfg(feature = "opencv")]
 pub mod solve;

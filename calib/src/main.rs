@@ -94,9 +94,17 @@ enum Command {
         #[arg(required = true)]
         images: Vec<PathBuf>,
     },
-    /// End-to-end benchmark on a synthetic Lepton + 720p board set: our detection + joint solve
-    /// next to OpenCV's stereoCalibrate on the same detections, printed as a ratio.
+    /// Benchmark against OpenCV in the same process. With --real DIR: a real board folder
+    /// (board.toml, thermal/, rgb/): per-image detection time and boards found, s3tir next to
+    /// OpenCV's findChessboardCornersSB and its classic detector (one core each, decoded images
+    /// in memory), s3tir's parallel detection as the calibrate command runs it, and the solve
+    /// (everything after detection) next to OpenCV's calibrateCamera x2 + stereoCalibrate on the
+    /// same corners. Without: a synthetic Lepton + 720p set, our detection + joint solve next to
+    /// OpenCV's stereoCalibrate on the same detections, printed as a ratio.
     Bench {
+        /// A real board folder to benchmark on instead of the synthetic set.
+        #[arg(long, value_name = "DIR")]
+        real: Option<PathBuf>,
         /// Number of synthetic pairs.
         #[arg(long, default_value_t = 50)]
         pairs: usize,
@@ -332,7 +340,16 @@ fn main() -> Result<()> {
             inner_corners: (cols, rows),
             images,
         }) => run_detect(cols, rows, &images),
-        Some(Command::Bench { pairs, seed, dir }) => {
+        Some(Command::Bench {
+            real: Some(real), ..
+        }) => {
+            let figures = bench::run_real(&real, true)?;
+            println!("{figures}");
+            Ok(())
+        }
+        Some(Command::Bench {
+            pairs, seed, dir, ..
+        }) => {
             let dir = dir.unwrap_or_else(|| {
                 std::env::temp_dir().join(format!("s3tir-calib-bench-{}", std::process::id()))
             });

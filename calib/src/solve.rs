@@ -8,7 +8,8 @@
 //! * **Parameterisation.** Intrinsics additively; rigid transforms by a left-multiplied
 //!   rotation increment `exp([δω]×)·R` and an additive translation.
 //! * **Jacobian.** Central differences per parameter block (each residual touches at most
-//!   9 + 6 + 6 parameters); dense normal equations (a few hundred unknowns for ≤ 60 views),
+//!   9 + 6 + 6 parameters); block-sparse normal equations solved through the Schur complement
+//!   onto the ≤ 24 global parameters ([`crate::schur`]: linear in the number of views),
 //!   Marquardt damping `(H + λ·diag H) δ = −g`.
 //! * **Robust loss.** Huber on the corner's residual length with threshold `huber_px`
 //!   (IRLS weights); after convergence corners with |r| > max(k·σ of their camera, 0.1 px)
@@ -18,7 +19,8 @@
 //!   previous solve (1 px before the first); solves repeat until no corner is rejected and the
 //!   weights are stable to 10 % (at most 6 solves). So a noisy 160×120 thermal core does not
 //!   pull the board poses that a 720p RGB camera pins far better.
-//! * **Uncertainty.** Σ = s²·H⁻¹ at the solution (H = JᵀWJ with the weights above),
+//! * **Uncertainty.** Σ = s²·H⁻¹ at the solution (its global block, `s²·S⁻¹` of the Schur
+//!   complement) (H = JᵀWJ with the weights above),
 //!   s² = Σ wᵢ|rᵢ|² / (2·N − P). A camera whose residual σ is below `sigma_floor_px`
 //!   (0.02 px per axis by default) is counted at the floor instead (weight capped at
 //!   1/floor², s² ≥ 1): with the saddle-fit corners residuals reach 0.005 px per axis, a level
@@ -27,13 +29,16 @@
 //!   show in the residuals; on the synthetic Lepton set the extrinsic's z translation came out
 //!   8.5 σ off with σ from the residuals alone (0.18 % of the baseline, a real error of
 //!   0.12 mm). Directions the
-//!   data do not constrain (eigenvalues of H below 1e-12 of the largest) are given the floor
-//!   eigenvalue, so their σ comes out huge but finite, never NaN.
+//!   data do not constrain (eigenvalues below 1e-12 of the largest, in a pose's block or in the
+//!   Schur complement) are given the floor eigenvalue, so their σ comes out huge but finite,
+//!   never NaN.
 
 use std::time::Instant;
 
 use glam::{DQuat, DVec2, DVec3};
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DVector;
+
+use crate::schur::{BlockNormal, ResidualJacobian};
 use serde::Serialize;
 
 use crate::board::Camera;
@@ -377,21 +382,19 @@ fn cost_and_rms(p: &Problem, s: &State, huber: f64, cam_w: [f64; 2]) -> (f64, f6
     (cost, (ss / n.max(1) as f64).sqrt(), n)
 }
 
-/// Builds H = JᵀWJ and g = JᵀWr; returns also Σ w|r|² and N.
+/// Builds H = JᵀWJ and g = JᵀWr in blocks; returns also Σ w|r|² and N.
 fn normal_equations(
     p: &Problem,
     s: &State,
     layout: &Layout,
     huber: f64,
     cam_w: [f64; 2],
-) -> (DMatrix<f64>, DVector<f64>, f64, usize) {
-    let n = layout.n;
-    let mut h = DMatrix::<f64>::zeros(n, n);
-    let mut g = DVector::<f64>::zeros(n);
+) -> (BlockNormal, f64, usize) {
+    let mut normal = BlockNormal::zeros(layout.pose0, p.poses.len());
     let mut wss = 0.0;
     let mut count = 0usize;
-    let mut idx: Vec<usize> = Vec::with_capacity(21);
-    let mut jac: Vec<DVec2> = Vec::with_capacity(21);
+    let mut global: Vec<(usize, DVec2)> = Vec::with_capacity(15);
+    let mut pose_jac = [DVec2::ZERO; 6];
     for o in &p.observations {
         let (frame, _) = p.poses[o.view];
         let k = o.camera.index();
@@ -406,8 +409,7 @@ fn normal_equations(
             let w = cam_w[k] * if e <= huber { 1.0 } else { huber / e };
             wss += w * e * e;
             count += 1;
-            idx.clear();
-            jac.clear();
+            global.clear();
             if let Some(off) = layout.intr[k] {
                 for q in 0..9 {
                     let step = if q < 2 {
@@ -422,8 +424,7 @@ fn normal_equations(
                     let plus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, *x);
                     a[q] -= 2.0 * step;
                     let minus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, *x);
-                    idx.push(off + q);
-                    jac.push((plus - minus) / (2.0 * step));
+                    global.push((off + q, (plus - minus) / (2.0 * step)));
                 }
             }
             let mut d = [0.0; 6];
@@ -451,11 +452,9 @@ fn normal_equations(
                         *x,
                     );
                     d[q] = 0.0;
-                    idx.push(off + q);
-                    jac.push((plus - minus) / (2.0 * step));
+                    global.push((off + q, (plus - minus) / (2.0 * step)));
                 }
             }
-            let off = layout.pose0 + 6 * o.view;
             for q in 0..6 {
                 let step = if q < 3 { 1e-6 } else { 1e-7 };
                 d[q] = step;
@@ -479,22 +478,20 @@ fn normal_equations(
                     *x,
                 );
                 d[q] = 0.0;
-                idx.push(off + q);
-                jac.push((plus - minus) / (2.0 * step));
+                pose_jac[q] = (plus - minus) / (2.0 * step);
             }
-            for (a, (&ia, ja)) in idx.iter().zip(&jac).enumerate() {
-                g[ia] += w * ja.dot(r);
-                for (&ib, jb) in idx.iter().zip(&jac).skip(a) {
-                    let v = w * ja.dot(*jb);
-                    h[(ia, ib)] += v;
-                    if ia != ib {
-                        h[(ib, ia)] += v;
-                    }
-                }
-            }
+            normal.add(
+                &ResidualJacobian {
+                    global: &global,
+                    pose: o.view,
+                    pose_jac: &pose_jac,
+                },
+                r,
+                w,
+            );
         }
     }
-    (h, g, wss, count)
+    (normal, wss, count)
 }
 
 fn lm(
@@ -517,18 +514,13 @@ fn lm(
     });
     let mut converged = false;
     for _ in 0..opts.max_iterations {
-        let (h, g, _, _) = normal_equations(p, &s, &layout, opts.huber_px, cam_w);
+        let (normal, _, _) = normal_equations(p, &s, &layout, opts.huber_px, cam_w);
         let mut accepted = false;
         for _ in 0..12 {
-            let mut a = h.clone();
-            for i in 0..layout.n {
-                a[(i, i)] += lambda * h[(i, i)].max(1e-9);
-            }
-            let Some(chol) = a.cholesky() else {
+            let Some(delta) = normal.damped_step(lambda) else {
                 lambda *= 10.0;
                 continue;
             };
-            let delta = -chol.solve(&g);
             if !delta.iter().all(|v| v.is_finite()) {
                 lambda *= 10.0;
                 continue;
@@ -649,11 +641,13 @@ pub fn solve(p: &mut Problem, opts: &SolveOptions) -> SolveReport {
     // come from the same residuals over 2N) and nothing changes.
     let floor_w = 1.0 / opts.sigma_floor_px.max(1e-6).powi(2);
     let cov_w = cam_w.map(|w| w.min(floor_w));
-    let (h, _, wss, count) = normal_equations(p, &s, &layout, opts.huber_px, cov_w);
+    let (normal, wss, count) = normal_equations(p, &s, &layout, opts.huber_px, cov_w);
     let dof = (2 * count).saturating_sub(layout.n).max(1);
     let s2 = (wss / dof as f64).max(1.0);
-    let mut unconstrained = Vec::new();
-    let cov = covariance(&h, s2, &layout, p, &mut unconstrained);
+    let mut null = Vec::new();
+    // Global parameters only: the board poses' σ are not reported.
+    let cov = normal.global_covariance(s2, &mut null);
+    let unconstrained: Vec<String> = null.iter().map(|&i| param_name(&layout, i)).collect();
     let sd = |i: usize| {
         cov.as_ref()
             .map_or(f64::INFINITY, |c| c[(i, i)].max(0.0).sqrt())
@@ -712,53 +706,4 @@ fn param_name(layout: &Layout, i: usize) -> String {
         (i - layout.pose0) / 6,
         (i - layout.pose0) % 6
     )
-}
-
-fn covariance(
-    h: &DMatrix<f64>,
-    s2: f64,
-    layout: &Layout,
-    _p: &Problem,
-    unconstrained: &mut Vec<String>,
-) -> Option<DMatrix<f64>> {
-    // Scale to unit diagonal for conditioning, then eigen-decompose.
-    let n = h.nrows();
-    if n == 0 {
-        return None;
-    }
-    let d: Vec<f64> = (0..n).map(|i| 1.0 / h[(i, i)].max(1e-300).sqrt()).collect();
-    let mut hs = h.clone();
-    for i in 0..n {
-        for j in 0..n {
-            hs[(i, j)] *= d[i] * d[j];
-        }
-    }
-    if !hs.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let eig = nalgebra::SymmetricEigen::new(hs);
-    let max = eig.eigenvalues.amax();
-    let floor = max * 1e-12;
-    let mut scaled = eig.eigenvectors.clone();
-    for (k, &l) in eig.eigenvalues.iter().enumerate() {
-        if l < floor {
-            // Name the parameter dominating this null direction.
-            let v = eig.eigenvectors.column(k);
-            let (imax, _) =
-                v.iter().enumerate().fold(
-                    (0, 0.0),
-                    |b, (i, x)| if x.abs() > b.1 { (i, x.abs()) } else { b },
-                );
-            unconstrained.push(param_name(layout, imax));
-        }
-        let l = l.max(floor).max(1e-300);
-        scaled.column_mut(k).scale_mut(1.0 / l);
-    }
-    let mut inv = scaled * eig.eigenvectors.transpose();
-    for i in 0..n {
-        for j in 0..n {
-            inv[(i, j)] *= d[i] * d[j] * s2;
-        }
-    }
-    Some(inv)
 }

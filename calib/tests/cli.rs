@@ -3,7 +3,8 @@
 //! keys with finite values, calibration.yaml and every export are written, the report has its
 //! markdown, PNG plots and a self-contained `report.html` (the 8 plots embedded and linked, the
 //! per-view, rejected-corner, warning and bad-input sections); `.mcap` input without `--board`
-//! fails naming the flag. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
+//! fails naming the flag; `bench --real` reports every detector and both solves on real
+//! sun-board pairs. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -263,5 +264,76 @@ fn mcap_input_without_board_is_refused_with_a_clear_error() {
     assert!(
         stderr.contains("pass --board board.toml"),
         "stderr should name --board: {stderr}"
+    );
+}
+
+/// `s3tir-calib bench --real DIR` on six real sun-board pairs: every detector's row for both
+/// cameras with its boards found (OpenCV's SB finds all six thermal boards on plain grey, and
+/// so must s3tir), s3tir's parallel detection, and both solves on the same corners. Timings
+/// are printed, never asserted.
+#[test]
+fn bench_real_reports_each_detector_and_both_solves_on_sun_board() {
+    let src = std::env::var_os("S3TIR_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
+        .join("data/sun-board");
+    let tmp = tempfile::tempdir().unwrap();
+    let board = tmp.path().join("board");
+    for camera in ["thermal", "rgb"] {
+        std::fs::create_dir_all(board.join(camera)).unwrap();
+        for n in ["05", "06", "08", "11", "12", "13"] {
+            std::fs::copy(
+                src.join(format!("{camera}/Img{n}.jpg")),
+                board.join(format!("{camera}/Img{n}.jpg")),
+            )
+            .unwrap();
+        }
+    }
+    std::fs::write(
+        board.join("board.toml"),
+        "[board]\ninner_corners = [6, 5]\nsquare_mm = 100.0\n",
+    )
+    .unwrap();
+    let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
+        .args(["bench", "--real"])
+        .arg(&board)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        result.status.success(),
+        "bench --real failed:\n{stdout}\n{stderr}"
+    );
+    let row = |needle: &str, nth: usize| -> String {
+        stdout
+            .lines()
+            .filter(|l| l.contains(needle))
+            .nth(nth)
+            .unwrap_or_else(|| panic!("no row #{nth} with {needle:?} in:\n{stdout}"))
+            .to_string()
+    };
+    assert!(
+        row("thermal 640x480 s3tir", 0).contains("6/6"),
+        "s3tir must find all 6 thermal boards:\n{stdout}"
+    );
+    assert!(
+        row("rgb 1014x760 s3tir", 0).contains("6/6"),
+        "s3tir must find all 6 RGB boards:\n{stdout}"
+    );
+    // Thermal rows come first: OpenCV's SB on plain grey finds every thermal board.
+    assert!(
+        row("OpenCV SB (EXHAUSTIVE | ACCURACY)", 0).contains("6/6"),
+        "OpenCV SB finds all 6 thermal boards here:\n{stdout}"
+    );
+    assert_eq!(
+        stdout.matches("OpenCV classic + cornerSubPix").count(),
+        2,
+        "one classic-detector row per camera:\n{stdout}"
+    );
+    assert!(
+        stdout.contains("solve on s3tir's detections (6 pairs")
+            && stdout.contains("OpenCV (calibrateCamera x2 + stereoCalibrate"),
+        "both solves must be reported on the six pairs:\n{stdout}"
     );
 }
