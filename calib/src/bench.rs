@@ -23,10 +23,10 @@ use std::time::Instant;
 use glam::DVec2;
 use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 
-use opencv::{calib3d, imgproc};
+use opencv::calib3d;
 
 use crate::board::{BoardSpec, Camera, list_views};
-use crate::detect::{mat_from_luma, read_grey};
+use crate::detect::{classic_sub_pix, mat_from_luma, read_grey};
 use crate::error::CalibError;
 use crate::frontend::{detect_board, load_scalar};
 use crate::pipeline::{
@@ -324,20 +324,7 @@ fn opencv_classic(grey: &Mat, pattern: Size) -> Result<bool, CalibError> {
             .map_err(cv("findChessboardCorners"))?;
     }
     if found {
-        let criteria = TermCriteria::new(
-            TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
-            30,
-            1e-3,
-        )
-        .map_err(cv("TermCriteria"))?;
-        imgproc::corner_sub_pix(
-            grey,
-            &mut corners,
-            Size::new(11, 11),
-            Size::new(-1, -1),
-            criteria,
-        )
-        .map_err(cv("cornerSubPix"))?;
+        classic_sub_pix(grey, &mut corners)?;
     }
     Ok(found)
 }

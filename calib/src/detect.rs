@@ -80,6 +80,16 @@ pub fn find_chessboard(grey: &Mat, cols: u32, rows: u32) -> Result<Option<Detect
     if !found {
         return Ok(None);
     }
+    classic_sub_pix(grey, &mut corners)?;
+    Ok(Some(Detection {
+        corners_px: to_dvec(&corners),
+        detector: Detector::Classic,
+    }))
+}
+
+/// The classic detector's usual refinement: `cornerSubPix` with an 11 × 11 window, 30
+/// iterations or 1e-3 px (OpenCV's calibration samples).
+pub fn classic_sub_pix(grey: &Mat, corners: &mut Vector<Point2f>) -> Result<(), CalibError> {
     let criteria = TermCriteria::new(
         TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
         30,
@@ -88,16 +98,12 @@ pub fn find_chessboard(grey: &Mat, cols: u32, rows: u32) -> Result<Option<Detect
     .map_err(cv("TermCriteria"))?;
     imgproc::corner_sub_pix(
         grey,
-        &mut corners,
+        corners,
         Size::new(11, 11),
         Size::new(-1, -1),
         criteria,
     )
-    .map_err(cv("cornerSubPix"))?;
-    Ok(Some(Detection {
-        corners_px: to_dvec(&corners),
-        detector: Detector::Classic,
-    }))
+    .map_err(cv("cornerSubPix"))
 }
 
 fn to_dvec(corners: &Vector<Point2f>) -> Vec<DVec2> {

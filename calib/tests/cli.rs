@@ -8,15 +8,13 @@
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::PathBuf;
+mod common;
+
 use std::process::Command;
 
 #[test]
 fn calibrate_command_writes_summary_exports_and_report() {
-    let src = std::env::var_os("S3TIR_SHARED_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-        .join("data/opencv-stereo");
+    let src = common::shared_data("opencv-stereo");
     let tmp = tempfile::tempdir().unwrap();
     let board = tmp.path().join("board");
     std::fs::create_dir_all(board.join("thermal")).unwrap();
@@ -273,10 +271,7 @@ fn mcap_input_without_board_is_refused_with_a_clear_error() {
 /// are printed, never asserted.
 #[test]
 fn bench_real_reports_each_detector_and_both_solves_on_sun_board() {
-    let src = std::env::var_os("S3TIR_SHARED_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-        .join("data/sun-board");
+    let src = common::shared_data("sun-board");
     let tmp = tempfile::tempdir().unwrap();
     let board = tmp.path().join("board");
     for camera in ["thermal", "rgb"] {
