@@ -192,16 +192,18 @@ fn value_pixel(params: &Vec9, pre: &Pre, centre: DVec2, p: DVec2, n: usize) -> f
     let (m, c, gx, gy) = (params[5], params[6], params[7], params[8]);
     let w = p - centre;
     let linear = m + gx * w.x + gy * w.y;
-    let at = |p: DVec2| {
+    let distances = |p: DVec2| {
         let q = p - DVec2::new(pre.x0, pre.y0);
-        let d1 = pre.c1 * q.x + pre.s1 * q.y;
-        let d2 = pre.c2 * q.x + pre.s2 * q.y;
-        (d1, d2, tanh(d1 / pre.s) * tanh(d2 / pre.s))
+        (pre.c1 * q.x + pre.s1 * q.y, pre.c2 * q.x + pre.s2 * q.y)
     };
-    let (d1, d2, centre_value) = at(p);
+    let at = |p: DVec2| {
+        let (d1, d2) = distances(p);
+        tanh(d1 / pre.s) * tanh(d2 / pre.s)
+    };
+    let (d1, d2) = distances(p);
     let reach = std::f64::consts::FRAC_1_SQRT_2 + FLAT_EDGE_WIDTHS * pre.s;
     if n <= 1 || (d1.abs() > reach && d2.abs() > reach) {
-        return linear + c * centre_value;
+        return linear + c * at(p);
     }
     // The linear part averages to its centre value over the symmetric sub-sample grid.
     let step = 1.0 / n as f64;
@@ -210,7 +212,7 @@ fn value_pixel(params: &Vec9, pre: &Pre, centre: DVec2, p: DVec2, n: usize) -> f
         let dy = (sy as f64 + 0.5) * step - 0.5;
         for sx in 0..n {
             let dx = (sx as f64 + 0.5) * step - 0.5;
-            sum += at(p + DVec2::new(dx, dy)).2;
+            sum += at(p + DVec2::new(dx, dy));
         }
     }
     linear + c * sum / (n * n) as f64

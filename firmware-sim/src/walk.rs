@@ -386,6 +386,22 @@ pub struct TruthFrame {
     pub world_from_cam: PoseJson,
 }
 
+impl TruthFrame {
+    /// A frame as sent; `monotonic_ns` is set from the wire stamp once the walk has run.
+    fn sent(stream: StreamId, sequence: u32, ffc_frozen: bool, world_from_cam: &Rigid3) -> Self {
+        Self {
+            stream: match stream {
+                StreamId::Thermal => "thermal",
+                StreamId::Rgb => "rgb",
+            },
+            sequence,
+            monotonic_ns: 0,
+            ffc_frozen,
+            world_from_cam: PoseJson::from(world_from_cam),
+        }
+    }
+}
+
 #[derive(Debug, Serialize)]
 struct SceneJson {
     layout: &'static str,
@@ -507,16 +523,12 @@ pub fn run_walk(
         let stream = frame.stream;
         let sequence = frame.sequence;
         send(frame, item.t_s)?;
-        truth.push(TruthFrame {
-            stream: match stream {
-                StreamId::Thermal => "thermal",
-                StreamId::Rgb => "rgb",
-            },
+        truth.push(TruthFrame::sent(
+            stream,
             sequence,
-            monotonic_ns: 0,
             ffc_frozen,
-            world_from_cam: PoseJson::from(&world_from_cam),
-        });
+            &world_from_cam,
+        ));
     }
     Ok(truth)
 }
@@ -659,16 +671,12 @@ fn run_board_wave(
         };
         let stream = frame.stream;
         send(frame, item.t_s)?;
-        truth.push(TruthFrame {
-            stream: match stream {
-                StreamId::Thermal => "thermal",
-                StreamId::Rgb => "rgb",
-            },
-            sequence: item.sequence,
-            monotonic_ns: 0,
-            ffc_frozen: frozen,
-            world_from_cam: PoseJson::from(&world_from_cam),
-        });
+        truth.push(TruthFrame::sent(
+            stream,
+            item.sequence,
+            frozen,
+            &world_from_cam,
+        ));
     }
     Ok(truth)
 }
