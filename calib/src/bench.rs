@@ -20,7 +20,6 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use glam::DVec2;
 use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 
 use opencv::calib3d;
@@ -28,9 +27,9 @@ use opencv::calib3d;
 use crate::board::{BoardSpec, Camera, list_views};
 use crate::detect::{classic_sub_pix, mat_from_luma, read_grey};
 use crate::error::CalibError;
-use crate::frontend::{detect_board, load_scalar};
+use crate::frontend::{BoardDetection, detect_board, load_scalar};
 use crate::pipeline::{
-    PipelineOptions, calibrate_detections, cv_points, detect_folder, model_from_opencv,
+    PipelineOptions, ViewCorners, calibrate_detections, cv_points, detect_folder, model_from_opencv,
 };
 use crate::synth::{self, SynthOptions};
 use crate::views::DetectedSet;
@@ -108,10 +107,21 @@ fn cv(operation: &'static str) -> impl FnOnce(opencv::Error) -> CalibError {
     move |source| CalibError::OpenCv { operation, source }
 }
 
-/// Runs the benchmark in `dir` (created; images written there).
-pub fn run(dir: &Path, pairs: usize, seed: u64) -> Result<BenchFigures, CalibError> {
+/// Runs the benchmark in `dir` (created; images written there); `apriltags` prints tags on the
+/// synthetic board.
+pub fn run(
+    dir: &Path,
+    pairs: usize,
+    seed: u64,
+    apriltags: bool,
+) -> Result<BenchFigures, CalibError> {
     let rig = synth::rig(synth::lepton(), synth::rgb_720p());
-    let opts = SynthOptions::new(synth::default_board(), pairs, seed);
+    let mut board = synth::default_board();
+    if apriltags {
+        // One tag per uncoated square (the board module's layout).
+        board.apriltag_ids = (0..(board.cols() + 1) * (board.rows() + 1) / 2).collect();
+    }
+    let opts = SynthOptions::new(board, pairs, seed);
     let t0 = Instant::now();
     synth::write_board_folder(dir, &rig, &opts)?;
     let render_s = t0.elapsed().as_secs_f64();
@@ -152,15 +162,21 @@ pub struct PeerFigures {
 /// Runs [`PeerFigures`] on `set`'s corners as they are (`corners_px` of each detection).
 pub fn opencv_peer(set: &DetectedSet) -> Result<PeerFigures, CalibError> {
     let t1 = Instant::now();
-    let pairs_v: Vec<(&[DVec2], &[DVec2])> = set
+    let object = set.board.object_points_m();
+    // stereoCalibrate takes one board point list per pair for both cameras: pairs of whole
+    // boards only (a partial AprilTag board still calibrates its own camera below).
+    let whole = |d: &BoardDetection| d.corner_ids.len() == object.len();
+    let pairs_v: Vec<(ViewCorners, ViewCorners)> = set
         .views
         .iter()
         .filter_map(|v| match &v.detections {
-            [Some(t), Some(r)] => Some((t.corners_px.as_slice(), r.corners_px.as_slice())),
+            [Some(t), Some(r)] if whole(t) && whole(r) => Some((
+                (t.corners_px.as_slice(), t.corner_ids.as_slice()),
+                (r.corners_px.as_slice(), r.corner_ids.as_slice()),
+            )),
             _ => None,
         })
         .collect();
-    let object = set.board.object_points_m();
     // OpenCV's default criteria for calibrateCamera and stereoCalibrate (30 iterations, ε = DBL_EPSILON).
     let criteria = TermCriteria::new(
         TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
@@ -171,13 +187,13 @@ pub fn opencv_peer(set: &DetectedSet) -> Result<PeerFigures, CalibError> {
     let mut ks = Vec::new();
     let mut mono_rms_px = [f64::NAN; 2];
     for camera in Camera::BOTH {
-        let views: Vec<&[DVec2]> = set
+        let views: Vec<ViewCorners> = set
             .views
             .iter()
             .filter_map(|v| {
                 v.detections[camera.index()]
                     .as_ref()
-                    .map(|d| d.corners_px.as_slice())
+                    .map(|d| (d.corners_px.as_slice(), d.corner_ids.as_slice()))
             })
             .collect();
         let (obj, img) = cv_points(&object, &views);

@@ -7,11 +7,28 @@
 //! square_mm = 25.0
 //! thermal_polarity = "auto"   # "auto" | "coated_dark" | "coated_bright" (thermal image values)
 //! thermal_palette = "auto"    # "auto" | "ironbow" | "inferno" | "luminance" (pseudo-colour input)
-//! apriltag_ids = []           # accepted but not used yet (no tag detection in this version)
+//! apriltag_ids = []           # tag36h11 ids printed in the uncoated squares (see below)
+//! apriltag_ratio = 0.7        # tag side (outer black border) / square side
 //! ```
 //!
 //! Board coordinates: inner corner (c, r) sits at (c·square, r·square, 0) metres; the square
 //! diagonally outward from corner (0, 0) is a *coated* square (black in RGB).
+//!
+//! # AprilTags (ChArUco-style)
+//!
+//! The board has `(cols + 1) × (rows + 1)` squares; square `(i, j)` spans
+//! `[(i − 1)·s, i·s] × [(j − 1)·s, j·s]`, so it lies diagonally outward of inner corner
+//! `(i − 1, j − 1)` … and square `(0, 0)` is the coated one. A square is uncoated (white in RGB)
+//! when `i + j` is odd. Tag `apriltag_ids[k]` is printed in the k-th uncoated square counted
+//! row by row (j, then i), centred, upright (its top towards row 0), with its black border
+//! `apriltag_ratio` of the square side wide. Fewer ids than uncoated squares fill the first
+//! squares only. RGB sees the tags; a thermal camera usually does not (printer ink and paper
+//! emit alike), so tags there are used only where they are found.
+//!
+//! Where a board carries tags, calibration uses them ([`crate::tagboard`]): they fix the
+//! corner order and the board's identity without relying on square colour (a colour-symmetric
+//! board gets the same order in both cameras), and they let a partly visible board give the
+//! corners around them.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -41,10 +58,24 @@ pub struct BoardSpec {
     /// Palette to invert for pseudo-colour thermal images.
     #[serde(default)]
     pub thermal_palette: Palette,
-    /// AprilTag ids carried by the board (parsed; tag detection is not implemented yet).
+    /// tag36h11 ids printed in the uncoated squares, row by row (see the module docs).
     #[serde(default)]
     pub apriltag_ids: Vec<u32>,
+    /// Tag side (outer black border) over square side.
+    #[serde(default = "default_apriltag_ratio")]
+    pub apriltag_ratio: f64,
 }
+
+/// Default [`BoardSpec::apriltag_ratio`]: the quiet zone between tag and square edge is 0.15 of
+/// the square, room for a corner refinement window that does not reach the tag.
+pub const DEFAULT_APRILTAG_RATIO: f64 = 0.7;
+
+fn default_apriltag_ratio() -> f64 {
+    DEFAULT_APRILTAG_RATIO
+}
+
+/// Number of tag36h11 codes (ids `0..TAG36H11_IDS`).
+pub const TAG36H11_IDS: u32 = 587;
 
 impl BoardSpec {
     pub fn cols(&self) -> u32 {
@@ -76,6 +107,36 @@ impl BoardSpec {
         (self.cols() + self.rows()).is_multiple_of(2)
     }
 
+    /// True when the board carries AprilTags.
+    pub fn has_tags(&self) -> bool {
+        !self.apriltag_ids.is_empty()
+    }
+
+    /// Squares `(i, j)` that carry a tag, in `apriltag_ids` order (see the module docs).
+    pub fn tag_squares(&self) -> Vec<(u32, u32)> {
+        (0..=self.rows())
+            .flat_map(|j| (0..=self.cols()).map(move |i| (i, j)))
+            .filter(|(i, j)| (i + j) % 2 == 1)
+            .take(self.apriltag_ids.len())
+            .collect()
+    }
+
+    /// Outer border corners of the tag `id` in board units of one square (inner corner
+    /// `(c, r)` at `(c, r)`), in the AprilTag library's order (bottom-left, bottom-right,
+    /// top-right, top-left of the upright tag); `None` when the board does not carry `id`.
+    pub fn tag_corners_sq(&self, id: u32) -> Option<[glam::DVec2; 4]> {
+        let k = self.apriltag_ids.iter().position(|&t| t == id)?;
+        let (i, j) = *self.tag_squares().get(k)?;
+        let c = glam::DVec2::new(f64::from(i) - 0.5, f64::from(j) - 0.5);
+        let h = 0.5 * self.apriltag_ratio;
+        Some([
+            c + glam::DVec2::new(-h, h),
+            c + glam::DVec2::new(h, h),
+            c + glam::DVec2::new(h, -h),
+            c + glam::DVec2::new(-h, -h),
+        ])
+    }
+
     /// Checks sizes.
     pub fn validate(&self, path: &Path) -> Result<(), CalibError> {
         if self.cols() < 3 || self.rows() < 2 {
@@ -101,6 +162,38 @@ impl BoardSpec {
                 path: path.to_path_buf(),
                 reason: format!("square_mm = {} must be positive", self.square_mm),
             });
+        }
+        self.validate_tags(path)
+    }
+
+    fn validate_tags(&self, path: &Path) -> Result<(), CalibError> {
+        let err = |reason: String| CalibError::BoardFile {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let white = ((self.cols() + 1) * (self.rows() + 1) / 2) as usize;
+        if self.apriltag_ids.len() > white {
+            return Err(err(format!(
+                "apriltag_ids lists {} tags but the board has {white} uncoated squares",
+                self.apriltag_ids.len()
+            )));
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        for &id in &self.apriltag_ids {
+            if id >= TAG36H11_IDS {
+                return Err(err(format!(
+                    "apriltag_ids: {id} is not a tag36h11 id (0..{TAG36H11_IDS})"
+                )));
+            }
+            if !seen.insert(id) {
+                return Err(err(format!("apriltag_ids: {id} is listed twice")));
+            }
+        }
+        if !(self.apriltag_ratio > 0.3 && self.apriltag_ratio <= 0.9) {
+            return Err(err(format!(
+                "apriltag_ratio = {}: a tag must be 0.3–0.9 of the square side (its white quiet zone lies inside the square)",
+                self.apriltag_ratio
+            )));
         }
         Ok(())
     }
@@ -270,5 +363,63 @@ mod tests {
             !file.board.is_colour_symmetric(),
             "9x6 has 10x7 squares: asymmetric"
         );
+        assert!(!file.board.has_tags());
+        assert_eq!(file.board.apriltag_ratio, DEFAULT_APRILTAG_RATIO);
+    }
+
+    #[test]
+    fn tags_sit_in_uncoated_squares_row_by_row() {
+        let toml = "[board]\ninner_corners = [4, 3]\nsquare_mm = 20.0\napriltag_ids = [7, 3, 9]\napriltag_ratio = 0.5\n";
+        let board = toml::from_str::<BoardFile>(toml)
+            .unwrap_or_else(|e| panic!("{e}"))
+            .board;
+        board
+            .validate(Path::new("board.toml"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(board.tag_squares(), vec![(1, 0), (3, 0), (0, 1)]);
+        // Tag 3 sits in square (3, 0): centre (2.5, -0.5), half side 0.25.
+        let c = board
+            .tag_corners_sq(3)
+            .unwrap_or_else(|| panic!("tag 3 is on the board"));
+        let want = [(2.25, -0.25), (2.75, -0.25), (2.75, -0.75), (2.25, -0.75)];
+        for (got, (x, y)) in c.iter().zip(want) {
+            assert!(
+                (got.x - x).abs() < 1e-12 && (got.y - y).abs() < 1e-12,
+                "tag 3 corners {c:?}"
+            );
+        }
+        assert!(
+            board.tag_corners_sq(4).is_none(),
+            "id 4 is not on the board"
+        );
+    }
+
+    #[test]
+    fn bad_tag_lists_are_refused_with_the_reason() {
+        let base = "[board]\ninner_corners = [4, 3]\nsquare_mm = 20.0\n";
+        for (extra, want) in [
+            ("apriltag_ids = [1, 1]\n", "listed twice"),
+            ("apriltag_ids = [600]\n", "not a tag36h11 id"),
+            (
+                "apriltag_ids = [1]\napriltag_ratio = 1.0\n",
+                "apriltag_ratio",
+            ),
+            (
+                "apriltag_ids = [0,1,2,3,4,5,6,7,8,9,10]\n",
+                "uncoated squares",
+            ),
+        ] {
+            let board = toml::from_str::<BoardFile>(&format!("{base}{extra}"))
+                .unwrap_or_else(|e| panic!("{e}"))
+                .board;
+            let Err(err) = board.validate(Path::new("b/board.toml")) else {
+                panic!("{extra} must be refused");
+            };
+            let msg = err.to_string();
+            assert!(
+                msg.contains(want) && msg.contains("b/board.toml"),
+                "{extra}: {msg}"
+            );
+        }
     }
 }

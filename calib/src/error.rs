@@ -16,6 +16,9 @@ pub enum CalibError {
         #[source]
         source: opencv::Error,
     },
+    /// The AprilTag detector failed (the caller names the image).
+    #[error("AprilTag detection: {reason}")]
+    Tags { reason: String },
     /// A board description that cannot be detected (fewer than 2x2 inner corners).
     #[error("board with {cols}x{rows} inner corners: at least 2x2 are needed")]
     BoardTooSmall { cols: u32, rows: u32 },

@@ -55,6 +55,7 @@ pub fn summary_json(c: &Calibration) -> Value {
             Some(r) => json!({
                 "images": r.images,
                 "views_found": r.views_found,
+                "views_partial": r.views_partial,
                 "views_used": r.views_used,
                 "rms_px": r.rms_px,
                 "rms_all_corners_px": r.rms_all_px,

@@ -39,6 +39,8 @@ pub mod solve;
 #[cfg(feature = "opencv")]
 pub mod synth;
 #[cfg(feature = "opencv")]
+pub mod tagboard;
+#[cfg(feature = "opencv")]
 pub mod tags;
 #[cfg(feature = "opencv")]
 pub mod views;

@@ -17,7 +17,10 @@ mod cli_poses;
 ///
 /// `s3tir-calib BOARD_DIR` reads `BOARD_DIR/board.toml` (`[board] inner_corners = [cols, rows]`,
 /// `square_mm`, optional `thermal_polarity` = auto | coated_dark | coated_bright and
-/// `thermal_palette` = auto | ironbow | inferno | luminance) and the images in
+/// `thermal_palette` = auto | ironbow | inferno | luminance, and for a board with tag36h11
+/// AprilTags in its uncoated squares `apriltag_ids` (row by row) and `apriltag_ratio` (tag /
+/// square side, default 0.7): the tags then fix each board's identity and corner order and let
+/// a partly visible board give the corners around them) and the images in
 /// `BOARD_DIR/thermal/` and `BOARD_DIR/rgb/` (16-bit PNG/TIFF, 8-bit grey, pseudo-colour,
 /// RGB/RGBA). Images pair by equal file stem, or equal after dropping a leading `name_`
 /// prefix (`thermal_0001.png` ↔ `rgb_0001.png`). It detects the board, initialises each
@@ -111,9 +114,14 @@ enum Command {
         /// Seed of the synthetic set.
         #[arg(long, default_value_t = 7)]
         seed: u64,
-        /// Working folder for the generated images (default: a new folder under the temp dir).
+        /// Working folder for the generated images, kept after the run (default: a new folder
+        /// under the temp dir, removed after the run).
         #[arg(long)]
         dir: Option<PathBuf>,
+        /// Print AprilTags (tag36h11, one per uncoated square) on the synthetic board: times
+        /// tag decoding and masking on the RGB images.
+        #[arg(long)]
+        apriltags: bool,
     },
     /// Detect AprilTags (tag36h11) in each image and print id, hamming, decision margin and the
     /// four corners (pixels, origin at the centre of the top-left pixel; order bottom-left,
@@ -235,10 +243,15 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
     for r in cal.cameras.iter().flatten() {
         let (i, s) = (r.model.intrinsics, r.sigma);
         println!(
-            "{:7}: {} images, board in {}, used {}; RMS {:.3} px (alone: {:.3} px); fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
+            "{:7}: {} images, board in {}{}, used {}; RMS {:.3} px (alone: {:.3} px); fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
             r.camera.name(),
             r.images,
             r.views_found,
+            if r.views_partial > 0 {
+                format!(" ({} partial, by AprilTags)", r.views_partial)
+            } else {
+                String::new()
+            },
             r.views_used,
             r.rms_px,
             r.mono_rms_px,
@@ -348,13 +361,21 @@ fn main() -> Result<()> {
             Ok(())
         }
         Some(Command::Bench {
-            pairs, seed, dir, ..
+            pairs,
+            seed,
+            dir,
+            apriltags,
+            ..
         }) => {
+            let keep = dir.is_some();
             let dir = dir.unwrap_or_else(|| {
                 std::env::temp_dir().join(format!("s3tir-calib-bench-{}", std::process::id()))
             });
-            let figures = bench::run(&dir, pairs, seed)?;
-            println!("{figures}");
+            let figures = bench::run(&dir, pairs, seed, apriltags);
+            if !keep {
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+            println!("{}", figures?);
             Ok(())
         }
         Some(Command::Tags {

@@ -165,8 +165,10 @@ pub struct PairEvidence<'a> {
     /// `thermal_from_board` and `rgb_from_board` from the two mono solves.
     pub thermal_from_board: Rigid3,
     pub rgb_from_board: Rigid3,
-    /// The thermal image's corners (canonical order, matching `object_points_m`).
+    /// The thermal image's corners (canonical order).
     pub thermal_corners_px: &'a [DVec2],
+    /// The board's index (into `object_points_m`) of each thermal corner.
+    pub thermal_corner_ids: &'a [usize],
     /// RMS the thermal image reaches with its own free pose in the mono solve (px).
     pub thermal_mono_rms_px: f64,
 }
@@ -187,7 +189,10 @@ impl PairEvidence<'_> {
     ) -> f64 {
         let thermal_from_board = rgb_from_thermal.inverse().compose(&self.rgb_from_board);
         let mut ss = 0.0;
-        for (x, obs) in object_points_m.iter().zip(self.thermal_corners_px) {
+        for (&i, obs) in self.thermal_corner_ids.iter().zip(self.thermal_corners_px) {
+            let Some(x) = object_points_m.get(i) else {
+                return f64::INFINITY;
+            };
             match thermal.project(thermal_from_board.transform_point(*x)) {
                 Some(p) => ss += (p - *obs).length_squared(),
                 None => return f64::INFINITY,
@@ -342,12 +347,17 @@ mod tests {
         (out, object, ext)
     }
 
-    fn evidence(data: &PairData, mono_rms_px: f64) -> Vec<PairEvidence<'_>> {
+    fn evidence<'a>(
+        data: &'a PairData,
+        ids: &'a [usize],
+        mono_rms_px: f64,
+    ) -> Vec<PairEvidence<'a>> {
         data.iter()
             .map(|(t, r, c)| PairEvidence {
                 thermal_from_board: *t,
                 rgb_from_board: *r,
                 thermal_corners_px: c,
+                thermal_corner_ids: &ids[..c.len()],
                 thermal_mono_rms_px: mono_rms_px,
             })
             .collect()
@@ -357,7 +367,8 @@ mod tests {
     fn pairs_off_by_a_fraction_of_a_degree_fail_and_the_rest_agree() {
         let errors = [0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.0, 0.0, -0.8, 0.0];
         let (data, object, ext) = pairs(&errors);
-        let evidence = evidence(&data, 0.3);
+        let ids: Vec<usize> = (0..object.len()).collect();
+        let evidence = evidence(&data, &ids, 0.3);
         let test = transfer_test(&evidence, &camera(), &object, &PairThresholds::default());
         let failed: Vec<usize> = (0..errors.len()).filter(|&i| !test.agrees[i]).collect();
         assert_eq!(
@@ -376,7 +387,8 @@ mod tests {
     #[test]
     fn perfect_pairs_all_agree() {
         let (data, object, _) = pairs(&[0.0; 6]);
-        let evidence = evidence(&data, 0.0);
+        let ids: Vec<usize> = (0..object.len()).collect();
+        let evidence = evidence(&data, &ids, 0.0);
         let test = transfer_test(&evidence, &camera(), &object, &PairThresholds::default());
         assert!(
             test.agrees.iter().all(|a| *a),

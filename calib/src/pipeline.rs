@@ -39,6 +39,8 @@ pub struct CameraResult {
     pub sigma: IntrinsicSigma,
     pub images: usize,
     pub views_found: usize,
+    /// Of those, views found as a partial board around its AprilTags.
+    pub views_partial: usize,
     pub views_used: usize,
     pub rms_px: f64,
     /// RMS over every detected corner including the rejected ones (px).
@@ -161,22 +163,30 @@ pub fn model_from_opencv(k: &Mat, dist: &Mat, size: (u32, u32)) -> Result<Camera
     })
 }
 
-/// OpenCV point vectors for detections.
+/// One view's corners and the board's index of each (a partial board sees a subset).
+pub type ViewCorners<'a> = (&'a [DVec2], &'a [usize]);
+
+/// OpenCV point vectors for detections: per view, the board points of its corners and the
+/// corners.
 pub fn cv_points(
     object: &[DVec3],
-    views: &[&[DVec2]],
+    views: &[ViewCorners],
 ) -> (Vector<Vector<Point3f>>, Vector<Vector<Point2f>>) {
-    let obj: Vector<Point3f> = object
-        .iter()
-        .map(|p| Point3f::new(p.x as f32, p.y as f32, p.z as f32))
-        .collect();
     let mut o = Vector::new();
     let mut i = Vector::new();
-    for v in views {
-        o.push(obj.clone());
+    for (corners, ids) in views {
+        o.push(
+            ids.iter()
+                .filter_map(|&k| object.get(k))
+                .map(|p| Point3f::new(p.x as f32, p.y as f32, p.z as f32))
+                .collect::<Vector<Point3f>>(),
+        );
         i.push(
-            v.iter()
-                .map(|p| Point2f::new(p.x as f32, p.y as f32))
+            corners
+                .iter()
+                .zip(ids.iter())
+                .filter(|(_, k)| **k < object.len())
+                .map(|(p, _)| Point2f::new(p.x as f32, p.y as f32))
                 .collect::<Vector<Point2f>>(),
         );
     }
@@ -203,7 +213,7 @@ fn plausible(m: &CameraModel) -> bool {
 /// returns an implausible camera (e.g. all views fronto-parallel).
 fn init_camera(
     object: &[DVec3],
-    views: &[&[DVec2]],
+    views: &[ViewCorners],
     size: (u32, u32),
     warnings: &mut Vec<String>,
     name: &str,
@@ -337,7 +347,7 @@ impl MonoSolve {
 }
 
 fn solve_mono(
-    views: &[&[DVec2]],
+    views: &[ViewCorners],
     object: &[DVec3],
     camera: Camera,
     model: CameraModel,
@@ -359,11 +369,8 @@ fn solve_mono(
         observations: views
             .iter()
             .enumerate()
-            .map(|(i, corners)| Observation {
-                camera,
-                view: i,
-                corners_px: corners.to_vec(),
-                inlier: vec![true; corners.len()],
+            .map(|(i, (corners, ids))| {
+                Observation::subset(camera, i, corners.to_vec(), ids.to_vec())
             })
             .collect(),
     };
@@ -416,12 +423,12 @@ fn joint_problem(
     let mut pairs = 0usize;
     let pose = |k: usize, v: usize| mono[k].as_ref().and_then(|m| m.pose(v));
     let mut observe = |camera: Camera, view: usize, d: &BoardDetection| {
-        observations.push(Observation {
+        observations.push(Observation::subset(
             camera,
             view,
-            corners_px: d.corners_px.clone(),
-            inlier: vec![true; d.corners_px.len()],
-        });
+            d.corners_px.clone(),
+            d.corner_ids.clone(),
+        ));
     };
     for (v, view) in set.views.iter().enumerate() {
         let dets = &view.detections;
@@ -499,6 +506,7 @@ pub fn calibrate_detections(
     let mut init_poses: [Vec<(usize, Rigid3)>; 2] = [Vec::new(), Vec::new()];
     let mut init_rms = [f64::NAN; 2];
     let mut views_found = [0usize; 2];
+    let mut views_partial = [0usize; 2];
     for camera in Camera::BOTH {
         let k = camera.index();
         let idx: Vec<usize> = set
@@ -509,6 +517,14 @@ pub fn calibrate_detections(
             .map(|(i, _)| i)
             .collect();
         views_found[k] = idx.len();
+        views_partial[k] = idx
+            .iter()
+            .filter(|&&i| {
+                set.views[i].detections[k]
+                    .as_ref()
+                    .is_some_and(|d| d.corner_ids.len() < object.len())
+            })
+            .count();
         if set.images[k] == 0 {
             continue;
         }
@@ -551,9 +567,13 @@ pub fn calibrate_detections(
         // solve in its basin; on sun-board everything after detection took 1.33 s with an init
         // per refinement, 0.83 s with one). The mono solves then run in parallel and are
         // taken in order.
-        let corners_of = |r: Refinement| -> Vec<&[DVec2]> {
+        let corners_of = |r: Refinement| -> Vec<ViewCorners> {
             idx.iter()
-                .filter_map(|&i| set.views[i].detections[k].as_ref().map(|d| d.corners_of(r)))
+                .filter_map(|&i| {
+                    set.views[i].detections[k]
+                        .as_ref()
+                        .map(|d| (d.corners_of(r), d.corner_ids.as_slice()))
+                })
                 .collect()
         };
         let mut init_warnings = Vec::new();
@@ -636,12 +656,13 @@ pub fn calibrate_detections(
         let evidence: Vec<PairEvidence> = pair_views
             .iter()
             .filter_map(|&v| {
-                let corners = set.views[v].detections[0].as_ref()?.corners_px.as_slice();
+                let d = set.views[v].detections[0].as_ref()?;
                 used.push(v);
                 Some(PairEvidence {
                     thermal_from_board: mt.pose(v)?,
                     rgb_from_board: mr.pose(v)?,
-                    thermal_corners_px: corners,
+                    thermal_corners_px: &d.corners_px,
+                    thermal_corner_ids: &d.corner_ids,
                     thermal_mono_rms_px: mt.view_rms(v),
                 })
             })
@@ -816,6 +837,7 @@ pub fn calibrate_detections(
             sigma,
             images: set.images[k],
             views_found: views_found[k],
+            views_partial: views_partial[k],
             views_used: per_view.len(),
             rms_px: (ss / n.max(1) as f64).sqrt(),
             rms_all_px: (ss_all / n_all.max(1) as f64).sqrt(),

@@ -265,10 +265,15 @@ pub fn write_report(c: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, CalibEr
         let (i, s) = (r.model.intrinsics, r.sigma);
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:.4} | {:.4} ({:.4}) | {} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} |",
+            "| {} | {} | {}{} | {} | {:.4} | {:.4} ({:.4}) | {} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} | {:.3} ± {:.3} |",
             r.camera.name(),
             r.images,
             r.views_found,
+            if r.views_partial > 0 {
+                format!(" ({} partial)", r.views_partial)
+            } else {
+                String::new()
+            },
             r.views_used,
             r.rms_px,
             r.mono_rms_px,

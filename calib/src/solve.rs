@@ -60,8 +60,44 @@ pub struct Observation {
     pub camera: Camera,
     pub view: usize,
     pub corners_px: Vec<DVec2>,
+    /// Index into [`Problem::object_points_m`] of each corner (a partial board sees a subset).
+    pub corner_ids: Vec<usize>,
     /// False for corners rejected as outliers.
     pub inlier: Vec<bool>,
+}
+
+impl Observation {
+    /// All of a whole board's corners, every one an inlier.
+    pub fn whole(camera: Camera, view: usize, corners_px: Vec<DVec2>) -> Self {
+        let n = corners_px.len();
+        Self::subset(camera, view, corners_px, (0..n).collect())
+    }
+
+    /// Corners `corner_ids` of the board, every one an inlier.
+    pub fn subset(
+        camera: Camera,
+        view: usize,
+        corners_px: Vec<DVec2>,
+        corner_ids: Vec<usize>,
+    ) -> Self {
+        let n = corners_px.len();
+        Self {
+            camera,
+            view,
+            corners_px,
+            corner_ids,
+            inlier: vec![true; n],
+        }
+    }
+
+    /// Each observed corner with its board point, in corner order (an id outside `object`
+    /// gives a NaN point: its residual is not finite and the corner is rejected).
+    fn points<'a>(&'a self, object: &'a [DVec3]) -> impl Iterator<Item = (&'a DVec2, DVec3)> + 'a {
+        self.corners_px
+            .iter()
+            .zip(&self.corner_ids)
+            .map(|(p, &i)| (p, object.get(i).copied().unwrap_or(DVec3::NAN)))
+    }
 }
 
 /// The problem state (also the solution).
@@ -115,6 +151,7 @@ pub struct IterationLog {
 pub struct RejectedCorner {
     pub camera: Camera,
     pub view: usize,
+    /// The board's corner index (row-major).
     pub corner: usize,
     pub residual_px: f64,
 }
@@ -329,9 +366,7 @@ pub fn residuals(p: &Problem) -> Vec<Vec<DVec2>> {
         .map(|o| {
             let (frame, _) = p.poses[o.view];
             let k = o.camera.index();
-            o.corners_px
-                .iter()
-                .zip(&p.object_points_m)
+            o.points(&p.object_points_m)
                 .map(|(obs, x)| {
                     project(
                         &s.intr[k],
@@ -340,7 +375,7 @@ pub fn residuals(p: &Problem) -> Vec<Vec<DVec2>> {
                         o.camera,
                         &s.ext,
                         &s.poses[o.view],
-                        *x,
+                        x,
                     ) - *obs
                 })
                 .collect()
@@ -355,7 +390,7 @@ fn cost_and_rms(p: &Problem, s: &State, huber: f64, cam_w: [f64; 2]) -> (f64, f6
     for o in &p.observations {
         let (frame, _) = p.poses[o.view];
         let k = o.camera.index();
-        for (j, (obs, x)) in o.corners_px.iter().zip(&p.object_points_m).enumerate() {
+        for (j, (obs, x)) in o.points(&p.object_points_m).enumerate() {
             if !o.inlier[j] {
                 continue;
             }
@@ -366,7 +401,7 @@ fn cost_and_rms(p: &Problem, s: &State, huber: f64, cam_w: [f64; 2]) -> (f64, f6
                 o.camera,
                 &s.ext,
                 &s.poses[o.view],
-                *x,
+                x,
             ) - *obs;
             let e2 = r.length_squared();
             ss += e2;
@@ -399,12 +434,12 @@ fn normal_equations(
         let (frame, _) = p.poses[o.view];
         let k = o.camera.index();
         let uses_ext = o.camera == Camera::Rgb && frame == PoseFrame::Thermal;
-        for (j, (obs, x)) in o.corners_px.iter().zip(&p.object_points_m).enumerate() {
+        for (j, (obs, x)) in o.points(&p.object_points_m).enumerate() {
             if !o.inlier[j] {
                 continue;
             }
             let pose = &s.poses[o.view];
-            let r = project(&s.intr[k], &s.base[k], frame, o.camera, &s.ext, pose, *x) - *obs;
+            let r = project(&s.intr[k], &s.base[k], frame, o.camera, &s.ext, pose, x) - *obs;
             let e = r.length();
             let w = cam_w[k] * if e <= huber { 1.0 } else { huber / e };
             wss += w * e * e;
@@ -421,9 +456,9 @@ fn normal_equations(
                     };
                     let mut a = s.intr[k];
                     a[q] += step;
-                    let plus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, *x);
+                    let plus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, x);
                     a[q] -= 2.0 * step;
-                    let minus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, *x);
+                    let minus = project(&a, &s.base[k], frame, o.camera, &s.ext, pose, x);
                     global.push((off + q, (plus - minus) / (2.0 * step)));
                 }
             }
@@ -439,7 +474,7 @@ fn normal_equations(
                         o.camera,
                         &perturb(&s.ext, &d),
                         pose,
-                        *x,
+                        x,
                     );
                     d[q] = -step;
                     let minus = project(
@@ -449,7 +484,7 @@ fn normal_equations(
                         o.camera,
                         &perturb(&s.ext, &d),
                         pose,
-                        *x,
+                        x,
                     );
                     d[q] = 0.0;
                     global.push((off + q, (plus - minus) / (2.0 * step)));
@@ -465,7 +500,7 @@ fn normal_equations(
                     o.camera,
                     &s.ext,
                     &perturb(pose, &d),
-                    *x,
+                    x,
                 );
                 d[q] = -step;
                 let minus = project(
@@ -475,7 +510,7 @@ fn normal_equations(
                     o.camera,
                     &s.ext,
                     &perturb(pose, &d),
-                    *x,
+                    x,
                 );
                 d[q] = 0.0;
                 pose_jac[q] = (plus - minus) / (2.0 * step);
@@ -622,7 +657,7 @@ pub fn solve(p: &mut Problem, opts: &SolveOptions) -> SolveReport {
                     rejected.push(RejectedCorner {
                         camera: o.camera,
                         view: o.view,
-                        corner: j,
+                        corner: o.corner_ids.get(j).copied().unwrap_or(j),
                         residual_px: len,
                     });
                 }

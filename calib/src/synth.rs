@@ -149,6 +149,11 @@ pub struct SynthOptions {
     pub rgb_board_views: Option<usize>,
     /// The last N views put the board partly outside the thermal image.
     pub thermal_partly_out: usize,
+    /// The first N views move the board sideways (the pose itself, so the truth keeps it) until
+    /// its centre sits on the nearer left/right edge of the RGB image: about half of the board
+    /// leaves the RGB image (and usually the thermal one). With tags, RGB still gives the
+    /// corners around the visible tags.
+    pub rgb_partly_out: usize,
     /// Write thermal images (false: RGB-only folder).
     pub write_thermal: bool,
     /// Write RGB images (false: thermal-only folder).
@@ -168,6 +173,7 @@ impl SynthOptions {
             rgb_noise: 2.0,
             rgb_board_views: None,
             thermal_partly_out: 0,
+            rgb_partly_out: 0,
             write_thermal: true,
             write_rgb: true,
         }
@@ -190,6 +196,7 @@ pub fn default_board() -> BoardSpec {
         thermal_polarity: ThermalPolarity::Auto,
         thermal_palette: Palette::Auto,
         apriltag_ids: Vec::new(),
+        apriltag_ratio: crate::board::DEFAULT_APRILTAG_RATIO,
     }
 }
 
@@ -297,6 +304,9 @@ pub struct Shades {
     pub background: f64,
     /// Background gradient across the image (value per image width).
     pub gradient: f64,
+    /// Draw the board's AprilTags (black cells in the coated shade, white in the uncoated);
+    /// false for thermal, where printed tags do not show.
+    pub tags: bool,
 }
 
 /// Renders the board seen by `cam` at `cam_from_board` (`None`: empty scene).
@@ -332,12 +342,41 @@ pub fn render(
             }
         }
     }
+    // Tag cells per tagged square (i, j) (`board` module docs: square (i, j) spans
+    // [i − 1, i] × [j − 1, j] in square units).
+    let tag_cells: std::collections::HashMap<(i64, i64), [[bool; 8]; 8]> = if shades.tags {
+        board
+            .tag_squares()
+            .into_iter()
+            .zip(&board.apriltag_ids)
+            .filter_map(|((i, j), &id)| {
+                crate::tags::tag36h11_cells(id).map(|c| ((i64::from(i), i64::from(j)), c))
+            })
+            .collect()
+    } else {
+        Default::default()
+    };
+    let half_tag = 0.5 * board.apriltag_ratio;
     let value_at = |u: f64, v: f64| -> Option<f64> {
         if !(u.is_finite() && v.is_finite()) {
             return None;
         }
         if u >= -1.0 && u <= cols && v >= -1.0 && v <= rows {
             let parity = (u.floor() + v.floor()).rem_euclid(2.0);
+            if parity >= 0.5
+                && let Some(cells) = tag_cells.get(&(u.floor() as i64 + 1, v.floor() as i64 + 1))
+            {
+                let fx = (u - u.floor() - 0.5 + half_tag) / (2.0 * half_tag);
+                let fy = (v - v.floor() - 0.5 + half_tag) / (2.0 * half_tag);
+                if (0.0..1.0).contains(&fx) && (0.0..1.0).contains(&fy) {
+                    let white = cells[(fy * 8.0) as usize][(fx * 8.0) as usize];
+                    return Some(if white {
+                        shades.uncoated
+                    } else {
+                        shades.coated
+                    });
+                }
+            }
             Some(if parity < 0.5 {
                 shades.coated
             } else {
@@ -407,17 +446,40 @@ pub fn write_board_folder(
     opts: &SynthOptions,
 ) -> Result<SynthTruth, CalibError> {
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let poses = random_poses(rig, opts, &mut rng);
+    let mut poses = random_poses(rig, opts, &mut rng);
+    for pose in poses.iter_mut().take(opts.rgb_partly_out) {
+        let s = opts.board.square_m();
+        let centre_b = DVec3::new(
+            f64::from(opts.board.cols() - 1) * s * 0.5,
+            f64::from(opts.board.rows() - 1) * s * 0.5,
+            0.0,
+        );
+        let centre = rig.rgb_from_thermal.compose(pose).transform_point(centre_b);
+        let i = rig.rgb.intrinsics;
+        let edge_px = if centre.x >= 0.0 {
+            f64::from(rig.rgb.width_px) - 1.0
+        } else {
+            0.0
+        };
+        let shift_rgb = DVec3::new((edge_px - i.cx) / i.fx * centre.z - centre.x, 0.0, 0.0);
+        pose.translation_m += rig.rgb_from_thermal.inverse().transform_vector(shift_rgb);
+    }
     std::fs::create_dir_all(dir.join("thermal")).map_err(io_err(dir))?;
     std::fs::create_dir_all(dir.join("rgb")).map_err(io_err(dir))?;
     let b = &opts.board;
-    let toml = format!(
+    let mut toml = format!(
         "# synthetic board set (s3tir_calib::synth), seed {}\n[board]\ninner_corners = [{}, {}]\nsquare_mm = {}\n",
         opts.seed,
         b.cols(),
         b.rows(),
         b.square_mm
     );
+    if b.has_tags() {
+        toml.push_str(&format!(
+            "apriltag_ids = {:?}\napriltag_ratio = {}\n",
+            b.apriltag_ids, b.apriltag_ratio
+        ));
+    }
     let toml_path = dir.join("board.toml");
     std::fs::write(&toml_path, toml).map_err(io_err(&toml_path))?;
     let (dark, bright) = (7300.0, 7700.0);
@@ -427,6 +489,7 @@ pub fn write_board_folder(
             uncoated: dark,
             background: 7450.0,
             gradient: 120.0,
+            tags: false,
         }
     } else {
         Shades {
@@ -434,6 +497,7 @@ pub fn write_board_folder(
             uncoated: bright,
             background: 7550.0,
             gradient: 120.0,
+            tags: false,
         }
     };
     let rgb_shades = Shades {
@@ -441,6 +505,7 @@ pub fn write_board_folder(
         uncoated: 215.0,
         background: 110.0,
         gradient: 60.0,
+        tags: true,
     };
     let n_views = poses.len();
     for (k, pose) in poses.iter().enumerate() {

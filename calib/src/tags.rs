@@ -26,7 +26,9 @@
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
+use apriltag::families::{ApriltagFamily, Tag36h11};
 use apriltag::{Detector, Family, Image};
 use image::{GrayImage, RgbImage};
 
@@ -288,10 +290,106 @@ impl TagDetector {
     }
 }
 
+/// The tag36h11 codes and bit layout, read once from the C library's own family table (so a
+/// rendered tag is exactly what the detector decodes).
+struct FamilyTable {
+    codes: Vec<u64>,
+    /// Cell `(x, y)` of each code bit, most significant first, in the 8×8 black-bordered square.
+    bits: Vec<(u32, u32)>,
+}
+
+fn tag36h11_table() -> &'static FamilyTable {
+    static TABLE: OnceLock<FamilyTable> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        // The family is created once and deliberately leaked: the table is read for the life
+        // of the process (about 5 KB).
+        let raw = Tag36h11::default().into_raw();
+        // SAFETY: `raw` is the non-null family the C library's `tag36h11_create` returned,
+        // never freed (leaked above); `codes` holds `ncodes` entries and `bit_x`/`bit_y`
+        // hold `nbits` entries each, as `tag36h11.c` allocates them.
+        unsafe {
+            let f = &*raw;
+            let codes = std::slice::from_raw_parts(f.codes, f.ncodes as usize).to_vec();
+            let bx = std::slice::from_raw_parts(f.bit_x, f.nbits as usize);
+            let by = std::slice::from_raw_parts(f.bit_y, f.nbits as usize);
+            FamilyTable {
+                codes,
+                bits: bx.iter().copied().zip(by.iter().copied()).collect(),
+            }
+        }
+    })
+}
+
+/// The 8×8 cells of tag36h11 `id` (outer black border included), `cells[y][x]`, true = white;
+/// `None` for an id outside the family. Printing (or rendering) these upright gives the tag
+/// the detector decodes as `id`.
+pub fn tag36h11_cells(id: u32) -> Option<[[bool; 8]; 8]> {
+    let table = tag36h11_table();
+    let code = *table.codes.get(id as usize)?;
+    let n = table.bits.len();
+    let mut cells = [[false; 8]; 8];
+    for (i, &(x, y)) in table.bits.iter().enumerate() {
+        if (code >> (n - 1 - i)) & 1 == 1
+            && let Some(cell) = cells
+                .get_mut(y as usize)
+                .and_then(|row| row.get_mut(x as usize))
+        {
+            *cell = true;
+        }
+    }
+    Some(cells)
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn family_table_is_tag36h11() {
+        let table = tag36h11_table();
+        assert_eq!(table.codes.len(), crate::board::TAG36H11_IDS as usize);
+        assert_eq!(table.bits.len(), 36);
+        // The first two codes of tag36h11.c (also pinned in tests/apriltag.rs).
+        assert_eq!(table.codes[0], 0x0000_000d_7e00_984b);
+        assert_eq!(table.codes[1], 0x0000_000d_da66_4ca7);
+        let cells = tag36h11_cells(0).unwrap();
+        assert!(
+            cells[0].iter().chain(cells[7].iter()).all(|c| !c),
+            "the outer border is black"
+        );
+        assert!(tag36h11_cells(587).is_none());
+    }
+
+    #[test]
+    fn rendered_cells_decode_as_their_id() {
+        for id in [0u32, 5, 34, 586] {
+            let cells = tag36h11_cells(id).unwrap();
+            let cell = 6u32;
+            let mut img = GrayImage::from_pixel(12 * cell, 12 * cell, image::Luma([255]));
+            for (y, row) in cells.iter().enumerate() {
+                for (x, white) in row.iter().enumerate() {
+                    for dy in 0..cell {
+                        for dx in 0..cell {
+                            let v = if *white { 255 } else { 0 };
+                            img.put_pixel(
+                                (x as u32 + 2) * cell + dx,
+                                (y as u32 + 2) * cell + dy,
+                                image::Luma([v]),
+                            );
+                        }
+                    }
+                }
+            }
+            let mut det = TagDetector::new(TagConfig::default()).unwrap();
+            let found = det.detect(&img, Path::new("cells")).unwrap();
+            assert_eq!(
+                found.iter().map(|t| t.id).collect::<Vec<_>>(),
+                vec![id],
+                "tag rendered from tag36h11_cells({id})"
+            );
+        }
+    }
 
     #[test]
     fn convention_round_trip() {

@@ -6,13 +6,15 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use glam::DVec2;
+
 use rayon::prelude::*;
 
 use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
 use crate::error::CalibError;
 use crate::frontend::{
-    BoardDetection, DetectFailure, ScalarImage, SourceKind, ThermalPolarity, detect_board,
-    load_scalar, rotate_180,
+    BoardDetection, BoardOrder, DetectFailure, ScalarImage, SourceKind, ThermalPolarity,
+    detect_board, load_scalar, rotate_180,
 };
 use crate::session::{SessionOptions, SessionViews};
 
@@ -107,6 +109,7 @@ pub fn detect_session(
 /// What detection made of one image.
 enum ImageOutcome {
     Unreadable(String),
+    Failed(String),
     Detected {
         size: (u32, u32),
         source: SourceKind,
@@ -155,13 +158,18 @@ pub fn detect_views(
             let (camera, path) = (*camera, path.as_path());
             let span = tracing::trace_span!("detect", file = %path.display());
             let _g = span.enter();
+            // A detector failure on one image (OpenCV, AprilTag) is that image's problem,
+            // named by its file; the other images still calibrate.
             let outcome = match load(path, camera) {
-                Err(e) => Ok(ImageOutcome::Unreadable(e.to_string())),
-                Ok(img) => detect_board(&img, &board).map(|result| ImageOutcome::Detected {
-                    size: (img.width_px, img.height_px),
-                    source: img.source,
-                    result,
-                }),
+                Err(e) => ImageOutcome::Unreadable(e.to_string()),
+                Ok(img) => match detect_board(&img, &board) {
+                    Ok(result) => ImageOutcome::Detected {
+                        size: (img.width_px, img.height_px),
+                        source: img.source,
+                        result,
+                    },
+                    Err(e) => ImageOutcome::Failed(e.to_string()),
+                },
             };
             bar.set_message(
                 path.file_name()
@@ -171,7 +179,7 @@ pub fn detect_views(
             bar.inc(1);
             outcome
         })
-        .collect::<Result<_, CalibError>>()?;
+        .collect();
     bar.finish_and_clear();
     let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
     let mut images = [0usize; 2];
@@ -190,6 +198,10 @@ pub fn detect_views(
         let (size, source, result) = match outcome {
             ImageOutcome::Unreadable(e) => {
                 problems.push(problem(path, format!("unreadable: {e}")));
+                continue;
+            }
+            ImageOutcome::Failed(e) => {
+                problems.push(problem(path, format!("detection failed: {e}")));
                 continue;
             }
             ImageOutcome::Detected {
@@ -233,6 +245,14 @@ pub fn detect_views(
                 path,
                 format!("ambiguous detection rejected: {why}"),
             )),
+            Err(DetectFailure::NoPartial(why)) => problems.push(problem(
+                path,
+                format!(
+                    "no whole {}x{} board found (SB detector, classic detector on both polarities); {why}",
+                    board.cols(),
+                    board.rows()
+                ),
+            )),
         }
     }
     let polarity_note = resolve_thermal_order(&board, &mut views, problems);
@@ -250,21 +270,58 @@ pub fn detect_views(
     })
 }
 
+/// The image direction in which the board's corner index grows (least-squares slope of the
+/// corners' image position against `c + r`, normalised): comparable between a whole and a
+/// partial detection of one board.
+fn direction(board: &BoardSpec, d: &BoardDetection) -> DVec2 {
+    let cols = board.cols() as usize;
+    let k: Vec<f64> = d
+        .corner_ids
+        .iter()
+        .map(|&i| (i % cols + i / cols) as f64)
+        .collect();
+    let n = k.len().max(1) as f64;
+    let k_mean = k.iter().sum::<f64>() / n;
+    let p_mean = d.corners_px.iter().copied().sum::<DVec2>() / n;
+    k.iter()
+        .zip(&d.corners_px)
+        .map(|(k, p)| (*p - p_mean) * (k - k_mean))
+        .sum::<DVec2>()
+        .normalize_or_zero()
+}
+
 /// Makes thermal corner order agree with RGB (see `frontend` docs): fixed polarity from
-/// `board.toml`, or for `auto` a vote over pairs on whether corner 0 → corner N points the
-/// same way in both images. Pairs that disagree with the majority are unpaired (reported).
+/// `board.toml`, or for `auto` a vote over pairs on whether the corner order runs the same
+/// way in both images. Pairs that disagree with the majority are unpaired (reported).
+/// Detections ordered by AprilTags are never turned. A colour-symmetric board with tags turns
+/// each thermal detection that no tag ordered to agree with its tag-ordered RGB pair.
 fn resolve_thermal_order(
     board: &BoardSpec,
     views: &mut Vec<DetectedView>,
     problems: &mut Vec<FileProblem>,
 ) -> String {
+    let n = board.corner_count();
+    let by_tags = |d: &BoardDetection| d.order == BoardOrder::Tags;
     if board.is_colour_symmetric() {
-        return "board is colour-symmetric (cols + rows even): both cameras ordered with corner 0 nearest the image's top-left".into();
+        if !board.has_tags() {
+            return "board is colour-symmetric (cols + rows even): both cameras ordered with corner 0 nearest the image's top-left".into();
+        }
+        let mut turned = 0usize;
+        for v in views.iter_mut() {
+            if let [Some(t), Some(r)] = &mut v.detections
+                && by_tags(r)
+                && !by_tags(t)
+                && direction(board, t).dot(direction(board, r)) < 0.0
+            {
+                rotate_180(t, n);
+                turned += 1;
+            }
+        }
+        return format!(
+            "board is colour-symmetric (cols + rows even) with AprilTags: views ordered by their tags; thermal views without tags follow their RGB pair ({turned} turned), unpaired ones corner 0 nearest the image's top-left"
+        );
     }
-    let direction = |d: &BoardDetection| {
-        let n = d.corners_px.len();
-        (d.corners_px[n - 1] - d.corners_px[0]).normalize_or_zero()
-    };
+    let direction = |d: &BoardDetection| direction(board, d);
     let (rotate, note) = match board.thermal_polarity {
         ThermalPolarity::CoatedDark => (
             false,
@@ -304,8 +361,11 @@ fn resolve_thermal_order(
     };
     let mut rgb_only = Vec::new();
     for v in views.iter_mut() {
-        if rotate && let Some(t) = v.detections[0].as_mut() {
-            rotate_180(t);
+        if rotate
+            && let Some(t) = v.detections[0].as_mut()
+            && !by_tags(t)
+        {
+            rotate_180(t, n);
         }
         if let [Some(t), Some(r)] = &v.detections
             && direction(t).dot(direction(r)) <= 0.0
@@ -327,4 +387,66 @@ fn resolve_thermal_order(
     }
     views.extend(rgb_only);
     note
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frontend::Refinement;
+
+    /// A whole 9x5 board seen fronto-parallel, 10 px squares, corner 0 at `origin`, the corner
+    /// index growing along `+x`/`+y` (`turned`: along `-x`/`-y`).
+    fn seen(board: &BoardSpec, turned: bool, order: BoardOrder) -> BoardDetection {
+        let cols = board.cols() as usize;
+        let sign = if turned { -1.0 } else { 1.0 };
+        let pts: Vec<DVec2> = (0..board.corner_count())
+            .map(|i| {
+                DVec2::new(200.0, 150.0)
+                    + sign * 10.0 * DVec2::new((i % cols) as f64, (i / cols) as f64)
+            })
+            .collect();
+        BoardDetection {
+            corners_px: pts.clone(),
+            corner_ids: (0..pts.len()).collect(),
+            detector: "sb",
+            inverted: false,
+            sharpness_px: 1.0,
+            contrast_z: 10.0,
+            roughness_px: 0.0,
+            planar_fit_px: 0.0,
+            refinement: Refinement::CornerSubPix,
+            variants: vec![(Refinement::CornerSubPix, pts)],
+            order,
+        }
+    }
+
+    #[test]
+    fn colour_symmetric_thermal_follows_its_tag_ordered_rgb_pair() {
+        let mut board = crate::synth::default_board();
+        board.inner_corners = [9, 5];
+        board.apriltag_ids = (0..30).collect();
+        let view = |thermal_turned: bool| DetectedView {
+            key: format!("turned-{thermal_turned}"),
+            files: [None, None],
+            detections: [
+                Some(seen(&board, thermal_turned, BoardOrder::ImageOrientation)),
+                Some(seen(&board, false, BoardOrder::Tags)),
+            ],
+        };
+        let mut views = vec![view(true), view(false)];
+        let mut problems = Vec::new();
+        let note = resolve_thermal_order(&board, &mut views, &mut problems);
+        assert!(note.contains("1 turned"), "{note}");
+        for v in &views {
+            let [Some(t), Some(r)] = &v.detections else {
+                panic!("{}: both detections stay", v.key);
+            };
+            assert!(
+                direction(&board, t).dot(direction(&board, r)) > 0.99,
+                "{}: thermal order must follow RGB's",
+                v.key
+            );
+        }
+        assert!(problems.is_empty(), "{problems:?}");
+    }
 }

@@ -53,13 +53,7 @@ fn problem(noise_px: f64, seed: u64) -> (Problem, synth::SynthRig) {
                     }
                 })
                 .collect();
-            let n = corners_px.len();
-            observations.push(Observation {
-                camera,
-                view: v,
-                corners_px,
-                inlier: vec![true; n],
-            });
+            observations.push(Observation::whole(camera, v, corners_px));
         }
         let start = Rigid3::new(
             DQuat::from_scaled_axis(DVec3::new(0.01, -0.02, 0.015)) * pose.rotation,
