@@ -219,8 +219,13 @@ fn value_pixel(params: &Vec9, pre: &Pre, centre: DVec2, p: DVec2, n: usize) -> f
 }
 
 /// `tanh` through one `exp` (glibc's goes through `expm1` and is ~3× dearer; this is the
-/// saddle fit's innermost call). Absolute error below 1e-15.
+/// saddle fit's innermost call). Absolute error below 1e-15, except beyond |x| = 10, where it
+/// is ±1 without an `exp` (error below 4.2e-9: far from both edges, where most of a sharp
+/// edge's window lies).
 fn tanh(x: f64) -> f64 {
+    if x.abs() > 10.0 {
+        return 1f64.copysign(x);
+    }
     let e = (-2.0 * x.abs()).exp();
     ((1.0 - e) / (1.0 + e)).copysign(x)
 }
@@ -394,8 +399,19 @@ pub fn fit_saddle(
             if !fit_width {
                 g[4] = 0.0;
             }
-            jtj += px.weight * g * g.transpose();
+            // Upper triangle only (JᵀJ is symmetric; mirrored below): 45 products, not 81.
+            for a in 0..NP {
+                let wa = px.weight * g[a];
+                for b in a..NP {
+                    jtj[(a, b)] += wa * g[b];
+                }
+            }
             jtr += px.weight * (v - px.value) * g;
+        }
+        for a in 0..NP {
+            for b in 0..a {
+                jtj[(a, b)] = jtj[(b, a)];
+            }
         }
         if !fit_width {
             // Fixed edge width: a unit diagonal keeps the system regular, the step stays 0.
@@ -424,8 +440,10 @@ pub fn fit_saddle(
                 current = c;
                 lambda = (lambda * 0.3).max(1e-9);
                 improved = true;
-                // Converged when the corner (the only parameter we need) stops moving.
-                if moved < 1e-5 {
+                // Converged when the corner (the only parameter we need) stops moving: a step
+                // under 1e-4 px (1e-5 cost 11 % more detection time on the 70-pair synthetic
+                // bench and changed no RMS beyond 1e-3 px).
+                if moved < 1e-4 {
                     converged = true;
                 }
                 break;
@@ -534,8 +552,10 @@ mod tests {
         for i in -4000..=4000 {
             let x = f64::from(i) * 0.01;
             let err = (tanh(x) - x.tanh()).abs();
+            // Beyond |x| = 10 it returns ±1 (1 − tanh 10 = 4.1e-9).
+            let bound = if x.abs() > 10.0 { 4.2e-9 } else { 1e-15 };
             assert!(
-                err < 1e-15,
+                err < bound,
                 "tanh({x}) = {} vs libm {}: error {err:e}",
                 tanh(x),
                 x.tanh()

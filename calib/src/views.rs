@@ -132,6 +132,10 @@ pub fn detect_views(
     load: impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError> + Sync,
 ) -> Result<DetectedSet, CalibError> {
     let start = Instant::now();
+    // Images are detected in parallel by rayon: OpenCV's own worker threads would only
+    // contend with them. Its thread count is restored afterwards.
+    let cv_threads = opencv::core::get_num_threads().unwrap_or(-1);
+    let _ = opencv::core::set_num_threads(1);
     let jobs: Vec<(usize, Camera, PathBuf)> = files
         .iter()
         .enumerate()
@@ -181,6 +185,7 @@ pub fn detect_views(
         })
         .collect();
     bar.finish_and_clear();
+    let _ = opencv::core::set_num_threads(cv_threads);
     let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
     let mut images = [0usize; 2];
     let mut source_kinds = Vec::new();
