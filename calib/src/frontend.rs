@@ -334,7 +334,8 @@ pub fn load_scalar(
 }
 
 /// The `lo` and `hi` quantiles (nearest rank) of the finite values, `(0, 0)` when there are
-/// none. Two selections instead of a sort: this runs twice per image.
+/// none. Two selections instead of a sort (a 4096-bin histogram locating each rank's bin first
+/// was slower: 8.3 % of the RGB detection time against 5.9 %).
 fn quantiles(values: &[f32], lo: f64, hi: f64) -> (f32, f32) {
     let mut finite: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
     if finite.is_empty() {
@@ -1338,6 +1339,28 @@ mod tests {
             "luminance {} want {want}",
             c.values[0]
         );
+    }
+
+    #[test]
+    fn quantiles_match_a_sort() {
+        // Values with ties, a wide spread and non-finite entries (ignored).
+        let mut values: Vec<f32> = (0..5000u32)
+            .map(|i| ((i * 7919) % 1000) as f32 * 0.37 + if i % 97 == 0 { 1e4 } else { 0.0 })
+            .collect();
+        values[3] = f32::NAN;
+        values[10] = f32::INFINITY;
+        let mut sorted: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        sorted.sort_by(f32::total_cmp);
+        for (lo, hi) in [(0.005, 0.995), (0.0, 1.0), (0.5, 0.5), (0.25, 0.9)] {
+            let rank = |f: f64| ((sorted.len() - 1) as f64 * f).round() as usize;
+            assert_eq!(
+                quantiles(&values, lo, hi),
+                (sorted[rank(lo)], sorted[rank(hi)]),
+                "quantiles {lo}, {hi}"
+            );
+        }
+        assert_eq!(quantiles(&[f32::NAN], 0.1, 0.9), (0.0, 0.0));
+        assert_eq!(quantiles(&[2.0, 2.0], 0.1, 0.9), (2.0, 2.0));
     }
 
     #[test]
