@@ -17,9 +17,9 @@
 //! # AprilTags (ChArUco-style)
 //!
 //! The board has `(cols + 1) × (rows + 1)` squares; square `(i, j)` spans
-//! `[(i − 1)·s, i·s] × [(j − 1)·s, j·s]`, so it lies diagonally outward of inner corner
-//! `(i − 1, j − 1)` … and square `(0, 0)` is the coated one. A square is uncoated (white in RGB)
-//! when `i + j` is odd. Tag `apriltag_ids[k]` is printed in the k-th uncoated square counted
+//! `[(i − 1)·s, i·s] × [(j − 1)·s, j·s]` (its corners are inner corners `(i − 1, j − 1)` to
+//! `(i, j)` where those exist), so square `(0, 0)` is the coated one diagonally outward of
+//! corner `(0, 0)`. A square is uncoated (white in RGB) when `i + j` is odd. Tag `apriltag_ids[k]` is printed in the k-th uncoated square counted
 //! row by row (j, then i), centred, upright (its top towards row 0), with its black border
 //! `apriltag_ratio` of the square side wide. Fewer ids than uncoated squares fill the first
 //! squares only. RGB sees the tags; a thermal camera usually does not (printer ink and paper

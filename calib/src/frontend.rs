@@ -491,36 +491,10 @@ fn median_spacing(corners: &[DVec2], cols: usize) -> f64 {
 
 /// RMS distance (px) of the corners from the least-squares homography of the board grid.
 fn planar_fit_rms(corners: &[DVec2], cols: usize) -> Result<f64, CalibError> {
-    let grid: Vector<Point2f> = (0..corners.len())
-        .map(|i| Point2f::new((i % cols) as f32, (i / cols) as f32))
+    let grid: Vec<DVec2> = (0..corners.len())
+        .map(|i| DVec2::new((i % cols) as f64, (i / cols) as f64))
         .collect();
-    let image: Vector<Point2f> = corners
-        .iter()
-        .map(|p| Point2f::new(p.x as f32, p.y as f32))
-        .collect();
-    let h = calib3d::find_homography(&grid, &image, &mut Mat::default(), 0, 3.0)
-        .map_err(cv("findHomography"))?;
-    if h.empty() {
-        return Ok(f64::INFINITY);
-    }
-    let at = |r: i32, c: i32| h.at_2d::<f64>(r, c).copied().map_err(cv("homography"));
-    let m = [
-        [at(0, 0)?, at(0, 1)?, at(0, 2)?],
-        [at(1, 0)?, at(1, 1)?, at(1, 2)?],
-        [at(2, 0)?, at(2, 1)?, at(2, 2)?],
-    ];
-    let mut ss = 0.0;
-    for (i, p) in corners.iter().enumerate() {
-        let (x, y) = ((i % cols) as f64, (i / cols) as f64);
-        let w = m[2][0] * x + m[2][1] * y + m[2][2];
-        let q = DVec2::new(
-            (m[0][0] * x + m[0][1] * y + m[0][2]) / w,
-            (m[1][0] * x + m[1][1] * y + m[1][2]) / w,
-        );
-        ss += (q - *p).length_squared();
-    }
-    let fit = (ss / corners.len().max(1) as f64).sqrt();
-    Ok(if fit.is_finite() { fit } else { f64::INFINITY })
+    crate::detect::planar_fit_rms(&grid, corners)
 }
 
 fn min_spacing(corners: &[DVec2], cols: usize) -> f64 {
@@ -921,24 +895,35 @@ pub fn detect_board(
     let float_img = crate::tagboard::mask_tags(stretched, board, &tags)?;
     let mut from_tags = None;
     if tags.iter().any(|t| board.tag_corners_sq(t.id).is_some()) {
-        match crate::tagboard::partial_from_tags(img, &float_img, board, &tags)? {
-            Ok(mut det) => {
-                // A whole board from tags also gets the saddle fit (on the masked image), and
-                // the variant with the better planar fit is the image's default, as below.
-                let whole = det.corner_ids.len() == board.corner_count();
-                let (cols, rows) = (board.cols() as usize, board.rows() as usize);
-                if whole && median_spacing(&det.corners_px, cols) < SADDLE_MAX_SPACING_PX {
-                    let saddle =
-                        saddle_refine(&float_img, &det.corners_px, &det.corners_px, cols, rows)?;
-                    let fit = planar_fit_rms(&saddle, cols)?;
-                    if fit < det.planar_fit_px {
-                        det.corners_px = saddle.clone();
-                        det.refinement = Refinement::Saddle;
-                        det.planar_fit_px = fit;
-                    }
-                    det.variants.push((Refinement::Saddle, saddle));
+        let sample = |p: DVec2| img.sample(p);
+        let size = (img.width_px, img.height_px);
+        match crate::tagboard::partial_from_tags(&sample, size, &float_img, board, &tags)? {
+            Ok(found) => {
+                let mut refined = Refined {
+                    fit: found.planar_fit_px,
+                    pts: found.corners_px.clone(),
+                    refinement: Refinement::CornerSubPix,
+                    variants: vec![(Refinement::CornerSubPix, found.corners_px)],
+                };
+                // A whole board from tags also gets the saddle fit (on the masked image).
+                if found.corner_ids.len() == board.corner_count() {
+                    let (cols, rows) = (board.cols() as usize, board.rows() as usize);
+                    let start = refined.pts.clone();
+                    refined.add_saddle(&float_img, &start, &start, cols, rows)?;
                 }
-                return Ok(Ok(det));
+                return Ok(Ok(BoardDetection {
+                    corners_px: refined.pts,
+                    corner_ids: found.corner_ids,
+                    detector: "apriltag",
+                    inverted: false,
+                    sharpness_px: f64::NAN,
+                    contrast_z: f64::NAN,
+                    roughness_px: f64::NAN,
+                    planar_fit_px: refined.fit,
+                    refinement: refined.refinement,
+                    variants: refined.variants,
+                    order: BoardOrder::Tags,
+                }));
             }
             Err(why) => from_tags = Some(why),
         }
@@ -1036,11 +1021,8 @@ pub fn detect_board(
         .has_tags()
         .then_some(0.5 * (1.0 - board.apriltag_ratio));
     struct Best<'a> {
-        fit: f64,
-        pts: Vec<DVec2>,
+        refined: Refined,
         cand: &'a Candidate,
-        refinement: Refinement,
-        variants: Vec<(Refinement, Vec<DVec2>)>,
         /// The detector's corners (the saddle fit's second start).
         raw: Vec<DVec2>,
         /// The `cornerSubPix` corners (the saddle fit's first start).
@@ -1083,14 +1065,16 @@ pub fn detect_board(
             }
         }
         if let Some((fit, i)) = pick
-            && best.as_ref().is_none_or(|b| fit < b.fit)
+            && best.as_ref().is_none_or(|b| fit < b.refined.fit)
         {
             best = Some(Best {
-                fit,
-                pts: variants[i].1.clone(),
+                refined: Refined {
+                    fit,
+                    pts: variants[i].1.clone(),
+                    refinement: variants[i].0,
+                    variants,
+                },
                 cand,
-                refinement: variants[i].0,
-                variants,
                 raw,
                 subpix,
             });
@@ -1099,43 +1083,28 @@ pub fn detect_board(
     // The saddle fit (the dearest refinement) runs once, on the kept candidate: when both
     // detectors found the board (small upscaled images), their corners differ by sub-pixel
     // amounts and the fit converges to the same corners from either.
-    if let Some(b) = best.as_mut()
-        && median_spacing(&b.subpix, cols) < SADDLE_MAX_SPACING_PX
-    {
-        let saddle = saddle_refine(&float_img, &b.subpix, &b.raw, cols, rows)?;
-        let fit = planar_fit_rms(&saddle, cols)?;
-        tracing::trace!(planar_fit_px = fit, "saddle refinement");
-        if fit < b.fit {
-            b.fit = fit;
-            b.pts = saddle.clone();
-            b.refinement = Refinement::Saddle;
-        }
-        b.variants.push((Refinement::Saddle, saddle));
+    if let Some(b) = best.as_mut() {
+        b.refined
+            .add_saddle(&float_img, &b.subpix, &b.raw, cols, rows)?;
     }
     let Some(Best {
-        fit: planar_fit_px,
-        mut pts,
+        refined:
+            Refined {
+                fit: planar_fit_px,
+                mut pts,
+                refinement,
+                mut variants,
+            },
         cand,
-        refinement,
-        mut variants,
         ..
     }) = best
     else {
         if !board.has_tags() {
             return Ok(Err(DetectFailure::NotFound));
         }
-        return Ok(Err(DetectFailure::NoPartial(from_tags.unwrap_or_else(
-            || {
-                if tags.is_empty() {
-                    "no AprilTag in view".to_string()
-                } else {
-                    format!(
-                        "the AprilTags in view ({:?}) are not board.toml's",
-                        tags.iter().map(|t| t.id).collect::<Vec<_>>()
-                    )
-                }
-            },
-        ))));
+        return Ok(Err(DetectFailure::NoPartial(
+            from_tags.unwrap_or_else(|| crate::tagboard::no_board_tags(&tags)),
+        )));
     };
     let rough = roughness(&pts, cols, rows);
     let up = search;
@@ -1207,12 +1176,55 @@ pub fn detect_board(
         variants,
         order,
     };
-    if board.has_tags()
-        && let Err(why) = crate::tagboard::order_by_tags(board, &mut det, &tags)?
-    {
-        return Ok(Err(DetectFailure::Ambiguous(why)));
+    if board.has_tags() {
+        match crate::tagboard::order_by_tags(board, &det.corners_px, &det.corner_ids, &tags)? {
+            Err(why) => return Ok(Err(DetectFailure::Ambiguous(why))),
+            Ok(Some(turn)) => {
+                if turn {
+                    rotate_180(&mut det, board.corner_count());
+                }
+                det.order = BoardOrder::Tags;
+            }
+            Ok(None) => {}
+        }
     }
     Ok(Ok(det))
+}
+
+/// The sub-pixel refinements of one board and the one kept (the smallest planar fit).
+struct Refined {
+    fit: f64,
+    pts: Vec<DVec2>,
+    refinement: Refinement,
+    variants: Vec<(Refinement, Vec<DVec2>)>,
+}
+
+impl Refined {
+    /// Adds the saddle fit of a whole board (from `start`, else `raw`: [`saddle_refine`]) as a
+    /// variant, kept when its planar fit is smaller; nothing for squares beyond
+    /// [`SADDLE_MAX_SPACING_PX`].
+    fn add_saddle(
+        &mut self,
+        float_img: &Mat,
+        start: &[DVec2],
+        raw: &[DVec2],
+        cols: usize,
+        rows: usize,
+    ) -> Result<(), CalibError> {
+        if median_spacing(start, cols) >= SADDLE_MAX_SPACING_PX {
+            return Ok(());
+        }
+        let saddle = saddle_refine(float_img, start, raw, cols, rows)?;
+        let fit = planar_fit_rms(&saddle, cols)?;
+        tracing::trace!(planar_fit_px = fit, "saddle refinement");
+        if fit < self.fit {
+            self.fit = fit;
+            self.pts = saddle.clone();
+            self.refinement = Refinement::Saddle;
+        }
+        self.variants.push((Refinement::Saddle, saddle));
+        Ok(())
+    }
 }
 
 /// Rotates a canonical detection by 180° (corner i ↔ corner n−1−i, `n` the board's corner

@@ -235,11 +235,8 @@ fn init_camera(
     } else {
         (0..views.len()).collect()
     };
-    let pick = |v: &Vector<Vector<Point3f>>| -> Vector<Vector<Point3f>> {
-        subset.iter().filter_map(|&i| v.get(i).ok()).collect()
-    };
-    let sub_obj = pick(&obj);
-    let sub_img: Vector<Vector<Point2f>> = subset.iter().filter_map(|&i| img.get(i).ok()).collect();
+    let sub_views: Vec<ViewCorners> = subset.iter().map(|&i| views[i]).collect();
+    let (sub_obj, sub_img) = cv_points(object, &sub_views);
     let mut k = Mat::default();
     let mut dist = Mat::default();
     let mut rvecs = Vector::<Mat>::new();

@@ -342,20 +342,16 @@ pub fn render(
             }
         }
     }
-    // Tag cells per tagged square (i, j) (`board` module docs: square (i, j) spans
-    // [i − 1, i] × [j − 1, j] in square units).
-    let tag_cells: std::collections::HashMap<(i64, i64), [[bool; 8]; 8]> = if shades.tags {
-        board
-            .tag_squares()
-            .into_iter()
-            .zip(&board.apriltag_ids)
-            .filter_map(|((i, j), &id)| {
-                crate::tags::tag36h11_cells(id).map(|c| ((i64::from(i), i64::from(j)), c))
-            })
-            .collect()
-    } else {
-        Default::default()
-    };
+    // Tag cells per square (i, j), indexed j·(cols + 1) + i (`board` module docs: square
+    // (i, j) spans [i − 1, i] × [j − 1, j] in square units); looked up per sub-sample.
+    let squares_x = board.cols() as usize + 1;
+    let mut tag_cells: Vec<Option<[[bool; 8]; 8]>> =
+        vec![None; squares_x * (board.rows() as usize + 1)];
+    if shades.tags {
+        for ((i, j), &id) in board.tag_squares().into_iter().zip(&board.apriltag_ids) {
+            tag_cells[j as usize * squares_x + i as usize] = crate::tags::tag36h11_cells(id);
+        }
+    }
     let half_tag = 0.5 * board.apriltag_ratio;
     let value_at = |u: f64, v: f64| -> Option<f64> {
         if !(u.is_finite() && v.is_finite()) {
@@ -363,8 +359,10 @@ pub fn render(
         }
         if u >= -1.0 && u <= cols && v >= -1.0 && v <= rows {
             let parity = (u.floor() + v.floor()).rem_euclid(2.0);
+            // Inside the squares, u and v lie in [-1, cols] × [-1, rows]: i, j ≥ 0.
+            let (i, j) = ((u.floor() + 1.0) as usize, (v.floor() + 1.0) as usize);
             if parity >= 0.5
-                && let Some(cells) = tag_cells.get(&(u.floor() as i64 + 1, v.floor() as i64 + 1))
+                && let Some(Some(cells)) = tag_cells.get(j * squares_x + i.min(squares_x - 1))
             {
                 let fx = (u - u.floor() - 0.5 + half_tag) / (2.0 * half_tag);
                 let fy = (v - v.floor() - 0.5 + half_tag) / (2.0 * half_tag);

@@ -33,12 +33,12 @@ use std::path::Path;
 
 use glam::DVec2;
 use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
+use opencv::imgproc;
 use opencv::prelude::*;
-use opencv::{calib3d, imgproc};
 
 use crate::board::BoardSpec;
+use crate::detect::{Homography, planar_fit_rms};
 use crate::error::CalibError;
-use crate::frontend::{BoardDetection, BoardOrder, Refinement, ScalarImage};
 use crate::tags::{TagConfig, TagDetection, TagDetector, tag36h11_cells};
 
 /// A decoded tag matches its square when its centre maps within this many squares of the
@@ -86,47 +86,6 @@ pub fn find_tags(grey: &image::GrayImage) -> Result<Vec<TagDetection>, CalibErro
         image::imageops::invert(&mut inverted);
         det.detect(&inverted, image).map_err(err)
     })
-}
-
-/// A plane-to-image homography (row-major 3×3).
-#[derive(Debug, Clone, Copy)]
-struct Homography([[f64; 3]; 3]);
-
-impl Homography {
-    /// Least-squares homography `src → dst` (OpenCV, all points); `None` when degenerate.
-    fn fit(src: &[DVec2], dst: &[DVec2]) -> Result<Option<Self>, CalibError> {
-        if src.len() < 4 || src.len() != dst.len() {
-            return Ok(None);
-        }
-        let to_cv = |v: &[DVec2]| -> Vector<Point2f> {
-            v.iter()
-                .map(|p| Point2f::new(p.x as f32, p.y as f32))
-                .collect()
-        };
-        let h = calib3d::find_homography(&to_cv(src), &to_cv(dst), &mut Mat::default(), 0, 3.0)
-            .map_err(cv("findHomography"))?;
-        if h.empty() {
-            return Ok(None);
-        }
-        let mut m = [[0.0; 3]; 3];
-        for (r, row) in m.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = *h
-                    .at_2d::<f64>(r as i32, c as i32)
-                    .map_err(cv("homography"))?;
-            }
-        }
-        Ok(m.iter().flatten().all(|v| v.is_finite()).then_some(Self(m)))
-    }
-
-    fn apply(&self, p: DVec2) -> DVec2 {
-        let m = &self.0;
-        let w = m[2][0] * p.x + m[2][1] * p.y + m[2][2];
-        DVec2::new(
-            (m[0][0] * p.x + m[0][1] * p.y + m[0][2]) / w,
-            (m[1][0] * p.x + m[1][1] * p.y + m[1][2]) / w,
-        )
-    }
 }
 
 /// Tag units: a tag's border spans `[-0.5, 0.5]²` (library corner order: bottom-left,
@@ -222,25 +181,22 @@ fn corner_sq(board: &BoardSpec, id: usize) -> DVec2 {
     DVec2::new((id % cols) as f64, (id / cols) as f64)
 }
 
-/// Orders a whole-board detection by the board's tags (see the module docs). Returns
-/// `Ok(true)` when the tags fixed the order (the detection may have been turned by 180°),
-/// `Ok(false)` when no tag of the board was seen (order unchanged), and `Err(reason)` when
-/// the tags say this is not the board of `board.toml`.
+/// What the board's tags say about a whole-board detection's order (see the module docs):
+/// `Ok(None)` when no tag of the board was seen, `Ok(Some(turn))` when the tags fixed the order
+/// (`turn`: the corners must be turned by 180°), and `Err(reason)` when the tags say this is
+/// not the board of `board.toml`. `corners_px[k]` is board corner `corner_ids[k]`.
 pub fn order_by_tags(
     board: &BoardSpec,
-    det: &mut BoardDetection,
+    corners_px: &[DVec2],
+    corner_ids: &[usize],
     tags: &[TagDetection],
-) -> Result<Result<bool, String>, CalibError> {
+) -> Result<Result<Option<bool>, String>, CalibError> {
     if tags.is_empty() {
-        return Ok(Ok(false));
+        return Ok(Ok(None));
     }
-    let board_pts: Vec<DVec2> = det
-        .corner_ids
-        .iter()
-        .map(|&i| corner_sq(board, i))
-        .collect();
-    let Some(image_to_board) = Homography::fit(&det.corners_px, &board_pts)? else {
-        return Ok(Ok(false));
+    let board_pts: Vec<DVec2> = corner_ids.iter().map(|&i| corner_sq(board, i)).collect();
+    let Some(image_to_board) = Homography::fit(corners_px, &board_pts)? else {
+        return Ok(Ok(None));
     };
     let (cols, rows) = (f64::from(board.cols()), f64::from(board.rows()));
     let turn = |p: DVec2| DVec2::new(cols - 1.0 - p.x, rows - 1.0 - p.y);
@@ -279,7 +235,7 @@ pub fn order_by_tags(
                 "AprilTags {misplaced:?} of this board are not where board.toml puts them (check the tag layout and apriltag_ratio)"
             )));
         }
-        return Ok(Ok(false));
+        return Ok(Ok(None));
     }
     tracing::debug!(
         ?as_is,
@@ -288,17 +244,13 @@ pub fn order_by_tags(
         ?foreign,
         "board ordered by tags"
     );
-    if turned.len() > as_is.len() {
-        crate::frontend::rotate_180(det, board.corner_count());
-    }
-    det.order = BoardOrder::Tags;
-    Ok(Ok(true))
+    Ok(Ok(Some(turned.len() > as_is.len())))
 }
 
 /// Tag ink and paper as this image shows them: medians of the tags' black border cells and
 /// white code cells (raw image values, either polarity).
 fn ink_and_paper(
-    img: &ScalarImage,
+    sample: &dyn Fn(DVec2) -> f64,
     board: &BoardSpec,
     tags: &[(&TagDetection, Homography)],
 ) -> Option<(f64, f64)> {
@@ -311,7 +263,7 @@ fn ink_and_paper(
         for (y, row) in cells.iter().enumerate() {
             for (x, white) in row.iter().enumerate() {
                 let p = origin + DVec2::new(x as f64 + 0.5, y as f64 + 0.5) * side / 8.0;
-                let v = img.sample(h.apply(p));
+                let v = sample(h.apply(p));
                 let border = x == 0 || y == 0 || x == 7 || y == 7;
                 if border {
                     ink.push(v);
@@ -332,16 +284,40 @@ fn ink_and_paper(
     Some((median(&mut ink)?, median(&mut paper)?))
 }
 
-/// The corners of a partly visible board around its decoded tags (see the module docs), or
-/// why there are too few. `float_img` is the stretched float image `cornerSubPix` runs on.
+/// A board's corners found from its tags: whole or partial, ascending corner ids.
+#[derive(Debug, Clone)]
+pub struct TagCorners {
+    pub corners_px: Vec<DVec2>,
+    /// The board's row-major corner index of each corner.
+    pub corner_ids: Vec<usize>,
+    /// RMS distance of the corners from the best homography of their board positions (px).
+    pub planar_fit_px: f64,
+}
+
+/// Why no tag of the board can seed it: no tag in view, or only other boards' tags.
+pub fn no_board_tags(tags: &[TagDetection]) -> String {
+    if tags.is_empty() {
+        "no AprilTag in view".to_string()
+    } else {
+        format!(
+            "none of the AprilTags in view ({:?}) is board.toml's",
+            tags.iter().map(|t| t.id).collect::<Vec<_>>()
+        )
+    }
+}
+
+/// The corners of a board grown from its decoded tags (see the module docs), or why there are
+/// too few. `sample` reads the image's raw values (bilinear, any polarity), `size` is its
+/// width and height; `float_img` is the stretched float image (tags masked) `cornerSubPix`
+/// runs on.
 pub fn partial_from_tags(
-    img: &ScalarImage,
+    sample: &dyn Fn(DVec2) -> f64,
+    size: (u32, u32),
     float_img: &Mat,
     board: &BoardSpec,
     tags: &[TagDetection],
-) -> Result<Result<BoardDetection, String>, CalibError> {
+) -> Result<Result<TagCorners, String>, CalibError> {
     let (cols, rows) = (board.cols() as i64, board.rows() as i64);
-    let (w, h) = (f64::from(img.width_px), f64::from(img.height_px));
     // Known points: board position (squares) → image position.
     let mut known: Vec<(DVec2, DVec2)> = Vec::new();
     let mut ours: Vec<(&TagDetection, Homography)> = Vec::new();
@@ -357,12 +333,9 @@ pub fn partial_from_tags(
         ours.push((t, hm));
     }
     if ours.is_empty() {
-        return Ok(Err(format!(
-            "none of the AprilTags in view ({:?}) is board.toml's",
-            tags.iter().map(|t| t.id).collect::<Vec<_>>()
-        )));
+        return Ok(Err(no_board_tags(tags)));
     }
-    let Some((ink, paper)) = ink_and_paper(img, board, &ours) else {
+    let Some((ink, paper)) = ink_and_paper(sample, board, &ours) else {
         return Ok(Err("the tags' cells could not be sampled".into()));
     };
     let contrast = (paper - ink).abs();
@@ -405,34 +378,34 @@ pub fn partial_from_tags(
         .into_iter()
         .map(|(i, j)| (i64::from(i), i64::from(j)))
         .collect();
+    // Accepted corners keyed (row, column): the map's order is the board's row-major order.
     let mut accepted: BTreeMap<(i64, i64), DVec2> = BTreeMap::new();
     let mut refused: BTreeSet<(i64, i64)> = BTreeSet::new();
     let mut reasons: BTreeMap<&'static str, usize> = BTreeMap::new();
-    while let Some(&(c, r)) = frontier.iter().next() {
-        frontier.remove(&(c, r));
-        if c < 0 || r < 0 || c >= cols || r >= rows || accepted.contains_key(&(c, r)) {
+    let mut grow = Grow {
+        sample,
+        float_img: &mut masked,
+        painted: &mut painted,
+        tagged: &tagged,
+        board,
+        ink,
+        contrast,
+        size: (f64::from(size.0), f64::from(size.1)),
+        criteria: &criteria,
+    };
+    while let Some((c, r)) = frontier.pop_first() {
+        if c < 0 || r < 0 || c >= cols || r >= rows || accepted.contains_key(&(r, c)) {
             continue;
         }
         let at = DVec2::new(c as f64, r as f64);
-        let mut grow = Grow {
-            img,
-            float_img: &mut masked,
-            painted: &mut painted,
-            tagged: &tagged,
-            board,
-            ink,
-            contrast,
-            size: (w, h),
-            criteria: &criteria,
-        };
         match grow.try_corner(&known, at)? {
             Ok(p) => {
-                accepted.insert((c, r), p);
+                accepted.insert((r, c), p);
                 known.push((at, p));
                 for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                    let n = (c + dc, r + dr);
-                    if !accepted.contains_key(&n) && !refused.contains(&n) {
-                        frontier.insert(n);
+                    let (nc, nr) = (c + dc, r + dr);
+                    if !accepted.contains_key(&(nr, nc)) && !refused.contains(&(nc, nr)) {
+                        frontier.insert((nc, nr));
                     }
                 }
             }
@@ -442,60 +415,38 @@ pub fn partial_from_tags(
             }
         }
     }
-    let ids: Vec<usize> = accepted
-        .keys()
-        .map(|&(c, r)| (r * cols + c) as usize)
-        .collect();
-    let pts: Vec<DVec2> = accepted.values().copied().collect();
-    let distinct =
-        |f: fn(&(i64, i64)) -> i64| accepted.keys().map(f).collect::<BTreeSet<_>>().len();
-    if pts.len() < MIN_PARTIAL_CORNERS || distinct(|k| k.0) < 2 || distinct(|k| k.1) < 2 {
+    let rows_seen = accepted.keys().map(|k| k.0).collect::<BTreeSet<_>>().len();
+    let cols_seen = accepted.keys().map(|k| k.1).collect::<BTreeSet<_>>().len();
+    if accepted.len() < MIN_PARTIAL_CORNERS || rows_seen < 2 || cols_seen < 2 {
         return Ok(Err(format!(
             "partial board: {} corners verified around AprilTags {:?} (need {MIN_PARTIAL_CORNERS} over 2+ rows and columns); refused: {reasons:?}",
-            pts.len(),
+            accepted.len(),
             ours.iter().map(|(t, _)| t.id).collect::<Vec<_>>()
         )));
     }
-    // Order: BTreeMap keys are (c, r); corner ids are row-major.
-    let mut order: Vec<usize> = (0..ids.len()).collect();
-    order.sort_by_key(|&i| ids[i]);
-    let corner_ids: Vec<usize> = order.iter().map(|&i| ids[i]).collect();
-    let corners_px: Vec<DVec2> = order.iter().map(|&i| pts[i]).collect();
+    let corner_ids: Vec<usize> = accepted
+        .keys()
+        .map(|&(r, c)| (r * cols + c) as usize)
+        .collect();
+    let corners_px: Vec<DVec2> = accepted.into_values().collect();
     let board_pts: Vec<DVec2> = corner_ids.iter().map(|&i| corner_sq(board, i)).collect();
-    let planar_fit_px = match Homography::fit(&board_pts, &corners_px)? {
-        Some(hm) => {
-            let ss: f64 = board_pts
-                .iter()
-                .zip(&corners_px)
-                .map(|(b, p)| (hm.apply(*b) - *p).length_squared())
-                .sum();
-            (ss / corners_px.len() as f64).sqrt()
-        }
-        None => f64::INFINITY,
-    };
+    let planar_fit_px = planar_fit_rms(&board_pts, &corners_px)?;
     tracing::debug!(
         corners = corners_px.len(),
         ?reasons,
-        "partial board from tags"
+        "board grown from tags"
     );
-    Ok(Ok(BoardDetection {
-        corners_px: corners_px.clone(),
+    Ok(Ok(TagCorners {
+        corners_px,
         corner_ids,
-        detector: "apriltag",
-        inverted: false,
-        sharpness_px: f64::NAN,
-        contrast_z: f64::NAN,
-        roughness_px: f64::NAN,
         planar_fit_px,
-        refinement: Refinement::CornerSubPix,
-        variants: vec![(Refinement::CornerSubPix, corners_px)],
-        order: BoardOrder::Tags,
     }))
 }
 
 /// The state a partial board grows in.
 struct Grow<'a> {
-    img: &'a ScalarImage,
+    /// The image's raw values.
+    sample: &'a dyn Fn(DVec2) -> f64,
     /// The float image, tags painted over.
     float_img: &'a mut Mat,
     /// Tag squares `(i, j)` painted so far.
@@ -517,7 +468,7 @@ impl Grow<'_> {
         known: &[(DVec2, DVec2)],
         at: DVec2,
     ) -> Result<Result<DVec2, &'static str>, CalibError> {
-        let (img, ink, contrast, (w, h)) = (self.img, self.ink, self.contrast, self.size);
+        let (ink, contrast, (w, h)) = (self.ink, self.contrast, self.size);
         // Local homography: the known points within 2.5 squares, widened until there are 8.
         let mut local = None;
         for radius in [2.5, 4.0, f64::INFINITY] {
@@ -598,7 +549,7 @@ impl Grow<'_> {
             if p.x < 0.0 || p.y < 0.0 || p.x > w - 1.0 || p.y > h - 1.0 {
                 continue;
             }
-            if (img.sample(p) - ink).abs() > 0.35 * contrast {
+            if ((self.sample)(p) - ink).abs() > 0.35 * contrast {
                 return Ok(Err("coated square does not read as tag ink"));
             }
         }
