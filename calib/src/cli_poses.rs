@@ -20,7 +20,8 @@ pub enum MatcherArg {
 /// Structure from motion (COLMAP, CPU) runs on the RGB keyframes with the calibrated RGB
 /// camera fixed; each usable thermal frame gets the RGB pose interpolated to its capture time,
 /// composed with the calibrated rgb_from_thermal. A session without RGB runs COLMAP on the
-/// thermal frames. FFC-frozen and motion-blurred frames are skipped, near-duplicates thinned,
+/// thermal frames. With an AprilTag map (--tags) the scale is metric, and keyframes that see
+/// mapped tags are posed without COLMAP. FFC-frozen and motion-blurred frames are skipped, near-duplicates thinned,
 /// every --holdout-every-th view held out (holdout.txt). The dataset: sparse/0/ (the thermal
 /// camera with its calibrated distortion; the trainer undistorts at load), images/ (16-bit
 /// words untouched), holdout.txt, poses.json (what was kept and why), colmap/ (COLMAP's
@@ -72,13 +73,24 @@ pub struct PosesArgs {
     /// Hold out every k-th view for testing (0: none).
     #[arg(long, default_value_t = 8)]
     holdout_every: usize,
-    /// Interpolate poses only between registered keyframes at most this far apart, seconds.
+    /// Interpolate poses only between registered keyframes at most this far apart, seconds
+    /// (with RGB also at most one bracket of keyframes, 2 × 0.12 s).
     #[arg(long, default_value_t = 1.5)]
     max_gap_s: f64,
     /// Metres per COLMAP world unit, when known: applies the calibrated lever arm between the
     /// cameras at the right scale (without it the thermal centre is taken at the RGB centre).
     #[arg(long)]
     metres_per_unit: Option<f64>,
+    /// AprilTag map (TOML: family = "tag36h11", size_m, and optionally [[tag]] id + corners_m,
+    /// four world corners in metres: bottom-left, bottom-right, top-right, top-left as
+    /// printed). The size gives COLMAP's world its metric scale (tag corners triangulated);
+    /// with corners, keyframes that see two mapped tags are posed by PnP, and COLMAP does not
+    /// run when enough are. s3tir-firmware-sim writes one beside a walk's truth (tags.toml).
+    #[arg(long)]
+    tags: Option<PathBuf>,
+    /// With a tag layout, run COLMAP anyway (the tags then only give the scale).
+    #[arg(long)]
+    no_tag_poses: bool,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -107,6 +119,8 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         holdout_every: a.holdout_every,
         max_gap_s: a.max_gap_s,
         metres_per_unit: a.metres_per_unit,
+        tags: a.tags.clone(),
+        tag_poses: !a.no_tag_poses,
         progress: !a.json,
         ..PosesOptions::default()
     };

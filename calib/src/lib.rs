@@ -40,7 +40,7 @@ pub mod solve;
 pub mod synth;
 #[cfg(feature = "opencv")]
 pub mod tagboard;
-#[cfg(feature = "opencv")]
+#[cfg(feature = "tags")]
 pub mod tags;
 #[cfg(feature = "opencv")]
 pub mod views;

@@ -142,6 +142,10 @@ enum Command {
         /// The rig's calibration.yaml for --dataset [default: the one attached to the session].
         #[arg(long, requires = "dataset")]
         calibration: Option<PathBuf>,
+        /// AprilTag map for --dataset (s3tir-calib poses --tags): metric scale, and poses
+        /// without COLMAP where mapped tags are in view.
+        #[arg(long, requires = "dataset")]
+        tags: Option<PathBuf>,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time.
@@ -179,13 +183,14 @@ fn main() -> Result<()> {
             out,
             dataset,
             calibration,
+            tags,
         }) => {
             if let Some(out) = out {
                 let n = tools::export(&file, &out)?;
                 println!("exported {n} pairs to {}", out.display());
             }
             if let Some(dataset) = dataset {
-                export_dataset(&file, &dataset, calibration.as_deref())?;
+                export_dataset(&file, &dataset, calibration.as_deref(), tags.as_deref())?;
             }
             Ok(())
         }
@@ -241,6 +246,7 @@ fn export_dataset(
     session: &std::path::Path,
     dataset: &std::path::Path,
     calibration: Option<&std::path::Path>,
+    tags: Option<&std::path::Path>,
 ) -> Result<()> {
     let exe_dir = std::env::current_exe()
         .ok()
@@ -257,6 +263,9 @@ fn export_dataset(
     cmd.arg("poses").arg(session).arg("--out").arg(dataset);
     if let Some(c) = calibration {
         cmd.arg("--calibration").arg(c);
+    }
+    if let Some(t) = tags {
+        cmd.arg("--tags").arg(t);
     }
     let status = cmd
         .status()

@@ -12,11 +12,13 @@
 //! - [`dataset`]: the `board` calibration set writer.
 //! - [`scene`]: trainer datasets of simple thermal scenes with truth.
 //! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
-//!   (`run --walk`), with the truth trajectory.
+//!   (`run --walk`), with the truth trajectory; [`fiducials`]: the AprilTags on its walls and
+//!   their map (`tags.toml`).
 
 pub mod board;
 pub mod dataset;
 pub mod error;
+pub mod fiducials;
 pub mod physics;
 pub mod render;
 pub mod rig;

@@ -6,6 +6,7 @@
 //! [`ROOM_HEIGHT_M`] high at 290 K (ε 0.9, thermally bland). Every surface carries a seeded,
 //! non-repeating, multi-scale albedo texture ([`texture`]: value noise at 3–40 cycles per metre
 //! times the surface's colour) that feature matchers can use; the thermal images do not see it.
+//! AprilTags are printed low on the walls and on the floor ([`crate::fiducials`]; RGB only).
 //!
 //! **Trajectories** ([`world_from_thermal`], the rig frame is the thermal camera):
 //! - `orbit`: a circle of radius 1.7 m at 1.0 m height around (0, 0, 0.2), looking at it,
@@ -29,7 +30,8 @@
 //! **Truth** (`--truth-dir DIR`): `DIR/truth.json` (format `s3tir-walk-truth/1`, written
 //! atomically when the walk ends): both camera models, `rgb_from_thermal`, the scene's centre
 //! and extent, and every frame sent with its stream, sequence, `monotonic_ns` (exactly the
-//! stamp on the wire) and `world_from_cam` at that instant.
+//! stamp on the wire) and `world_from_cam` at that instant; `DIR/tags.toml` maps the room's
+//! AprilTags (the poses stage's `--tags FILE`).
 
 use std::io::Write as _;
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -284,9 +286,23 @@ pub fn trace_walk(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
         }
     }
     best.map(|mut h| {
-        h.albedo = texture(o + d * h.t, h.albedo);
+        let p = o + d * h.t;
+        h.albedo = match h.object {
+            scene::SceneObject::Wall | scene::SceneObject::Ground => {
+                crate::fiducials::tag_albedo(walk_tags(), p)
+                    .map_or_else(|| texture(p, h.albedo), |a| [a; 3])
+            }
+            _ => texture(p, h.albedo),
+        };
         h
     })
+}
+
+/// The room's AprilTags ([`crate::fiducials`]), built once.
+pub fn walk_tags() -> &'static [crate::fiducials::PrintedTag] {
+    static TAGS: std::sync::OnceLock<Vec<crate::fiducials::PrintedTag>> =
+        std::sync::OnceLock::new();
+    TAGS.get_or_init(crate::fiducials::room_tags)
 }
 
 /// The scene's centre and the diameter of its bounding sphere (the room), metres.
@@ -706,6 +722,12 @@ pub fn write_truth(
             ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt(),
         )
     } else {
+        // The room's AprilTags: the poses stage's --tags map.
+        std::fs::write(
+            dir.join("tags.toml"),
+            crate::fiducials::tags_toml(walk_tags()),
+        )
+        .map_err(io("write tags.toml"))?;
         scene_extent()
     };
     let doc = TruthJson {

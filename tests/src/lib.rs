@@ -1,5 +1,6 @@
-//! Support for the end-to-end tests in `tests/tests/`: locating the workspace's binaries and
-//! reading the JSON the binaries print.
+//! Support for the end-to-end tests in `tests/tests/`: locating the workspace's binaries,
+//! reading the JSON the binaries print, and reading a simulated walk's truth
+//! ([`read_walk_truth`]).
 //!
 //! `cargo test --workspace` (what `make test` runs) builds every member's binaries into the
 //! same profile directory as the test executables; the tests run them from there.
@@ -81,4 +82,64 @@ pub fn json_f64(v: &Value, path: &[&str]) -> f64 {
     field(v, path)
         .as_f64()
         .unwrap_or_else(|| panic!("{path:?} missing or not a number in {v}"))
+}
+
+/// A rigid transform from the simulator's JSON (`rotation` rows, `translation_m`).
+pub fn rigid_from_json(v: &Value) -> s3tir_calib::Rigid3 {
+    use glam::{DMat3, DQuat, DVec3};
+    let rows: Vec<Vec<f64>> = serde_json::from_value(v["rotation"].clone())
+        .unwrap_or_else(|e| panic!("rotation rows: {e}"));
+    let m = DMat3::from_cols_array_2d(&[
+        [rows[0][0], rows[0][1], rows[0][2]],
+        [rows[1][0], rows[1][1], rows[1][2]],
+        [rows[2][0], rows[2][1], rows[2][2]],
+    ])
+    .transpose();
+    let t: [f64; 3] = serde_json::from_value(v["translation_m"].clone())
+        .unwrap_or_else(|e| panic!("translation_m: {e}"));
+    s3tir_calib::Rigid3::new(DQuat::from_mat3(&m), DVec3::from_array(t))
+}
+
+/// What a simulated walk's `truth.json` (`s3tir-walk-truth/1`) says.
+#[derive(Debug, Clone)]
+pub struct WalkTruth {
+    /// The rig's true calibration.
+    pub cal: s3tir_calib::calfile::CalibrationFile,
+    /// Diameter of the scene's bounding sphere, metres.
+    pub extent_m: f64,
+    /// Thermal frames: sequence → world_from_cam.
+    pub thermal: std::collections::BTreeMap<u32, s3tir_calib::Rigid3>,
+}
+
+/// Reads a walk's `truth.json`; panics naming the file when it does not read.
+pub fn read_walk_truth(path: &Path) -> WalkTruth {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let v: Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let model = |k: &str| -> s3tir_calib::CameraModel {
+        serde_json::from_value(v[k].clone()).unwrap_or_else(|e| panic!("truth {k}: {e}"))
+    };
+    let mut thermal = std::collections::BTreeMap::new();
+    for f in v["frames"]
+        .as_array()
+        .unwrap_or_else(|| panic!("truth has no frames"))
+    {
+        if f["stream"] == "thermal" {
+            let seq = f["sequence"]
+                .as_u64()
+                .unwrap_or_else(|| panic!("frame sequence"));
+            thermal.insert(seq as u32, rigid_from_json(&f["world_from_cam"]));
+        }
+    }
+    WalkTruth {
+        cal: s3tir_calib::calfile::CalibrationFile {
+            thermal: Some(model("thermal")),
+            rgb: Some(model("rgb")),
+            rgb_from_thermal: Some(rigid_from_json(&v["rgb_from_thermal"])),
+        },
+        extent_m: v["scene"]["extent_m"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("truth has no scene extent")),
+        thermal,
+    }
 }

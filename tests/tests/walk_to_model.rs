@@ -9,76 +9,35 @@
 //! < 1 % of the scene extent. Then the same dataset with the truth poses trains to within
 //! 1 dB of the recovered poses' held-out PSNR at equal iterations.
 //!
-//! Metric scale: COLMAP's world has none and fiducials are not built yet, so the first run
-//! leaves the 6.5 cm thermal-to-RGB lever arm out (the report says so) and is scored with
-//! that known bias stated; the second run takes the scale the alignment measured
-//! (`--metres-per-unit`) and COLMAP's own model of the first run (`--poses`), so it
-//! also proves the user-model path on real COLMAP output.
+//! AprilTags: the simulated room has tags on its walls and floor, and the simulator writes
+//! their map (`walk-truth/tags.toml`). Three runs of the poses stage on the one recording:
+//! 1. COLMAP with `--tags --no-tag-poses`: the tags give COLMAP's world its metric scale,
+//!    which must be within 1 % of the scale the truth alignment measures (the lever arm
+//!    between the cameras is then applied, so the centre error has no known bias);
+//! 2. COLMAP's own model of run 1 as a user's model (`--poses`), with the tags: the
+//!    user-model path on real COLMAP output; its dataset trains in step 4;
+//! 3. the fast path, `--tags` alone: keyframes posed by PnP on the mapped tags, COLMAP not
+//!    run; the world is the map's, so its poses are scored against the truth directly, and
+//!    the alignment's scale must be 1 within 1 %.
 //!
 //! Does NOT prove: anything on a real rig's frames (no real walk session exists here), nor
-//! COLMAP's determinism (it is not: poses are compared with tolerances, never hashed).
+//! COLMAP's determinism (poses are compared with tolerances, never hashed; the replay test
+//! `replay_walk.rs` hashes the fast path's dataset).
 //!
 //! Needs the workspace's binaries (`make test` / `cargo test --workspace`) and Debian's
 //! `colmap` (scripts/install-deps.sh).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use glam::{DMat3, DQuat, DVec3};
-use s3tir_calib::calfile::CalibrationFile;
+use s3tir_calib::Rigid3;
 use s3tir_calib::colmap::read_model;
-use s3tir_calib::{CameraModel, Rigid3};
-use s3tir_tests::bin;
+use s3tir_tests::{WalkTruth as Truth, bin, read_walk_truth as read_truth};
 use serde_json::Value;
 
 const WALK_S: &str = "16";
-
-fn rigid(v: &Value) -> Rigid3 {
-    let rows: Vec<Vec<f64>> = serde_json::from_value(v["rotation"].clone()).expect("rotation rows");
-    let m = DMat3::from_cols_array_2d(&[
-        [rows[0][0], rows[0][1], rows[0][2]],
-        [rows[1][0], rows[1][1], rows[1][2]],
-        [rows[2][0], rows[2][1], rows[2][2]],
-    ])
-    .transpose();
-    let t: [f64; 3] = serde_json::from_value(v["translation_m"].clone()).expect("translation");
-    Rigid3::new(DQuat::from_mat3(&m), DVec3::from_array(t))
-}
-
-struct Truth {
-    cal: CalibrationFile,
-    extent_m: f64,
-    /// Thermal frames: sequence → world_from_cam.
-    thermal: BTreeMap<u32, Rigid3>,
-}
-
-fn read_truth(path: &Path) -> Truth {
-    let v: Value = serde_json::from_str(&std::fs::read_to_string(path).expect("truth.json"))
-        .expect("truth.json is JSON");
-    let model = |k: &str| -> CameraModel {
-        serde_json::from_value(v[k].clone()).unwrap_or_else(|e| panic!("truth {k}: {e}"))
-    };
-    let mut thermal = BTreeMap::new();
-    for f in v["frames"].as_array().expect("frames") {
-        if f["stream"] == "thermal" {
-            thermal.insert(
-                f["sequence"].as_u64().expect("sequence") as u32,
-                rigid(&f["world_from_cam"]),
-            );
-        }
-    }
-    Truth {
-        cal: CalibrationFile {
-            thermal: Some(model("thermal")),
-            rgb: Some(model("rgb")),
-            rgb_from_thermal: Some(rigid(&v["rgb_from_thermal"])),
-        },
-        extent_m: v["scene"]["extent_m"].as_f64().expect("scene extent"),
-        thermal,
-    }
-}
 
 /// The similarity `truth ≈ s R est + t` between two reconstructions of the same cameras: the
 /// rotation is the chordal mean of `R_truth R_estᵀ` over the cameras (their orientations fix
@@ -289,26 +248,41 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
     let cal = tmp.path().join("calibration.yaml");
     std::fs::write(&cal, truth.cal.to_yaml()).expect("write calibration");
 
-    // 1. COLMAP on the RGB keyframes, scale unknown.
+    let tags = tmp.path().join("walk-truth/tags.toml");
+    let tags = tags.to_str().expect("utf-8");
+
+    // 1. COLMAP on the RGB keyframes, the scale from the tags.
     let ds = tmp.path().join("walk-dataset");
-    let report = poses(&session, &cal, &ds, &[]);
+    let report = poses(&session, &cal, &ds, &["--tags", tags, "--no-tag-poses"]);
+    assert_eq!(
+        report["pose_source"], "colmap",
+        "{}",
+        report["scale_source"]
+    );
     let registered = report["registered"].as_u64().expect("registered");
     let keyframes = report["keyframes"].as_u64().expect("keyframes");
     let first = score(&ds, &truth);
-    let lever_m = truth
-        .cal
-        .rgb_from_thermal
-        .expect("extrinsic")
-        .translation_m
-        .length();
+    let tag_scale = report["metres_per_unit"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no scale from the tags: {}", report["scale_source"]));
+    let scale_err = tag_scale / first.scale - 1.0;
     eprintln!(
-        "walk {WALK_S} s: {registered}/{keyframes} keyframes registered, {} views; scale unknown: median rotation error {:.3}°, centre {:.4} m ({:.2} % of the {:.2} m extent; lever arm {lever_m:.3} m left out); times {}",
+        "walk {WALK_S} s: {registered}/{keyframes} keyframes registered, {} views: median rotation error {:.3}°, centre {:.4} m ({:.2} % of the {:.2} m extent); scale from tags {tag_scale:.5} m/unit, alignment {:.5} ({:+.2} %; {}); times {}",
         first.views,
         first.median_rot_deg,
         first.median_centre_m,
         100.0 * first.median_centre_m / truth.extent_m,
         truth.extent_m,
+        first.scale,
+        100.0 * scale_err,
+        report["scale_source"],
         report["times"]
+    );
+    assert!(
+        scale_err.abs() < 0.01,
+        "the AprilTags' metric scale {tag_scale:.5} m/unit is {:+.2} % off the truth alignment's {:.5} (within 1 % required)",
+        100.0 * scale_err,
+        first.scale
     );
     assert!(
         registered as f64 >= 0.9 * keyframes as f64,
@@ -321,29 +295,25 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
         first.median_rot_deg
     );
     assert!(
-        first.median_centre_m < 0.01 * truth.extent_m + lever_m,
-        "median centre error {:.4} m with the {lever_m:.3} m lever arm left out",
-        first.median_centre_m
+        first.median_centre_m < 0.01 * truth.extent_m,
+        "median centre error {:.4} m (< 1 % of {:.2} m required)",
+        first.median_centre_m,
+        truth.extent_m
     );
 
-    // 2. The scale the alignment measured, COLMAP's model of run 1 as the user's model.
-    let ds2 = tmp.path().join("walk-dataset-scaled");
-    let mpu = first.scale.to_string();
+    // 2. COLMAP's model of run 1 as the user's model, the scale from the tags again.
+    let ds2 = tmp.path().join("walk-dataset-user-model");
     let sparse = ds.join("colmap/sparse/0");
-    poses(
+    let report2 = poses(
         &session,
         &cal,
         &ds2,
-        &[
-            "--metres-per-unit",
-            &mpu,
-            "--poses",
-            sparse.to_str().expect("utf-8"),
-        ],
+        &["--tags", tags, "--poses", sparse.to_str().expect("utf-8")],
     );
+    assert_eq!(report2["pose_source"], "user model");
     let second = score(&ds2, &truth);
     eprintln!(
-        "with the scale ({mpu} m per unit): median rotation {:.3}°, centre {:.4} m ({:.2} % of the extent)",
+        "user model: median rotation {:.3}°, centre {:.4} m ({:.2} % of the extent)",
         second.median_rot_deg,
         second.median_centre_m,
         100.0 * second.median_centre_m / truth.extent_m
@@ -356,7 +326,56 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
         truth.extent_m
     );
 
-    // 3. Training on recovered vs truth poses, equal iterations, both in the truth's frame
+    // 3. The fast path: PnP on the mapped tags, no COLMAP; the world is the truth's.
+    let ds3 = tmp.path().join("walk-dataset-tags");
+    let report3 = poses(&session, &cal, &ds3, &["--tags", tags]);
+    assert_eq!(
+        report3["pose_source"], "apriltags",
+        "the fast path must pose the walk: {report3}"
+    );
+    let fast = score(&ds3, &truth);
+    let model = read_model(&ds3.join("sparse/0")).expect("fast path model");
+    let direct: Vec<(f64, f64)> = model
+        .images
+        .iter()
+        .map(|im| {
+            let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
+                .parse()
+                .expect("name");
+            let (e, t) = (im.cam_from_world.inverse(), truth.thermal[&seq]);
+            (
+                e.rotation.angle_between(t.rotation).to_degrees(),
+                (e.translation_m - t.translation_m).length(),
+            )
+        })
+        .collect();
+    let direct_rot = median(direct.iter().map(|d| d.0).collect());
+    let direct_centre = median(direct.iter().map(|d| d.1).collect());
+    eprintln!(
+        "AprilTag fast path: {}/{} keyframes posed in {} s, {} views; in the truth's world without alignment: median rotation {direct_rot:.3}°, centre {direct_centre:.4} m ({:.2} % of the extent); alignment scale {:.4}",
+        report3["registered"],
+        report3["keyframes"],
+        report3["times"]["total_s"],
+        fast.views,
+        100.0 * direct_centre / truth.extent_m,
+        fast.scale
+    );
+    assert!(fast.views >= 10, "fast path views: {}", fast.views);
+    assert!(
+        direct_rot < 0.5,
+        "fast path median rotation {direct_rot:.3}° (< 0.5°)"
+    );
+    assert!(
+        direct_centre < 0.01 * truth.extent_m,
+        "fast path median centre {direct_centre:.4} m (< 1 % of the extent)"
+    );
+    assert!(
+        (fast.scale - 1.0).abs() < 0.01,
+        "the fast path's world is metric: alignment scale {:.4} (1 within 1 % required)",
+        fast.scale
+    );
+
+    // 4. Training on recovered vs truth poses, equal iterations, both in the truth's frame
     //    and units (the similarity fixes the recovered poses' gauge, so only their errors
     //    differ).
     let model = read_model(&ds2.join("sparse/0")).expect("model");

@@ -106,6 +106,10 @@ struct TrainArgs {
     /// Session input: the COLMAP program.
     #[arg(long, env = "S3TIR_COLMAP", default_value = "colmap")]
     colmap: PathBuf,
+    /// Session input: AprilTag map (see `s3tir-calib poses --help`): metric scale, and poses
+    /// without COLMAP where mapped tags are in view.
+    #[arg(long)]
+    tags: Option<PathBuf>,
     /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
     /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]
@@ -331,6 +335,7 @@ fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
     };
     let opts = PosesOptions {
         colmap: a.colmap.clone(),
+        tags: a.tags.clone(),
         holdout_every: a.holdout,
         progress: true,
         ..PosesOptions::default()

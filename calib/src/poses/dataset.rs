@@ -28,7 +28,7 @@ pub fn write(
     out: &Path,
     thermal: &CameraModel,
     views: &[ThermalView],
-    sfm: &ColmapModel,
+    points: &[ColmapPoint],
 ) -> Result<(), PosesError> {
     let images = out.join("images");
     std::fs::create_dir_all(&images).map_err(|e| out_err(&images, e))?;
@@ -64,15 +64,7 @@ pub fn write(
                 cam_from_world: v.world_from_cam.inverse(),
             })
             .collect(),
-        points: sfm
-            .points
-            .iter()
-            .map(|p| ColmapPoint {
-                id: p.id,
-                position_m: p.position_m,
-                rgb: p.rgb,
-            })
-            .collect(),
+        points: points.to_vec(),
     };
     let sparse = out.join("sparse").join("0");
     write_text_model(&sparse, &model).map_err(|e| out_err(&sparse, e))?;

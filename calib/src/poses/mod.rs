@@ -22,7 +22,11 @@
 //!    hand-held walk, keyframes nearest the thermal frames but interpolated over up to 0.3 s
 //!    left errors up to 0.7° from its 1.1 Hz, ±2° roll). A thermal-only session runs it on the
 //!    thermal stream, the sharpest frame of each `1 / keyframe_hz` slot.
-//! 3. **Structure from motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
+//! 3. **Poses of the keyframes.** *Fast path* ([`fiducials`]): with a tag map that places
+//!    AprilTags in the world (`--tags FILE`), every keyframe that sees two mapped tags is posed
+//!    by PnP on their corners; when enough keyframes are posed so (`min_registered`), COLMAP
+//!    does not run and the world is the map's, in metres. Otherwise, **structure from
+//!    motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
 //!    on the keyframes, CPU SIFT, with the calibrated intrinsics and distortion **fixed** (the
 //!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
 //!    user's model (`--poses DIR`) is read instead. The largest reconstruction is kept.
@@ -35,14 +39,16 @@
 //!    (`--metres-per-unit`). Without it the thermal camera centre is taken at the RGB camera's
 //!    (the rotation is applied, the few-centimetre lever arm is not): a bounded error of the
 //!    lever arm's length, where a guessed scale could be wrong by any factor. The report says
-//!    which. (Metric scale from fiducials in view is not built yet.)
+//!    which. With a tag map (`--tags FILE`, [`fiducials`]) the scale is measured: tag corners
+//!    triangulated in COLMAP's world against the tags' printed size.
 //! 5. **Views** ([`select`]): near-duplicates are thinned (a view is kept when it moved at least
 //!    `min_baseline` × the median scene depth or turned `min_rotation_deg` since the last kept
 //!    one), every `holdout_every`-th kept view is held out (`holdout.txt`: the trainer never
 //!    trains on them; their poses come from interpolation like every thermal view's, no SfM
 //!    step saw their pixels).
 //! 6. **Dataset** ([`dataset`]): `sparse/0/` (one thermal camera with the calibrated
-//!    distortion, `images.txt`, the SfM points in `points3D.txt`), `images/` (the radiometric
+//!    distortion, `images.txt`, the SfM points in `points3D.txt` — none on the AprilTag fast
+//!    path, where the trainer initialises in the scene's bounds), `images/` (the radiometric
 //!    16-bit words untouched, PNG), `holdout.txt`, and `poses.json` (every frame's decision and
 //!    why, the SfM figures and the timings). Distortion: images stay untouched on disk; the
 //!    trainer undistorts them once at load (`OPENCV`/`FULL_OPENCV` camera, bilinear, same K),
@@ -53,11 +59,13 @@
 //! renames it to `OUT` when everything is written, and the session is only read.
 
 pub mod dataset;
+pub mod fiducials;
 pub mod frames;
 pub mod interp;
 pub mod select;
 pub mod sfm;
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -115,6 +123,8 @@ pub enum PosesError {
     },
     #[error("session {path}: {reason}")]
     Nothing { path: PathBuf, reason: String },
+    #[error("AprilTag map or detection {path}: {reason}")]
+    Tags { path: PathBuf, reason: String },
 }
 
 /// Which COLMAP matcher pairs the keyframes.
@@ -160,12 +170,19 @@ pub struct PosesOptions {
     pub max_views: usize,
     /// Every k-th kept view is held out (0: none).
     pub holdout_every: usize,
-    /// Interpolate only between registered keyframes at most this far apart in time.
+    /// Interpolate only between registered keyframes at most this far apart in time (with RGB,
+    /// also at most one bracket: `2 × max_sync_s`).
     pub max_gap_s: f64,
     /// At least this fraction of the keyframes (and at least 5) must register.
     pub min_registered: f64,
-    /// Metres per SfM world unit, when known (module docs, step 4).
+    /// Metres per SfM world unit, when known (module docs, step 4); wins over the tags' scale.
     pub metres_per_unit: Option<f64>,
+    /// An AprilTag map (`fiducials` module docs): metric scale for COLMAP's world, and with a
+    /// layout, poses without COLMAP.
+    pub tags: Option<PathBuf>,
+    /// With a tag layout: pose keyframes by PnP and skip COLMAP when enough are posed
+    /// (`false`: COLMAP always runs; the tags still give the scale).
+    pub tag_poses: bool,
     /// CPU threads COLMAP may use.
     pub threads: usize,
     /// Draw progress bars.
@@ -191,6 +208,8 @@ impl Default for PosesOptions {
             max_gap_s: 1.5,
             min_registered: 0.5,
             metres_per_unit: None,
+            tags: None,
+            tag_poses: true,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
             progress: false,
         }
@@ -202,6 +221,8 @@ impl Default for PosesOptions {
 pub struct StageTimes {
     pub scan_s: f64,
     pub keyframes_s: f64,
+    /// AprilTag detection in the keyframes and PnP.
+    pub tags_s: f64,
     pub colmap_features_s: f64,
     pub colmap_matching_s: f64,
     pub colmap_mapper_s: f64,
@@ -216,8 +237,10 @@ pub struct StageTimes {
 pub struct PosesReport {
     pub session: PathBuf,
     pub dataset: PathBuf,
-    /// "rgb" or "thermal": the stream structure from motion ran on.
+    /// "rgb" or "thermal": the stream the keyframes come from.
     pub sfm_stream: &'static str,
+    /// What posed the keyframes: "colmap", "apriltags" (fast path) or "user model".
+    pub pose_source: &'static str,
     pub session_truncated: bool,
     pub session_note: Option<String>,
     pub thermal_frames: usize,
@@ -229,6 +252,10 @@ pub struct PosesReport {
     /// Metres per world unit, when known.
     pub metres_per_unit: Option<f64>,
     pub scale_source: String,
+    /// Keyframes in which at least one tag of the map was decoded (with `--tags`).
+    pub tag_keyframes: Option<usize>,
+    /// The scale measured from the tags on COLMAP's world (with `--tags`, COLMAP path).
+    pub tag_scale: Option<fiducials::TagScale>,
     pub views: usize,
     pub held_out: usize,
     /// Count of thermal frames per reason they were not used.
@@ -406,7 +433,16 @@ pub fn session_to_dataset(
         }
     };
     let rig = rig_models(cal, &scan)?;
-    if opts.user_model.is_none() {
+    let tag_map = opts
+        .tags
+        .as_deref()
+        .map(fiducials::TagMap::read)
+        .transpose()?;
+    // With a tag layout COLMAP may not be needed: checked when it is.
+    let may_skip_colmap = tag_map
+        .as_ref()
+        .is_some_and(|m| m.has_layout() && opts.tag_poses);
+    if opts.user_model.is_none() && !may_skip_colmap {
         sfm::check_colmap(&opts.colmap)?;
     }
     // Only now (inputs checked) is anything created: in OUT.partial, renamed to OUT at the end,
@@ -452,15 +488,69 @@ pub fn session_to_dataset(
     };
     let workspace = out.join("colmap");
     frames::write_keyframes(session, sfm_stream, &keyframes, &workspace.join("images"))?;
-    let model = match &opts.user_model {
-        Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
-            path: dir.clone(),
-            source,
-        })?,
-        None => sfm::run_colmap(&workspace, &sfm_camera, keyframes.len(), opts, &mut times)?,
-    };
-    let registered = sfm::registered_keyframes(&model, sfm_frames);
     let needed = ((keyframes.len() as f64 * opts.min_registered).ceil() as usize).max(5);
+
+    // AprilTags in the keyframes: PnP poses (fast path) and, for COLMAP's world, the scale.
+    let t = std::time::Instant::now();
+    let seen = match &tag_map {
+        Some(m) => fiducials::detect_in_keyframes(
+            &workspace.join("images"),
+            sfm_stream,
+            &keyframes,
+            m.has_layout().then(|| m.corners.keys().copied().collect()),
+        )?,
+        None => Vec::new(),
+    };
+    let mut tag_posed: BTreeMap<u64, fiducials::TagPose> = match &tag_map {
+        Some(m) if may_skip_colmap && opts.user_model.is_none() => seen
+            .iter()
+            .filter_map(|s| Some((s.monotonic_ns, fiducials::pnp(m, &sfm_camera, &s.tags)?)))
+            .collect(),
+        _ => BTreeMap::new(),
+    };
+    let jumps: std::collections::BTreeSet<u64> =
+        fiducials::drop_jumps(&mut tag_posed).into_iter().collect();
+    times.tags_s = t.elapsed().as_secs_f64();
+    let fast_path = !tag_posed.is_empty() && tag_posed.len() >= needed;
+    if may_skip_colmap && opts.user_model.is_none() && !fast_path {
+        tracing::info!(
+            posed = tag_posed.len(),
+            keyframes = keyframes.len(),
+            needed,
+            "too few keyframes see two mapped AprilTags: structure from motion runs"
+        );
+    }
+
+    let (pose_source, registered, sfm_points) = if fast_path {
+        let registered: Vec<(u64, crate::geometry::Rigid3)> = tag_posed
+            .iter()
+            .map(|(t, p)| (*t, p.world_from_cam))
+            .collect();
+        ("apriltags", registered, Vec::new())
+    } else {
+        let model = match &opts.user_model {
+            Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
+                path: dir.clone(),
+                source,
+            })?,
+            None => {
+                if may_skip_colmap {
+                    sfm::check_colmap(&opts.colmap)?;
+                }
+                sfm::run_colmap(&workspace, &sfm_camera, keyframes.len(), opts, &mut times)?
+            }
+        };
+        let source = if opts.user_model.is_some() {
+            "user model"
+        } else {
+            "colmap"
+        };
+        (
+            source,
+            sfm::registered_keyframes(&model, sfm_frames),
+            model.points,
+        )
+    };
     if registered.len() < needed {
         return Err(PosesError::TooFewRegistered {
             registered: registered.len(),
@@ -471,25 +561,73 @@ pub fn session_to_dataset(
     }
 
     let t = std::time::Instant::now();
-    let track = interp::Track::new(&registered, opts.max_gap_s);
+    // With RGB, a thermal frame is interpolated only between its own bracketing keyframes
+    // (step 2): across a missing one, a hand's roll makes the slerp wrong by degrees (2.3°
+    // on the simulated walk when a bracket keyframe saw too few tags).
+    let max_gap_s = match sfm_stream {
+        frames::Stream::Rgb => opts.max_gap_s.min(2.0 * opts.max_sync_s + 0.02),
+        frames::Stream::Thermal => opts.max_gap_s,
+    };
+    let track = interp::Track::new(&registered, max_gap_s);
     times.interpolate_s = t.elapsed().as_secs_f64();
 
     let t = std::time::Instant::now();
-    let points: Vec<[f64; 3]> = model.points.iter().map(|p| p.position_m).collect();
-    let (units_per_metre, scale_source) = match (opts.metres_per_unit, rig.rgb) {
-        (_, None) => (
-            0.0,
-            "thermal-only SfM: world units are COLMAP's, no lever arm to scale".to_owned(),
-        ),
-        (Some(m), Some(_)) => (1.0 / m, format!("given: {m} m per world unit")),
-        (None, Some((_, e))) => (
-            0.0,
+    // Scene depth for thinning: the SfM points, or the mapped tags on the fast path.
+    let points: Vec<[f64; 3]> = if fast_path {
+        tag_map
+            .iter()
+            .flat_map(|m| m.corners.values().flatten().map(|p| p.to_array()))
+            .collect()
+    } else {
+        sfm_points.iter().map(|p| p.position_m).collect()
+    };
+    let tag_scale = match &tag_map {
+        Some(m) if !fast_path => {
+            let by_time: BTreeMap<u64, crate::geometry::Rigid3> =
+                registered.iter().copied().collect();
+            fiducials::scale_from_tags(m, &sfm_camera, &seen, &by_time)
+        }
+        _ => None,
+    };
+    let (metres_per_unit, scale_source) = match (fast_path, opts.metres_per_unit, &tag_scale) {
+        (true, _, _) => (
+            Some(1.0),
             format!(
-                "unknown: COLMAP's world has no metric scale, so the {:.3} m thermal-to-RGB lever arm is not applied (thermal centre = RGB centre); pass --metres-per-unit to apply it",
-                e.translation_m.length()
+                "metric: the keyframes were posed in the AprilTag map {} (metres)",
+                tag_map.as_ref().map_or(Path::new(""), |m| &m.path).display()
             ),
         ),
+        (false, Some(m), _) => (Some(m), format!("given: {m} m per world unit")),
+        (false, None, Some(ts)) => (
+            Some(ts.metres_per_unit),
+            format!(
+                "measured from AprilTags ({}): {:.5} m per world unit ({} tags, {} lengths, spread {:.2} %)",
+                ts.method,
+                ts.metres_per_unit,
+                ts.tags,
+                ts.lengths,
+                100.0 * ts.spread
+            ),
+        ),
+        (false, None, None) => (
+            None,
+            match (rig.rgb, &tag_map) {
+                (None, _) => {
+                    "unknown: thermal-only structure from motion, world units are COLMAP's (no lever arm to scale)".to_owned()
+                }
+                (Some((_, e)), map) => format!(
+                    "unknown: COLMAP's world has no metric scale{}, so the {:.3} m thermal-to-RGB lever arm is not applied (thermal centre = RGB centre); pass --metres-per-unit or --tags to apply it",
+                    if map.is_some() {
+                        " (no tag was seen in three registered keyframes with parallax)"
+                    } else {
+                        ""
+                    },
+                    e.translation_m.length()
+                ),
+            },
+        ),
     };
+    let units_per_metre = metres_per_unit.map_or(0.0, |m| 1.0 / m);
     times.scale_s = t.elapsed().as_secs_f64();
 
     // rgb_from_thermal with its translation in world units: world_from_thermal =
@@ -508,10 +646,25 @@ pub fn session_to_dataset(
         stream: sfm_stream.name(),
         sequence: k.sequence,
         monotonic_ns: k.monotonic_ns,
-        decision: if registered_at.contains(&k.monotonic_ns) {
-            "keyframe: registered by structure from motion".into()
-        } else {
-            "keyframe: not registered by structure from motion".into()
+        decision: match (fast_path, tag_posed.get(&k.monotonic_ns)) {
+            (true, Some(p)) => format!(
+                "keyframe: posed by AprilTags ({} tags, corner rms {:.2} px)",
+                p.tags, p.rms_px
+            ),
+            (true, None) if jumps.contains(&k.monotonic_ns) => format!(
+                "keyframe: not posed (its AprilTag pose is more than {}° or {} m off its neighbours' in time)",
+                fiducials::OUTLIER_DEG,
+                fiducials::OUTLIER_M
+            ),
+            (true, None) => format!(
+                "keyframe: not posed (fewer than {} mapped AprilTags decoded, or their corners fit no pose within {} px)",
+                fiducials::MIN_PNP_TAGS,
+                fiducials::MAX_PNP_RMS_PX
+            ),
+            (false, _) if registered_at.contains(&k.monotonic_ns) => {
+                "keyframe: registered by structure from motion".into()
+            }
+            (false, _) => "keyframe: not registered by structure from motion".into(),
         },
     }));
     decisions.sort_by_key(|d| (d.monotonic_ns, d.stream));
@@ -527,7 +680,7 @@ pub fn session_to_dataset(
     }
 
     let t = std::time::Instant::now();
-    dataset::write(session, out, &rig.thermal, &views, &model)?;
+    dataset::write(session, out, &rig.thermal, &views, &sfm_points)?;
     times.write_s = t.elapsed().as_secs_f64();
     times.total_s = t_all.elapsed().as_secs_f64();
 
@@ -535,6 +688,7 @@ pub fn session_to_dataset(
         session: session.to_path_buf(),
         dataset: final_out.to_path_buf(),
         sfm_stream: sfm_stream.name(),
+        pose_source,
         session_truncated: scan.truncated,
         session_note: scan.note.clone(),
         thermal_frames: scan.thermal.len(),
@@ -542,9 +696,13 @@ pub fn session_to_dataset(
         dropped_frames: scan.dropped,
         keyframes: keyframes.len(),
         registered: registered.len(),
-        sfm_points: model.points.len(),
-        metres_per_unit: opts.metres_per_unit,
+        sfm_points: sfm_points.len(),
+        metres_per_unit,
         scale_source,
+        tag_keyframes: tag_map
+            .as_ref()
+            .map(|_| seen.iter().filter(|s| !s.tags.is_empty()).count()),
+        tag_scale,
         views: views.iter().filter(|v| !v.held_out).count(),
         held_out: views.iter().filter(|v| v.held_out).count(),
         skipped,
@@ -571,11 +729,25 @@ pub fn summary(r: &PosesReport) -> String {
         r.rgb_frames,
         r.dropped_frames
     );
-    let _ = writeln!(
-        s,
-        "structure from motion on {}: {} of {} keyframes registered, {} points",
-        r.sfm_stream, r.registered, r.keyframes, r.sfm_points
-    );
+    match r.pose_source {
+        "apriltags" => {
+            let _ = writeln!(
+                s,
+                "AprilTag poses on {}: {} of {} keyframes posed by PnP (COLMAP not run)",
+                r.sfm_stream, r.registered, r.keyframes
+            );
+        }
+        source => {
+            let _ = writeln!(
+                s,
+                "structure from motion ({source}) on {}: {} of {} keyframes registered, {} points",
+                r.sfm_stream, r.registered, r.keyframes, r.sfm_points
+            );
+        }
+    }
+    if let Some(n) = r.tag_keyframes {
+        let _ = writeln!(s, "AprilTags decoded in {n} of {} keyframes", r.keyframes);
+    }
     let _ = writeln!(s, "scale: {}", r.scale_source);
     let _ = writeln!(
         s,
@@ -590,8 +762,14 @@ pub fn summary(r: &PosesReport) -> String {
     let t = &r.times;
     let _ = writeln!(
         s,
-        "time {:.1} s: scan {:.1}, features {:.1}, matching {:.1}, mapper {:.1}, write {:.1}",
-        t.total_s, t.scan_s, t.colmap_features_s, t.colmap_matching_s, t.colmap_mapper_s, t.write_s
+        "time {:.1} s: scan {:.1}, tags {:.1}, features {:.1}, matching {:.1}, mapper {:.1}, write {:.1}",
+        t.total_s,
+        t.scan_s,
+        t.tags_s,
+        t.colmap_features_s,
+        t.colmap_matching_s,
+        t.colmap_mapper_s,
+        t.write_s
     );
     s
 }

@@ -30,8 +30,8 @@ pub struct ThermalView {
     pub held_out: bool,
 }
 
-/// Median of `v` (0 for an empty slice).
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median of `v` (the upper one for an even count; 0 for an empty slice).
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
@@ -221,7 +221,7 @@ pub fn thermal_views(
                 stream: "thermal",
                 sequence: f.sequence,
                 monotonic_ns: f.monotonic_ns,
-                decision: "skipped: no registered keyframe within max_gap_s on both sides".into(),
+                decision: "skipped: no posed keyframe close enough on both sides (max_gap_s; with RGB, its own bracket)".into(),
             }),
         }
     }
