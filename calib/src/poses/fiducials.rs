@@ -32,8 +32,9 @@
 //! only, each tag's four sides and two diagonals do. The scale is their median; the report
 //! gives the count and the spread (median absolute deviation over the median). Tag sides are
 //! short: a corner bias of a fifth of a pixel (blur seen through the camera's gamma shrinks a
-//! dark square) moves a 40 px side by 1 %; on the simulated walk the sides read 0.5 % high
-//! where the distances between tags read within 0.1 %.
+//! dark square) moves a 40 px side by 1 %. On the simulated 16 s walk, against the scale the
+//! truth alignment measures: sides and diagonals +0.50 %, distances between tags −0.28 %
+//! (spread 0.16 % over 1 702 lengths).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
