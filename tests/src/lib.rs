@@ -30,6 +30,31 @@ pub fn bin(name: &str) -> PathBuf {
     path
 }
 
+/// Runs `cmd` (described as `what` in failures) and returns its stdout; panics with both
+/// outputs when it cannot start or exits with failure.
+pub fn run_ok(cmd: &mut Command, what: &str) -> String {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {what}: {e}"));
+    assert!(
+        out.status.success(),
+        "{what} failed: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The thermal sequence number in a dataset image name the poses stage wrote
+/// (`thermal_SEQUENCE.png`); panics on any other name.
+pub fn thermal_sequence(name: &str) -> u32 {
+    use s3tir_calib::poses::frames::Stream;
+    match Stream::parse_file_name(name) {
+        Some((Stream::Thermal, seq)) => seq,
+        _ => panic!("{name} is not a thermal image name of the poses stage"),
+    }
+}
+
 /// `s3tir-capture info --json PATH`, parsed; panics with the tool's stderr when it fails.
 pub fn capture_info_json(path: &Path) -> Value {
     let out = Command::new(bin("s3tir-capture"))

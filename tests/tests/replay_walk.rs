@@ -26,7 +26,7 @@ use std::process::Command;
 
 use s3tir_calib::colmap::read_model;
 use s3tir_capture::tools::Digest;
-use s3tir_tests::{bin, read_walk_truth};
+use s3tir_tests::{bin, read_walk_truth, run_ok, thermal_sequence};
 use serde_json::Value;
 
 /// FNV-1a of the dataset's files (`dataset_digest`), as written when the session was committed.
@@ -36,19 +36,6 @@ fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("data/sim_walk_tags")
         .join(name)
-}
-
-fn run(cmd: &mut Command, what: &str) -> String {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {what}: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// Digest of what the trainer reads: every image (name and bytes), the model's three text
@@ -80,7 +67,7 @@ fn the_committed_walk_replays_into_the_same_dataset_and_trains() {
 
     // 1. capture's export runs the poses stage: the fast path, no COLMAP needed.
     let ds = tmp.path().join("dataset");
-    run(
+    run_ok(
         Command::new(bin("s3tir-capture"))
             .arg("export")
             .arg(&session)
@@ -108,9 +95,7 @@ fn the_committed_walk_replays_into_the_same_dataset_and_trains() {
     let mut rot: Vec<f64> = Vec::new();
     let mut centre: Vec<f64> = Vec::new();
     for im in &model.images {
-        let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-            .parse()
-            .expect("the stage's own names");
+        let seq = thermal_sequence(&im.name);
         let (e, t) = (im.cam_from_world.inverse(), truth.thermal[&seq]);
         rot.push(e.rotation.angle_between(t.rotation).to_degrees());
         centre.push((e.translation_m - t.translation_m).length());
@@ -132,7 +117,7 @@ fn the_committed_walk_replays_into_the_same_dataset_and_trains() {
 
     // 3. s3tir-train SESSION.mcap: the same dataset, then 200 steps.
     let run_dir = tmp.path().join("run");
-    run(
+    run_ok(
         Command::new(bin("s3tir-train"))
             .arg(&session)
             .arg("--tags")
@@ -150,7 +135,7 @@ fn the_committed_walk_replays_into_the_same_dataset_and_trains() {
         digest,
         "s3tir-train SESSION.mcap must pose the session exactly as export --dataset does"
     );
-    let text = run(
+    let text = run_ok(
         Command::new(bin("s3tir-train"))
             .args(["eval", "--json"])
             .arg(&run_dir),

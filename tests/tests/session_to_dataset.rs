@@ -21,6 +21,7 @@ use s3tir_capture::frame::{
     CapturedFrame, FfcState, FrameTime, RgbFrame, RgbPayload, ThermalFrame, ThermalUnits,
 };
 use s3tir_capture::session::{SessionInfo, SessionRecord, SessionWriter};
+use s3tir_tests::thermal_sequence;
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
 
 const T_W: u32 = 160;
@@ -256,9 +257,7 @@ fn thermal_poses_from_user_rgb_model_match_truth_and_the_trainer_reads_them() {
     let by_seq: std::collections::BTreeMap<u32, u64> = rec.thermal.iter().copied().collect();
     let (mut worst_deg, mut worst_m) = (0.0f64, 0.0f64);
     for im in &posed.images {
-        let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-            .parse()
-            .expect("stage's own name");
+        let seq = thermal_sequence(&im.name);
         let truth = world_from_thermal(by_seq[&seq]);
         let got = im.cam_from_world.inverse();
         worst_deg = worst_deg.max(got.rotation.angle_between(truth.rotation).to_degrees());
@@ -288,9 +287,7 @@ fn thermal_poses_from_user_rgb_model_match_truth_and_the_trainer_reads_them() {
 
     // Images: the recorded words, untouched.
     let first = &posed.images[0].name;
-    let seq: u32 = first["thermal_".len()..first.len() - 4]
-        .parse()
-        .expect("name");
+    let seq = thermal_sequence(first);
     let img = image::open(out.join("images").join(first))
         .expect("dataset image")
         .into_luma16();
@@ -340,9 +337,7 @@ fn without_metric_scale_the_lever_arm_is_left_out_and_the_report_says_so() {
         .translation_m
         .length();
     for im in &posed.images {
-        let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-            .parse()
-            .expect("name");
+        let seq = thermal_sequence(&im.name);
         let rgb_centre = world_from_rgb(by_seq[&seq]).translation_m;
         let got = im.cam_from_world.inverse().translation_m;
         assert!(

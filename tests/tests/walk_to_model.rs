@@ -34,7 +34,9 @@ use std::process::Command;
 use glam::{DMat3, DQuat, DVec3};
 use s3tir_calib::Rigid3;
 use s3tir_calib::colmap::read_model;
-use s3tir_tests::{WalkTruth as Truth, bin, read_walk_truth as read_truth};
+use s3tir_tests::{
+    WalkTruth as Truth, bin, read_walk_truth as read_truth, run_ok, thermal_sequence,
+};
 use serde_json::Value;
 
 const WALK_S: &str = "16";
@@ -106,9 +108,7 @@ fn score(dataset: &Path, truth: &Truth) -> Score {
     let mut tru = Vec::new();
     let mut pairs = Vec::new();
     for im in &model.images {
-        let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-            .parse()
-            .expect("stage's own name");
+        let seq = thermal_sequence(&im.name);
         let t = *truth
             .thermal
             .get(&seq)
@@ -140,21 +140,8 @@ fn score(dataset: &Path, truth: &Truth) -> Score {
     }
 }
 
-fn run(cmd: &mut Command, what: &str) -> String {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {what}: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 fn poses(session: &Path, cal: &Path, out: &Path, extra: &[&str]) -> Value {
-    let text = run(
+    let text = run_ok(
         Command::new(bin("s3tir-calib"))
             .arg("poses")
             .arg(session)
@@ -170,7 +157,7 @@ fn poses(session: &Path, cal: &Path, out: &Path, extra: &[&str]) -> Value {
 }
 
 fn train_psnr(dataset: &Path, run_dir: &Path) -> f64 {
-    run(
+    run_ok(
         Command::new(bin("s3tir-train"))
             .arg(dataset)
             .arg("--out")
@@ -180,7 +167,7 @@ fn train_psnr(dataset: &Path, run_dir: &Path) -> f64 {
             .args(["--eval-every-s", "1e9", "--checkpoint-every-s", "1e9"]),
         "s3tir-train",
     );
-    let text = run(
+    let text = run_ok(
         Command::new(bin("s3tir-train"))
             .args(["eval", "--json"])
             .arg(run_dir),
@@ -202,9 +189,7 @@ fn posed_copy(
 ) -> PathBuf {
     let mut model = read_model(&dataset.join("sparse/0")).expect("model");
     for im in &mut model.images {
-        let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-            .parse()
-            .expect("name");
+        let seq = thermal_sequence(&im.name);
         im.cam_from_world = pose(seq, im.cam_from_world.inverse()).inverse();
     }
     let (s, r, t) = sim;
@@ -227,7 +212,7 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let session = tmp.path().join("walk.mcap");
     let socket = tmp.path().join("sim.sock");
-    run(
+    run_ok(
         Command::new(bin("s3tir-capture"))
             .args([
                 "--device",
@@ -339,9 +324,7 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
         .images
         .iter()
         .map(|im| {
-            let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-                .parse()
-                .expect("name");
+            let seq = thermal_sequence(&im.name);
             let (e, t) = (im.cam_from_world.inverse(), truth.thermal[&seq]);
             (
                 e.rotation.angle_between(t.rotation).to_degrees(),
@@ -383,9 +366,7 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
         .images
         .iter()
         .map(|im| {
-            let seq: u32 = im.name["thermal_".len()..im.name.len() - 4]
-                .parse()
-                .expect("name");
+            let seq = thermal_sequence(&im.name);
             (im.cam_from_world.inverse(), truth.thermal[&seq])
         })
         .unzip();
