@@ -44,8 +44,10 @@ pub struct PosesArgs {
     /// previous run's colmap/images/).
     #[arg(long)]
     poses: Option<PathBuf>,
-    /// Thermal-only sessions: keyframes per second for structure from motion (with RGB the
-    /// keyframes are the RGB frames nearest the thermal candidates).
+    /// Keyframes per second for structure from motion, at least: a thermal-only session takes
+    /// the sharpest thermal frame of each slot; with RGB the keyframes are the RGB frames
+    /// around the thermal candidates, and a slot without any (an FFC, dropped thermal frames)
+    /// gets its sharpest RGB frame so that the chain of overlapping keyframes stays unbroken
     #[arg(long, default_value_t = 2.0)]
     keyframe_hz: f64,
     /// At most this many keyframes (two per thermal candidate with RGB; candidates are

@@ -266,27 +266,13 @@ pub const OUTLIER_M: f64 = 0.05;
 pub const NEIGHBOUR_S: f64 = 0.7;
 
 /// Drops PnP poses that disagree with their neighbours in time (a hand does not jump a degree
-/// in a fraction of a second; a tag decoded at a wrong corner does). Every pose is judged
-/// against the others as given. Returns the capture times dropped.
+/// in a fraction of a second; a tag decoded at a wrong corner does), worst first
+/// ([`super::interp::drop_worst_jumps`]). Returns the capture times dropped.
 pub fn drop_jumps(posed: &mut BTreeMap<u64, TagPose>) -> Vec<u64> {
-    let keys: Vec<(u64, Rigid3)> = posed.iter().map(|(t, p)| (*t, p.world_from_cam)).collect();
-    let gap_ns = (NEIGHBOUR_S * 1e9) as u64;
-    let mut dropped = Vec::new();
-    for w in keys.windows(3) {
-        let [(t0, a), (t, pose), (t1, b)] = [w[0], w[1], w[2]];
-        if t - t0 > gap_ns || t1 - t > gap_ns {
-            continue;
-        }
-        let track = super::interp::Track::new(&[(t0, a), (t1, b)], 2.0 * NEIGHBOUR_S);
-        let Some(expected) = track.world_from_cam(t) else {
-            continue;
-        };
-        let turn = expected.rotation.angle_between(pose.rotation).to_degrees();
-        let moved = (expected.translation_m - pose.translation_m).length();
-        if turn > OUTLIER_DEG || moved > OUTLIER_M {
-            dropped.push(t);
-        }
-    }
+    let mut keys: Vec<(u64, Rigid3)> = posed.iter().map(|(t, p)| (*t, p.world_from_cam)).collect();
+    let dropped = super::interp::drop_worst_jumps(&mut keys, NEIGHBOUR_S, |j| {
+        (j.turn_deg / OUTLIER_DEG).max(j.moved / OUTLIER_M)
+    });
     for t in &dropped {
         posed.remove(t);
     }

@@ -20,8 +20,12 @@
 //!    before and after each thermal candidate (within `max_sync_s`), so every thermal pose is
 //!    interpolated over one RGB period, never across a hand's jitter (on the simulated
 //!    hand-held walk, keyframes nearest the thermal frames but interpolated over up to 0.3 s
-//!    left errors up to 0.7° from its 1.1 Hz, ±2° roll). A thermal-only session runs it on the
-//!    thermal stream, the sharpest frame of each `1 / keyframe_hz` slot.
+//!    left errors up to 0.7° from its 1.1 Hz, ±2° roll). Where the thermal stream has no
+//!    candidates (an FFC, drops) the gap is bridged: each `1 / keyframe_hz` slot without a
+//!    keyframe gets its sharpest RGB frame, so the chain of overlapping keyframes that structure
+//!    from motion needs is never broken (an FFC's 3 s hole let COLMAP hinge the walk by
+//!    degrees in one run of three). A thermal-only session runs it on the thermal stream, the
+//!    sharpest frame of each `1 / keyframe_hz` slot.
 //! 3. **Poses of the keyframes.** *Fast path* ([`fiducials`]): with a tag map that places
 //!    AprilTags in the world (`--tags FILE`), every keyframe that sees two mapped tags is posed
 //!    by PnP on their corners; when enough keyframes are posed so (`min_registered`), COLMAP
@@ -29,7 +33,9 @@
 //!    motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
 //!    on the keyframes, CPU SIFT, with the calibrated intrinsics and distortion **fixed** (the
 //!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
-//!    user's model (`--poses DIR`) is read instead. The largest reconstruction is kept.
+//!    user's model (`--poses DIR`) is read instead. The largest reconstruction is kept, and
+//!    a registered keyframe whose pose jumps from its neighbours' in time is not used
+//!    ([`sfm::drop_jumps`]; the fast path's PnP poses are judged the same way).
 //! 4. **Thermal poses** ([`interp`]): every usable thermal frame (not FFC-frozen, not blurred)
 //!    gets the SfM camera's pose interpolated to its capture time (slerp of the rotation, linear
 //!    centre) between the two registered keyframes around it (at most `max_gap_s` apart),
@@ -144,8 +150,9 @@ pub struct PosesOptions {
     /// A COLMAP model (text or binary) of the keyframes to use instead of running COLMAP;
     /// image names as this stage writes them (`rgb_SEQUENCE.jpg`, `thermal_SEQUENCE.png`).
     pub user_model: Option<PathBuf>,
-    /// Thermal-only sessions: keyframes per second of the thermal stream. (With RGB, the
-    /// keyframes are the RGB frames nearest the thermal candidates: `thermal_hz`.)
+    /// Keyframes per second, at least. Thermal-only sessions: the sharpest thermal frame of
+    /// each slot. With RGB the keyframes are the RGB frames around the thermal candidates
+    /// (`thermal_hz`), and a slot without any gets its sharpest RGB frame (gaps bridged).
     pub keyframe_hz: f64,
     /// With RGB: a thermal candidate's keyframes are the RGB frames just before and after it,
     /// each at most this far in time.
@@ -247,7 +254,11 @@ pub struct PosesReport {
     pub rgb_frames: usize,
     pub dropped_frames: u64,
     pub keyframes: usize,
+    /// Keyframes posed (by structure from motion, a user's model or AprilTags) and used.
     pub registered: usize,
+    /// Posed keyframes not used: their poses jump from their neighbours' in time
+    /// (`sfm::drop_jumps`, `fiducials::drop_jumps`).
+    pub outlier_keyframes: usize,
     pub sfm_points: usize,
     /// Metres per world unit, when known.
     pub metres_per_unit: Option<f64>,
@@ -521,12 +532,12 @@ pub fn session_to_dataset(
         );
     }
 
-    let (pose_source, registered, sfm_points) = if fast_path {
+    let (pose_source, registered, sfm_points, sfm_jumps) = if fast_path {
         let registered: Vec<(u64, crate::geometry::Rigid3)> = tag_posed
             .iter()
             .map(|(t, p)| (*t, p.world_from_cam))
             .collect();
-        ("apriltags", registered, Vec::new())
+        ("apriltags", registered, Vec::new(), Vec::new())
     } else {
         let model = match &opts.user_model {
             Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
@@ -545,11 +556,17 @@ pub fn session_to_dataset(
         } else {
             "colmap"
         };
-        (
-            source,
-            sfm::registered_keyframes(&model, sfm_frames),
-            model.points,
-        )
+        let mut registered = sfm::registered_keyframes(&model, sfm_frames);
+        let positions: Vec<[f64; 3]> = model.points.iter().map(|p| p.position_m).collect();
+        let jumps = sfm::drop_jumps(&mut registered, &positions);
+        if !jumps.is_empty() {
+            tracing::warn!(
+                dropped = jumps.len(),
+                registered = registered.len(),
+                "registered keyframes whose poses jump from their neighbours' in time are not used"
+            );
+        }
+        (source, registered, model.points, jumps)
     };
     if registered.len() < needed {
         return Err(PosesError::TooFewRegistered {
@@ -664,6 +681,11 @@ pub fn session_to_dataset(
             (false, _) if registered_at.contains(&k.monotonic_ns) => {
                 "keyframe: registered by structure from motion".into()
             }
+            (false, _) if sfm_jumps.contains(&k.monotonic_ns) => format!(
+                "keyframe: registered by structure from motion, not used (its pose is more than {}° or its centre more than the larger of its neighbours' distance apart and {} × the scene depth off their interpolation in time)",
+                sfm::OUTLIER_DEG,
+                sfm::OUTLIER_DEPTH
+            ),
             (false, _) => "keyframe: not registered by structure from motion".into(),
         },
     }));
@@ -696,6 +718,11 @@ pub fn session_to_dataset(
         dropped_frames: scan.dropped,
         keyframes: keyframes.len(),
         registered: registered.len(),
+        outlier_keyframes: if fast_path {
+            jumps.len()
+        } else {
+            sfm_jumps.len()
+        },
         sfm_points: sfm_points.len(),
         metres_per_unit,
         scale_source,
@@ -744,6 +771,13 @@ pub fn summary(r: &PosesReport) -> String {
                 r.sfm_stream, r.registered, r.keyframes, r.sfm_points
             );
         }
+    }
+    if r.outlier_keyframes > 0 {
+        let _ = writeln!(
+            s,
+            "warning: {} posed keyframes not used, their poses jump from their neighbours' in time (poses.json says which)",
+            r.outlier_keyframes
+        );
     }
     if let Some(n) = r.tag_keyframes {
         let _ = writeln!(s, "AprilTags decoded in {n} of {} keyframes", r.keyframes);

@@ -234,3 +234,26 @@ pub fn registered_keyframes(model: &ColmapModel, frames: &[FrameInfo]) -> Vec<(u
     out.sort_by_key(|k| k.0);
     out
 }
+
+/// A registered keyframe is dropped when its pose is more than [`OUTLIER_DEG`] from the slerp
+/// of its neighbours in time (each within [`super::fiducials::NEIGHBOUR_S`]) or its centre
+/// farther from their interpolation than the larger of their distance apart and
+/// [`OUTLIER_DEPTH`] × the scene depth (COLMAP's world has no unit: both are its own). A hand
+/// turns well under a degree beyond a slerp in that time and the keyframes of a good model
+/// agree to ~0.1°; a keyframe registered at a wrong place does not (one COLMAP run in six on
+/// the simulated walk put one 14.6° and 1.2 m off, and every thermal pose interpolated from it
+/// with it). Worst first ([`super::interp::drop_worst_jumps`]). Returns the capture times
+/// dropped.
+pub fn drop_jumps(registered: &mut Vec<(u64, Rigid3)>, points: &[[f64; 3]]) -> Vec<u64> {
+    registered.sort_by_key(|k| k.0);
+    let centres: Vec<glam::DVec3> = registered.iter().map(|k| k.1.translation_m).collect();
+    let depth = super::select::scene_depth(&centres, points);
+    super::interp::drop_worst_jumps(registered, super::fiducials::NEIGHBOUR_S, |j| {
+        (j.turn_deg / OUTLIER_DEG).max(j.moved / j.span.max(OUTLIER_DEPTH * depth))
+    })
+}
+
+/// [`drop_jumps`]: the largest turn, degrees, from the neighbours' slerp …
+pub const OUTLIER_DEG: f64 = 2.0;
+/// … and the centre's floor, as a fraction of the scene depth.
+pub const OUTLIER_DEPTH: f64 = 0.05;
