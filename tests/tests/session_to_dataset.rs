@@ -422,6 +422,32 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
         fresh("e.partial").join("colmap").is_dir(),
         "the failed run's workspace stays in OUT.partial for inspection"
     );
+    // COLMAP's mapper finds no pair to start from (it exits with failure, as on the simulated
+    // walk's thermal-only frames): too few registered, not a crash. A stand-in `colmap` that
+    // prints what COLMAP 3.8 prints then.
+    let fake = tmp.path().join("colmap-no-initial-pair");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\ncase \"$1\" in\n  mapper) echo '  => No good initial image pair found.'; echo 'ERROR: failed to create sparse model'; exit 1;;\n  *) echo 'COLMAP 3.8 (stand-in)';;\nesac\n",
+    )
+    .expect("write the stand-in colmap");
+    {
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    }
+    let o = PosesOptions {
+        user_model: None,
+        colmap: fake,
+        ..opts(&model)
+    };
+    let e = poses::session_to_dataset(&rec.session, Some(&rig()), &fresh("f"), &o)
+        .expect_err("no initial pair");
+    assert!(
+        matches!(e, PosesError::TooFewRegistered { registered: 0, .. })
+            && e.to_string().contains("too bland"),
+        "a mapper without an initial pair must say that nothing registered and why: {e}"
+    );
+
     // The next run clears that unfinished folder.
     poses::session_to_dataset(&rec.session, Some(&rig()), &fresh("e"), &opts(&model))
         .unwrap_or_else(|e| panic!("a run after a failed one: {e}"));

@@ -165,7 +165,7 @@ pub fn run_colmap(
     times.colmap_matching_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    run_step(
+    let mapped = run_step(
         &opts.colmap,
         workspace,
         "mapper",
@@ -185,8 +185,21 @@ pub fn run_colmap(
             "--Mapper.num_threads".into(),
             threads,
         ],
-    )?;
+    );
     times.colmap_mapper_s = t.elapsed().as_secs_f64();
+    if let Err(PosesError::ColmapFailed { log, .. }) = &mapped
+        && std::fs::read_to_string(log).is_ok_and(|text| no_initial_pair(&text))
+    {
+        // Not a crash: no two keyframes share enough features to start a model (on the
+        // simulated walk's thermal-only frames: 16–28 SIFT features each).
+        return Err(PosesError::TooFewRegistered {
+            registered: 0,
+            keyframes,
+            needed: 5,
+            workspace: workspace.to_path_buf(),
+        });
+    }
+    mapped?;
 
     // The mapper writes one folder per reconstruction (0, 1, …): keep the largest.
     let mut best: Option<ColmapModel> = None;
@@ -212,6 +225,12 @@ pub fn run_colmap(
         needed: 5,
         workspace: workspace.to_path_buf(),
     })
+}
+
+/// Whether a failed mapper's log says it found no pair of images to start from (COLMAP 3.8
+/// exits with failure then, having registered nothing).
+pub fn no_initial_pair(log: &str) -> bool {
+    log.contains("No good initial image pair found") && !log.contains("Registering image")
 }
 
 /// The registered keyframes of `model` as `(monotonic_ns, world_from_cam)`: image names are
