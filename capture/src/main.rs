@@ -104,7 +104,9 @@ enum Command {
     },
     /// Summarise a session: streams, counts, duration, drops, FFC frames, sync statistics,
     /// and whether the file was truncated (recorder killed): it is read up to its last
-    /// complete chunk.
+    /// complete chunk. A file with corrupt data that is all there (bad CRC, impossible
+    /// lengths: damage, not a cut) is summarised up to the damage, then exits non-zero naming
+    /// the byte offset.
     Info {
         file: PathBuf,
         /// Print one JSON object.
@@ -281,9 +283,21 @@ fn export_dataset(
 
 fn info(file: &std::path::Path, json: bool) -> Result<()> {
     let s = tools::info(file)?;
+    // Damage (corrupt data that is all in the file, unlike a crash's cut) is an error after
+    // the summary of what could be read.
+    let damaged = |s: &tools::SessionSummary| match &s.damage {
+        Some(d) => Err(anyhow::anyhow!(
+            "{} is damaged at byte {}: {} ({} chunks before it were read)",
+            file.display(),
+            d.offset,
+            d.reason,
+            s.chunks
+        )),
+        None => Ok(()),
+    };
     if json {
         println!("{}", serde_json::to_string_pretty(&s)?);
-        return Ok(());
+        return damaged(&s);
     }
     println!("{}", s.path.display());
     if s.truncated {
@@ -328,7 +342,7 @@ fn info(file: &std::path::Path, json: bool) -> Result<()> {
         "  reconnects {}  frame digest {}",
         s.reconnects, s.frame_digest
     );
-    Ok(())
+    damaged(&s)
 }
 
 fn replay(file: &std::path::Path, realtime: bool, out: Option<PathBuf>, json: bool) -> Result<()> {

@@ -36,6 +36,19 @@
 //! `kill -9` loses at most the chunk in progress. The reader does not rely on the summary or
 //! footer: it streams records from the start, decompresses whole chunks only, and stops at
 //! the first incomplete or corrupt record, reporting the session as `truncated`.
+//!
+//! # Hostile and damaged files
+//!
+//! Every length in a file is checked against what is really there before anything is
+//! allocated: file-level records against [`MAX_RECORD_BYTES`], a chunk's claimed uncompressed
+//! size against [`MAX_RECORD_BYTES`] and against what LZ4 can expand its compressed bytes to
+//! ([`LZ4_MAX_RATIO`]), and each record inside a chunk against the bytes left in the chunk.
+//! Chunks are decompressed and split here ([`decode_chunk`]), not by `mcap::read::ChunkReader`,
+//! which reserves an inner record's claimed length before any check (a 9-byte inner header
+//! could ask for exabytes). A file that stops early is a *cut* (crash, kill, full disk: the
+//! normal case, [`ReadOutcome::truncated`]); corrupt data that is all there (a bad CRC, an
+//! impossible length) is *damage* ([`ReadOutcome::damage`], with its byte offset), which
+//! `s3tir-capture info` reports as an error.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -59,6 +72,9 @@ pub const FLUSH_INTERVAL: Duration = Duration::from_millis(500);
 pub const MAX_RECORD_BYTES: usize = 256 * 1024 * 1024;
 /// A chunk is also ended when it holds this many uncompressed bytes.
 pub const MAX_CHUNK_BYTES: usize = 8 * 1024 * 1024;
+/// LZ4 cannot expand data by more than about 255× (a match encodes at most 255 bytes per
+/// length byte); a chunk claiming more than this times its compressed size is damaged.
+pub const LZ4_MAX_RATIO: u64 = 256;
 
 pub mod topic {
     pub const THERMAL_IMAGE: &str = "/thermal/image";
@@ -709,22 +725,39 @@ pub struct ReadOutcome {
     pub truncated: bool,
     /// Why reading stopped early, when `truncated`.
     pub truncation_reason: Option<String>,
+    /// Set when reading stopped at corrupt data that is all in the file (not a cut): a bad
+    /// CRC, an impossible length. The items before it were read (`truncated` is set too).
+    pub damage: Option<Damage>,
     /// Complete chunks read.
     pub chunks: u64,
 }
 
+/// Where and why a session file is damaged.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Damage {
+    /// Byte offset of the record that could not be read.
+    pub offset: u64,
+    pub reason: String,
+}
+
 /// Reads a session from the start, calling `visit` for every item in file order. Never needs
 /// the summary: a file cut anywhere reads up to its last complete chunk, with
-/// `truncated = true` in the outcome. `visit` errors stop the read and are returned.
+/// `truncated = true` in the outcome; corrupt data that is all in the file stops the read the
+/// same way and is described in [`ReadOutcome::damage`]. No length read from the file is
+/// allocated before it is checked (module docs). `visit` errors stop the read and are returned.
 pub fn read_session(
     path: &Path,
     mut visit: impl FnMut(SessionItem) -> Result<(), CaptureError>,
 ) -> Result<ReadOutcome, CaptureError> {
-    let mut file = File::open(path).map_err(|source| CaptureError::SessionIo {
-        path: path.to_owned(),
-        what: "open",
-        source,
-    })?;
+    let io = |what: &'static str| {
+        move |source| CaptureError::SessionIo {
+            path: path.to_owned(),
+            what,
+            source,
+        }
+    };
+    let mut file = File::open(path).map_err(io("open"))?;
+    let file_len = file.metadata().map_err(io("stat"))?.len();
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_end_magic(true)
@@ -739,12 +772,15 @@ pub fn read_session(
     let mut pending_thermal: Option<ThermalMeta> = None;
     let mut pending_rgb: Option<RgbMeta> = None;
     let mut saw_footer = false;
-    let mut stop: Option<String> = None;
+    // Where reading stopped: the offset of the record that could not be read, and why.
+    let mut stop: Option<(u64, String)> = None;
+    // Offset of the next file-level record (after the 8-byte magic).
+    let mut offset: u64 = MAGIC_LEN;
     while let Some(event) = reader.next_event() {
         let event = match event {
             Ok(e) => e,
             Err(e) => {
-                stop = Some(format!("{e}"));
+                stop = Some((offset, format!("{e}")));
                 break;
             }
         };
@@ -755,22 +791,21 @@ pub fn read_session(
                     match file.read(buf) {
                         Ok(k) => break k,
                         Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                        Err(source) => {
-                            return Err(CaptureError::SessionIo {
-                                path: path.to_owned(),
-                                what: "read",
-                                source,
-                            });
-                        }
+                        Err(source) => return Err(io("read")(source)),
                     }
                 };
                 reader.notify_read(got);
             }
             LinearReadEvent::Record { data, opcode } => {
+                let record_offset = offset;
+                offset += RECORD_PREFIX_LEN + data.len() as u64;
                 let record = match mcap::parse_record(opcode, data) {
                     Ok(r) => r,
                     Err(e) => {
-                        stop = Some(format!("corrupt record (opcode {opcode:#04x}): {e}"));
+                        stop = Some((
+                            record_offset,
+                            format!("corrupt record (opcode {opcode:#04x}): {e}"),
+                        ));
                         break;
                     }
                 };
@@ -809,20 +844,25 @@ pub fn read_session(
                     Record::Chunk { header, data } => {
                         // Decompress the whole chunk before handing out anything from it, so
                         // a damaged chunk contributes nothing.
-                        let recs: Result<Vec<_>, _> =
-                            match mcap::read::ChunkReader::new(header, &data) {
-                                Ok(r) => r.collect(),
-                                Err(e) => Err(e),
-                            };
-                        match recs {
-                            Ok(recs) => {
+                        match decode_chunk(&header, &data) {
+                            Ok(body) => {
+                                let recs = match split_chunk(&body) {
+                                    Ok(recs) => recs,
+                                    Err(reason) => {
+                                        stop = Some((
+                                            record_offset,
+                                            format!("corrupt chunk: {reason}"),
+                                        ));
+                                        break;
+                                    }
+                                };
                                 out.chunks += 1;
                                 for r in recs {
                                     handle(r, &mut topics)?;
                                 }
                             }
-                            Err(e) => {
-                                stop = Some(format!("corrupt chunk: {e}"));
+                            Err(reason) => {
+                                stop = Some((record_offset, format!("corrupt chunk: {reason}")));
                                 break;
                             }
                         }
@@ -832,14 +872,152 @@ pub fn read_session(
             }
         }
     }
-    if let Some(reason) = stop {
+    if let Some((at, reason)) = stop {
         out.truncated = true;
-        out.truncation_reason = Some(reason);
+        if is_cut(&file, file_len, at).map_err(io("read"))? {
+            out.truncation_reason = Some(reason);
+        } else {
+            out.truncation_reason = Some(format!("damaged at byte {at}: {reason}"));
+            out.damage = Some(Damage { offset: at, reason });
+        }
     } else if !saw_footer {
         out.truncated = true;
         out.truncation_reason = Some("file ends without a footer".into());
     }
     Ok(out)
+}
+
+/// MCAP's magic (`\x89MCAP0\r\n`) before the first record.
+const MAGIC_LEN: u64 = 8;
+/// A record's opcode byte and u64 length.
+const RECORD_PREFIX_LEN: u64 = 9;
+
+/// Whether the file simply stops at or inside the record at `offset` (a cut: crash, kill,
+/// full disk, or the zero-filled tail a power cut can leave) rather than holding corrupt data.
+fn is_cut(file: &File, file_len: u64, offset: u64) -> std::io::Result<bool> {
+    use std::os::unix::fs::FileExt;
+    let mut prefix = [0u8; RECORD_PREFIX_LEN as usize];
+    if offset.saturating_add(RECORD_PREFIX_LEN) > file_len {
+        return Ok(true);
+    }
+    file.read_exact_at(&mut prefix, offset)?;
+    let mut len = [0u8; 8];
+    len.copy_from_slice(&prefix[1..]);
+    let claimed_end = offset
+        .saturating_add(RECORD_PREFIX_LEN)
+        .saturating_add(u64::from_le_bytes(len));
+    if claimed_end > file_len {
+        return Ok(true);
+    }
+    // Only zeros from here to the end: blocks allocated but never written.
+    let mut buf = vec![0u8; 1 << 16];
+    let mut at = offset;
+    while at < file_len {
+        let n = file.read_at(&mut buf, at)?;
+        if n == 0 {
+            break;
+        }
+        if buf[..n].iter().any(|&b| b != 0) {
+            return Ok(false);
+        }
+        at += n as u64;
+    }
+    Ok(true)
+}
+
+/// Decompresses one chunk's records and checks its CRC. Every claimed size is checked against
+/// [`MAX_RECORD_BYTES`] and the bytes really present before memory is reserved for it.
+pub fn decode_chunk(header: &mcap::records::ChunkHeader, data: &[u8]) -> Result<Vec<u8>, String> {
+    let claimed = header.uncompressed_size;
+    if data.len() as u64 != header.compressed_size {
+        return Err(format!(
+            "header says {} compressed bytes, the record holds {}",
+            header.compressed_size,
+            data.len()
+        ));
+    }
+    if claimed > MAX_RECORD_BYTES as u64 {
+        return Err(format!(
+            "claims {claimed} uncompressed bytes, more than the {MAX_RECORD_BYTES}-byte limit"
+        ));
+    }
+    let body = match header.compression.as_str() {
+        "" => {
+            if claimed != data.len() as u64 {
+                return Err(format!(
+                    "uncompressed chunk of {} bytes claims {claimed}",
+                    data.len()
+                ));
+            }
+            data.to_vec()
+        }
+        "lz4" => {
+            if claimed > (data.len() as u64).saturating_mul(LZ4_MAX_RATIO) {
+                return Err(format!(
+                    "claims {claimed} bytes from {} LZ4 bytes (LZ4 expands at most {LZ4_MAX_RATIO}x)",
+                    data.len()
+                ));
+            }
+            let mut body = Vec::with_capacity(claimed as usize);
+            let decoder = lz4::Decoder::new(data).map_err(|e| format!("lz4: {e}"))?;
+            // One byte more than claimed is read so a longer stream is seen, not cut.
+            decoder
+                .take(claimed + 1)
+                .read_to_end(&mut body)
+                .map_err(|e| format!("lz4: {e}"))?;
+            if body.len() as u64 != claimed {
+                return Err(format!(
+                    "decompresses to {} bytes, the header claims {claimed}",
+                    body.len()
+                ));
+            }
+            body
+        }
+        other => return Err(format!("compression {other:?} (sessions use lz4)")),
+    };
+    if header.uncompressed_crc != 0 {
+        let crc = crc32fast::hash(&body);
+        if crc != header.uncompressed_crc {
+            return Err(format!(
+                "CRC {crc:#010x} of the records, the header says {:#010x}",
+                header.uncompressed_crc
+            ));
+        }
+    }
+    Ok(body)
+}
+
+/// Splits a decompressed chunk into records; a record claiming more bytes than the chunk has
+/// left is an error, not an allocation.
+pub fn split_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
+    let mut recs = Vec::new();
+    let mut rest = body;
+    let mut at = 0usize;
+    while !rest.is_empty() {
+        let Some((&opcode, tail)) = rest.split_first() else {
+            break;
+        };
+        let Some((len, tail)) = tail.split_first_chunk::<8>() else {
+            return Err(format!(
+                "record header at chunk byte {at} cut ({} bytes left)",
+                rest.len()
+            ));
+        };
+        let len = u64::from_le_bytes(*len);
+        if len > tail.len() as u64 {
+            return Err(format!(
+                "record (opcode {opcode:#04x}) at chunk byte {at} claims {len} bytes, {} are left",
+                tail.len()
+            ));
+        }
+        let (data, tail) = tail.split_at(len as usize);
+        let rec = mcap::parse_record(opcode, data)
+            .map_err(|e| format!("record (opcode {opcode:#04x}) at chunk byte {at}: {e}"))?;
+        recs.push(rec.into_owned());
+        at += RECORD_PREFIX_LEN as usize + data.len();
+        rest = tail;
+    }
+    Ok(recs)
 }
 
 fn decode_message(
@@ -1060,6 +1238,11 @@ mod tests {
                 "cut at {cut} of {} must say truncated",
                 bytes.len()
             );
+            assert!(
+                out.damage.is_none(),
+                "cut at {cut} is a cut, not damage: {:?}",
+                out.damage
+            );
             assert!(read.len() <= written.len());
             for (a, b) in read.iter().zip(&written) {
                 assert_eq!(a, b, "cut at {cut}: a frame that was not written");
@@ -1106,6 +1289,11 @@ mod tests {
         );
         let (read, out, _) = read_frames(&path);
         assert!(out.truncated, "must say truncated");
+        assert!(
+            out.damage.is_none(),
+            "a dying writer is a cut: {:?}",
+            out.damage
+        );
         assert_eq!(read.len(), 10, "exactly the frames of the flushed chunk");
     }
 

@@ -86,6 +86,9 @@ pub struct SessionSummary {
     pub sync: SyncStats,
     pub truncated: bool,
     pub truncation_reason: Option<String>,
+    /// Corrupt data that is all in the file (not a cut), with its byte offset: everything before
+    /// it was read; `s3tir-capture info` exits non-zero.
+    pub damage: Option<crate::session::Damage>,
     pub chunks: u64,
     pub reconnects: u64,
     /// FNV-1a over every frame's device buffer and stamps, in file order: equal digests mean
@@ -211,6 +214,7 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
     s.sync = sync.stats();
     s.truncated = out.truncated;
     s.truncation_reason = out.truncation_reason;
+    s.damage = out.damage;
     s.chunks = out.chunks;
     s.frame_digest = digest.hex();
     s.thermal_device = out.info.thermal_device;
