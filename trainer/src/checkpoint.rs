@@ -5,7 +5,9 @@
 //!
 //! Writes are atomic: the file is written to `checkpoint.json.tmp`, synced, then renamed over the
 //! old one, so a kill at any moment leaves either the previous or the new checkpoint, never a
-//! torn one.
+//! torn one. A checkpoint with a non-finite value is refused before anything is written (JSON
+//! has no NaN: serde_json would write `null`, which no resume can read), so a diverged run
+//! keeps its last good checkpoint.
 
 use std::fs;
 use std::io::Write;
@@ -29,6 +31,40 @@ pub enum CheckpointError {
     },
     #[error("checkpoint {path} is not valid: {reason}")]
     Format { path: PathBuf, reason: String },
+    /// The state to save holds NaN or infinity (a diverged run); nothing was written.
+    #[error(
+        "checkpoint {path} not written: {group}[{index}] is {value} (the run diverged); the \
+         previous checkpoint is kept"
+    )]
+    NonFinite {
+        path: PathBuf,
+        group: String,
+        index: usize,
+        value: f64,
+    },
+}
+
+impl PrimitivesData {
+    /// The first non-finite value, as (parameter group, index, value).
+    pub fn first_non_finite(&self) -> Option<(&'static str, usize, f32)> {
+        let groups: [(&'static str, &[f32]); 10] = [
+            ("means", &self.means),
+            ("log_scales", &self.log_scales),
+            ("quats", &self.quats),
+            ("opacity_logits", &self.opacity_logits),
+            ("beta_raw", &self.beta_raw),
+            ("omega_low", &self.omega_low),
+            ("band_amp", &self.band_amp),
+            ("band_freq", &self.band_freq),
+            ("band_phase", &self.band_phase),
+            ("sh", &self.sh),
+        ];
+        groups.into_iter().find_map(|(name, v)| {
+            v.iter()
+                .position(|x| !x.is_finite())
+                .map(|i| (name, i, v[i]))
+        })
+    }
 }
 
 /// Serialisable mirror of [`Primitives<f32>`].
@@ -119,6 +155,28 @@ pub fn save(path: &Path, ck: &Checkpoint) -> Result<(), CheckpointError> {
         path: path.to_path_buf(),
         source,
     };
+    for (what, d) in [
+        ("primitives", &ck.primitives),
+        ("adam_m", &ck.adam_m),
+        ("adam_v", &ck.adam_v),
+    ] {
+        if let Some((group, index, value)) = d.first_non_finite() {
+            return Err(CheckpointError::NonFinite {
+                path: path.to_path_buf(),
+                group: format!("{what}.{group}"),
+                index,
+                value: f64::from(value),
+            });
+        }
+    }
+    if !ck.train_seconds.is_finite() {
+        return Err(CheckpointError::NonFinite {
+            path: path.to_path_buf(),
+            group: "train_seconds".into(),
+            index: 0,
+            value: ck.train_seconds,
+        });
+    }
     let json = serde_json::to_vec(ck).map_err(|e| CheckpointError::Format {
         path: path.to_path_buf(),
         reason: e.to_string(),

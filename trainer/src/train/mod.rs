@@ -120,6 +120,17 @@ pub enum TrainError {
     Config { reason: String },
     #[error("run {run_dir}: {reason}")]
     Run { run_dir: PathBuf, reason: String },
+    /// A step's loss is NaN or infinite: the run stops before anything is saved from it.
+    #[error(
+        "run {run_dir}: iteration {iteration}: the loss is {loss} (the run diverged); stopped \
+         without saving this state: the last checkpoint is intact, `--resume` continues from it \
+         (lower the learning rates if it recurs)"
+    )]
+    NonFinite {
+        run_dir: PathBuf,
+        iteration: u64,
+        loss: f64,
+    },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
@@ -305,10 +316,20 @@ impl<B: Backend> Trainer<B> {
             });
         }
         std::fs::create_dir_all(run_dir).map_err(io_err(run_dir))?;
-        // A stale log from an unfinished start (no checkpoint yet) must not mix with this run.
+        // A log from an unfinished start (no checkpoint yet) must not mix with this run; it is
+        // moved aside (`metrics.csv.1`, `.2`, …), never deleted.
         let csv = run_dir.join(files::METRICS_CSV);
         if csv.exists() {
-            std::fs::remove_file(&csv).map_err(io_err(&csv))?;
+            let aside = (1..)
+                .map(|k| run_dir.join(format!("{}.{k}", files::METRICS_CSV)))
+                .find(|p| !p.exists())
+                .unwrap_or_else(|| run_dir.join(format!("{}.old", files::METRICS_CSV)));
+            std::fs::rename(&csv, &aside).map_err(io_err(&csv))?;
+            tracing::warn!(
+                from = %csv.display(),
+                to = %aside.display(),
+                "the folder held a metrics log without a checkpoint (an unfinished start): kept aside"
+            );
         }
         let cfg_path = run_dir.join(files::CONFIG);
         let json = serde_json::to_string_pretty(&cfg).map_err(|e| TrainError::Config {
@@ -1084,7 +1105,9 @@ impl<B: Backend> Trainer<B> {
     }
 
     /// Trains until `cfg.iters` or until `stop` is set (then checkpoints and returns
-    /// [`Outcome::Interrupted`]). Writes the outputs when finished.
+    /// [`Outcome::Interrupted`]). Writes the outputs when finished. A non-finite loss stops the
+    /// run with [`TrainError::NonFinite`] and non-finite parameters are refused by the
+    /// checkpoint writer, so a diverged run never overwrites its last good checkpoint.
     pub fn run(
         &mut self,
         stop: &AtomicBool,
@@ -1106,6 +1129,13 @@ impl<B: Backend> Trainer<B> {
             }
             let t0 = Instant::now();
             let loss = self.step()?;
+            if !loss.is_finite() {
+                return Err(TrainError::NonFinite {
+                    run_dir: self.run_dir.clone(),
+                    iteration: self.iteration,
+                    loss,
+                });
+            }
             let dt = t0.elapsed().as_secs_f64();
             self.train_seconds += dt;
             self.state.loss_sum += loss;
