@@ -6,6 +6,13 @@
 //! numbers and times), so the figure measures the recorder, not the generator. The result is
 //! reported as a ratio to real time: `realtime_ratio = 2.0` means the recorder keeps up with
 //! twice the camera rates.
+//!
+//! The writer `fdatasync`s the file every [`SYNC_INTERVAL`](crate::session::SYNC_INTERVAL)
+//! (the power-cut bound); the bench syncs once per second of camera time (the load runs
+//! faster than real time, so each sync carries what it would in a recording). The CLI runs
+//! the load twice in one process, with the syncs and without (the reference), and reports the
+//! syncs' cost as the ratio of the two throughputs plus each sync's duration. Give `--out` on the rig's recording disk: a temp folder on
+//! tmpfs makes syncs free.
 
 use std::path::Path;
 use std::time::Instant;
@@ -32,6 +39,12 @@ pub struct BenchReport {
     pub cpu_us_per_frame: f64,
     pub file_mb: f64,
     pub write_mb_per_s: f64,
+    /// Whether the writer synced (false: the reference run).
+    pub synced: bool,
+    /// `fdatasync` calls and their mean and longest duration.
+    pub syncs: u64,
+    pub sync_ms_mean: f64,
+    pub sync_ms_max: f64,
 }
 
 fn process_cpu_s() -> f64 {
@@ -40,11 +53,13 @@ fn process_cpu_s() -> f64 {
         .unwrap_or(0.0)
 }
 
-/// Records `simulated_s` seconds of the Boson + 1080p load into `out` as fast as possible.
+/// Records `simulated_s` seconds of the Boson + 1080p load into `out` as fast as possible;
+/// `sync = false` turns the writer's `fdatasync`s off (the reference run).
 pub fn run(
     out: &Path,
     simulated_s: f64,
     rgb_size: (u32, u32),
+    sync: bool,
 ) -> Result<BenchReport, CaptureError> {
     let mut rig = SynthRig::new(
         ThermalSynth::boson640(),
@@ -77,6 +92,11 @@ pub fn run(
             ..SessionInfo::default()
         },
     )?;
+    // The load runs faster than real time, so the wall-clock cadence would sync too rarely:
+    // the bench syncs once per second of *camera* time instead (each sync then carries one
+    // second of data, as in a recording).
+    writer.set_sync_interval(None);
+    let frames_per_sync = (60.0 * crate::session::SYNC_INTERVAL.as_secs_f64()).round() as u64;
     let mut pipe = Pipeline::new(PairingMode::Nearest {
         tolerance_ns: DEFAULT_TOLERANCE_NS,
     });
@@ -115,9 +135,18 @@ pub fn run(
             writer.write(&r)?;
         }
         frames += 1;
+        if sync && k == 0 && next[0] % frames_per_sync.max(1) == 0 {
+            writer.flush()?;
+            writer.sync()?;
+        }
     }
     for r in pipe.finish() {
         writer.write(&r)?;
+    }
+    let syncs_before_finish = writer.sync_stats();
+    if sync {
+        // The recording's closing sync.
+        writer.set_sync_interval(Some(crate::session::SYNC_INTERVAL));
     }
     writer.finish()?;
     let wall_s = t0.elapsed().as_secs_f64();
@@ -134,5 +163,14 @@ pub fn run(
         cpu_us_per_frame: cpu_s / frames as f64 * 1e6,
         file_mb,
         write_mb_per_s: file_mb / wall_s,
+        synced: sync,
+        // The periodic syncs (finish's final one is the same in any recording).
+        syncs: syncs_before_finish.count,
+        sync_ms_mean: if syncs_before_finish.count > 0 {
+            syncs_before_finish.total.as_secs_f64() * 1e3 / syncs_before_finish.count as f64
+        } else {
+            0.0
+        },
+        sync_ms_max: syncs_before_finish.max.as_secs_f64() * 1e3,
     })
 }

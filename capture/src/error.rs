@@ -36,6 +36,12 @@ pub enum CaptureError {
         sequence: u32,
         reason: String,
     },
+    /// A session would be written over an existing file.
+    #[error(
+        "session {path} already exists: refusing to overwrite it (it may be a recording); \
+         choose another --out or remove it first"
+    )]
+    SessionExists { path: PathBuf },
     /// Reading or writing a session file failed.
     #[error("session {path}: {what}: {source}")]
     SessionIo {

@@ -62,7 +62,7 @@ struct RecordArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Stop after this many seconds (default: until SIGINT/SIGTERM).
-    #[arg(long)]
+    #[arg(long, value_parser = positive_seconds)]
     duration: Option<f64>,
     /// Socket of the simulated rig (default: $XDG_RUNTIME_DIR/s3tir-sim-UID.sock).
     #[arg(long)]
@@ -150,12 +150,14 @@ enum Command {
         tags: Option<PathBuf>,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
-    /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time.
+    /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time, and what the writer's
+    /// once-a-second fdatasync costs (the same load without syncs, run first, is the reference).
     Bench {
         /// Seconds of camera time to record.
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, default_value_t = 10.0, value_parser = positive_seconds)]
         seconds: f64,
-        /// Where to write the bench session (deleted afterwards).
+        /// Where to write the bench session (must not exist; deleted afterwards). Put it on the
+        /// rig's recording disk: the fdatasync cost depends on it (a tmpfs makes it free).
         #[arg(long)]
         out: Option<PathBuf>,
         #[arg(long)]
@@ -377,10 +379,34 @@ fn replay(file: &std::path::Path, realtime: bool, out: Option<PathBuf>, json: bo
 fn bench(seconds: f64, out: Option<PathBuf>, json: bool) -> Result<()> {
     let dir = tempfile_dir()?;
     let path = out.unwrap_or_else(|| dir.join("bench.mcap"));
-    let r = s3tir_capture::bench::run(&path, seconds, (1920, 1080))?;
+    // The reference run (no fdatasync) beside the measured one, in the same folder and process.
+    let mut reference_path = path.as_os_str().to_owned();
+    reference_path.push(".reference");
+    let reference_path = PathBuf::from(reference_path);
+    for p in [&path, &reference_path] {
+        if p.exists() {
+            bail!(
+                "{} exists: the bench writes and then deletes its own files there; give a new --out",
+                p.display()
+            );
+        }
+    }
+    let reference = s3tir_capture::bench::run(&reference_path, seconds, (1920, 1080), false);
+    let _ = std::fs::remove_file(&reference_path);
+    let r = s3tir_capture::bench::run(&path, seconds, (1920, 1080), true);
     let _ = std::fs::remove_file(&path);
+    let _ = std::fs::remove_dir(&dir);
+    let (reference, r) = (reference?, r?);
+    let sync_cost = 1.0 - r.frames_per_s / reference.frames_per_s;
     if json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "synced": r,
+                "reference_without_sync": reference,
+                "sync_cost": sync_cost,
+            }))?
+        );
     } else {
         println!(
             "recorded {:.1} s of Boson 640x512 Y16@60 + RGB 1920x1080 MJPEG@30 ({} frames) in {:.2} s wall, {:.2} s CPU",
@@ -390,8 +416,30 @@ fn bench(seconds: f64, out: Option<PathBuf>, json: bool) -> Result<()> {
             "  {:.1} frames/s sustained = {:.2}x real time; {:.0} us CPU per frame; {:.1} MB at {:.1} MB/s",
             r.frames_per_s, r.realtime_ratio, r.cpu_us_per_frame, r.file_mb, r.write_mb_per_s
         );
+        println!(
+            "  fdatasync every {:.1} s: {} syncs, mean {:.1} ms, max {:.1} ms; without them {:.2}x real time \
+             (the syncs cost {:.1} % of throughput)",
+            s3tir_capture::session::SYNC_INTERVAL.as_secs_f64(),
+            r.syncs,
+            r.sync_ms_mean,
+            r.sync_ms_max,
+            reference.realtime_ratio,
+            100.0 * sync_cost
+        );
     }
     Ok(())
+}
+
+/// A duration in seconds: finite and above zero (`Duration::from_secs_f64` panics otherwise).
+fn positive_seconds(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|e| format!("{s:?} is not a number of seconds: {e}"))?;
+    if v.is_finite() && v > 0.0 && v < 1e9 {
+        Ok(v)
+    } else {
+        Err(format!("{s} s: must be a positive number of seconds"))
+    }
 }
 
 /// Locks a mutex, taking the data of a poisoned one (the rig client holds no invariant a
@@ -422,6 +470,10 @@ fn record(a: RecordArgs) -> Result<()> {
     let Some(out) = a.out.clone() else {
         bail!("--out FILE is required to record");
     };
+    // Before any device or simulator is touched (the session writer refuses it too).
+    if out.exists() {
+        return Err(s3tir_capture::CaptureError::SessionExists { path: out }.into());
+    }
     let mut info = SessionInfo {
         tool: format!("s3tir-capture {}", env!("CARGO_PKG_VERSION")),
         thermal_device: device.clone(),
