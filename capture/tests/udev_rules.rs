@@ -2,8 +2,13 @@
 //! "value" with an operator udev knows, continuation lines joined), and it has rules matching
 //! the PureThermal (1e4e:0100) video node, the FLIR Boson (09cb:4007) video node and the Boson's
 //! tty, each giving a stable `s3tir/` symlink and group access with mode 0660 (never
-//! world-accessible). Does NOT run udev (no `udevadm` on CI machines, no devices): whether a
-//! real device matches is checked on the rig with the steps in udev/README.md.
+//! world-accessible); that the rules and `capture/systemd/s3tir-capture@.service` agree: every
+//! thermal core's video rule tags it for systemd and wants `s3tir-capture@<link name>.service`,
+//! the unit is a template ordered after `dev-s3tir-%i.device` (the device unit systemd derives
+//! from the `s3tir/<name>` link), records `/dev/s3tir/%i` with the serial and RGB links the
+//! rules create, writes with `UMask=0027`, and is wanted by that device unit. Does NOT run
+//! udev or systemd (no `udevadm`/`systemd-analyze` on CI machines, no devices): whether a real
+//! device matches is checked on the rig with the steps in udev/README.md.
 #![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeMap;
@@ -127,6 +132,162 @@ fn rules_parse_and_cover_lepton_boson_video_and_tty() {
         );
         assert_eq!(assigns(rule, "SYMLINK").as_deref(), Some(link));
     }
+}
+
+fn all_assigns(rule: &[Token], key: &str) -> Vec<String> {
+    rule.iter()
+        .filter(|t| t.key == key && t.op != "==" && t.op != "!=")
+        .map(|t| t.value.clone())
+        .collect()
+}
+
+/// `[Section]` → key → values (repeated keys kept in order), continuation lines joined.
+fn parse_unit(text: &str) -> BTreeMap<String, BTreeMap<String, Vec<String>>> {
+    let mut out: BTreeMap<String, BTreeMap<String, Vec<String>>> = BTreeMap::new();
+    let mut section = String::new();
+    let mut line = String::new();
+    for raw in text.lines() {
+        let t = raw.trim();
+        if line.is_empty() && (t.is_empty() || t.starts_with('#')) {
+            continue;
+        }
+        if let Some(cont) = t.strip_suffix('\\') {
+            line.push_str(cont);
+            line.push(' ');
+            continue;
+        }
+        line.push_str(t);
+        if line.starts_with('[') {
+            section = line.trim_matches(['[', ']']).to_string();
+        } else {
+            let (k, v) = line.split_once('=').expect("key=value line in the unit");
+            out.entry(section.clone())
+                .or_default()
+                .entry(k.trim().to_string())
+                .or_default()
+                .push(v.trim().to_string());
+        }
+        line.clear();
+    }
+    out
+}
+
+#[test]
+fn rules_and_unit_agree_on_names_tags_and_permissions() {
+    let rules_path = concat!(env!("CARGO_MANIFEST_DIR"), "/../udev/99-s3tir.rules");
+    let unit_path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/systemd/s3tir-capture@.service"
+    );
+    let rules = parse_rules(&std::fs::read_to_string(rules_path).unwrap()).unwrap();
+    let unit = parse_unit(&std::fs::read_to_string(unit_path).unwrap());
+    let get = |section: &str, key: &str| -> Vec<String> {
+        unit.get(section)
+            .and_then(|s| s.get(key))
+            .cloned()
+            .unwrap_or_default()
+    };
+    let unit_name = "s3tir-capture@.service";
+    // The unit's view of its instance: the device it waits for and the nodes it opens.
+    assert!(
+        get("Unit", "After")
+            .iter()
+            .any(|v| v.split_whitespace().any(|u| u == "dev-s3tir-%i.device")),
+        "{unit_name}: must be ordered after dev-s3tir-%i.device"
+    );
+    assert_eq!(
+        get("Install", "WantedBy"),
+        ["dev-s3tir-%i.device"],
+        "{unit_name}: enabled instances are wanted by their core's device unit"
+    );
+    assert_eq!(
+        get("Service", "UMask"),
+        ["0027"],
+        "{unit_name}: sessions must not be world-readable"
+    );
+    let exec = get("Service", "ExecStart").join(" ");
+    for node in [
+        "--device /dev/s3tir/%i",
+        "/dev/s3tir/%i-serial",
+        "/dev/s3tir/rgb",
+    ] {
+        assert!(
+            exec.contains(node),
+            "{unit_name}: ExecStart must use {node}: {exec}"
+        );
+    }
+    assert!(
+        !exec.contains("/dev/video"),
+        "{unit_name}: no unstable /dev/videoN names: {exec}"
+    );
+
+    // Every thermal core's video rule: the systemd tag and the instance it starts.
+    let mut cores = Vec::new();
+    for rule in &rules {
+        let m = matches(rule);
+        let Some(link) = assigns(rule, "SYMLINK") else {
+            continue;
+        };
+        let name = link
+            .strip_prefix("s3tir/")
+            .expect("links live under /dev/s3tir/");
+        let tags = all_assigns(rule, "TAG");
+        if m.get("SUBSYSTEM").map(String::as_str) == Some("video4linux") {
+            assert!(
+                tags.iter().any(|t| t == "systemd"),
+                "{link}: TAG+=\"systemd\" is needed for dev-s3tir-{name}.device to exist"
+            );
+            assert_eq!(
+                all_assigns(rule, "ENV{SYSTEMD_WANTS}"),
+                [format!("s3tir-capture@{name}.service")],
+                "{link}: must start the unit's instance for this core"
+            );
+            cores.push(name.to_string());
+        }
+        if name.ends_with("-serial") {
+            let core = name.trim_end_matches("-serial");
+            assert!(
+                rules.iter().any(|r| assigns(r, "SYMLINK").as_deref() == Some(&format!("s3tir/{core}")[..])),
+                "{link}: the unit looks for /dev/s3tir/%i-serial, so {core} must be a core's link"
+            );
+        }
+    }
+    assert_eq!(cores, ["lepton", "boson"], "the cores the unit serves");
+    // The RGB rule is a template the user fills in; the unit records it only if the link exists.
+    let rules_text = std::fs::read_to_string(rules_path).unwrap();
+    assert!(
+        rules_text.contains("SYMLINK+=\"s3tir/rgb\""),
+        "the rules file documents the s3tir/rgb link the unit records"
+    );
+}
+
+/// systemd's own check of the unit (an instance of the template), where `systemd-analyze`
+/// exists (Debian images have it; it needs no running systemd).
+#[test]
+fn systemd_analyze_verifies_the_unit() {
+    let unit = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/systemd/s3tir-capture@.service"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(unit, dir.path().join("s3tir-capture@.service")).unwrap();
+    let out = match std::process::Command::new("systemd-analyze")
+        .args(["verify", "--man=no", "./s3tir-capture@boson.service"])
+        .current_dir(dir.path())
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) => {
+            println!("SKIPPED: no systemd-analyze ({e})");
+            return;
+        }
+    };
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.trim().is_empty(),
+        "systemd-analyze verify s3tir-capture@boson.service: {} {stderr}",
+        out.status
+    );
 }
 
 #[test]
