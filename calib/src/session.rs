@@ -17,11 +17,11 @@
 //! Each view is named after the session and the frame's sequence number
 //! (`session.mcap#thermal/000123`), which is what the report's "files not used" list shows.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use s3tir_capture::frame::{CapturedFrame, RgbFrame, StreamKind, ThermalFrame};
-use s3tir_capture::session::{SessionItem, parse_recorded, read_session};
+use s3tir_capture::session::{FrameWindow, SessionItem, parse_recorded, read_session};
 
 use crate::board::{Camera, FileProblem, ViewFiles};
 use crate::error::CalibError;
@@ -81,6 +81,17 @@ fn frame_name(session: &Path, stream: StreamKind, sequence: u32) -> PathBuf {
     ))
 }
 
+/// `name`, or `name.2`, `name.3`, … if taken; with the number used (1: as given).
+fn unique_name(frames: &HashMap<PathBuf, Stored>, name: PathBuf) -> (PathBuf, u32) {
+    if !frames.contains_key(&name) {
+        return (name, 1);
+    }
+    (2..)
+        .map(|n| (PathBuf::from(format!("{}.{n}", name.display())), n))
+        .find(|(p, _)| !frames.contains_key(p))
+        .unwrap_or((name, 1))
+}
+
 fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
     CalibError::Session {
         path: path.to_path_buf(),
@@ -92,7 +103,11 @@ fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
 pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, CalibError> {
     let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
     // Recent frames by sequence (pairs refer to frames a few frames back).
-    let mut recent: [BTreeMap<u32, CapturedFrame>; 2] = [BTreeMap::new(), BTreeMap::new()];
+    // Keyed by arrival, not sequence: sequences restart when a device is reopened.
+    let mut recent: [FrameWindow<CapturedFrame>; 2] = [
+        FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY),
+        FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY),
+    ];
     // Single-stream candidates, used when the session has no pairs.
     let mut singles: [Vec<(u64, CapturedFrame)>; 2] = [Vec::new(), Vec::new()];
     let mut last_single_ns: [Option<u64>; 2] = [None, None];
@@ -117,17 +132,14 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                     last_single_ns[k] = Some(t_ns);
                     singles[k].push((t_ns, frame.clone()));
                 }
-                recent[k].insert(f.raw.sequence, frame);
-                while recent[k].len() > 512 {
-                    recent[k].pop_first();
-                }
+                recent[k].push(f.raw.sequence, frame);
             }
             SessionItem::Pair(p) => {
                 pair_records += 1;
                 singles = [Vec::new(), Vec::new()];
                 let (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) = (
-                    recent[0].get(&p.thermal_sequence),
-                    recent[1].get(&p.rgb_sequence),
+                    recent[0].get(p.thermal_sequence),
+                    recent[1].get(p.rgb_sequence),
                 ) else {
                     problems.push(FileProblem {
                         path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
@@ -184,10 +196,18 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
     let mut views = Vec::new();
     if pair_records > 0 {
         for (t, r) in pairs {
-            let tn = frame_name(path, StreamKind::Thermal, t.time.sequence);
-            let rn = frame_name(path, StreamKind::Rgb, r.time.sequence);
+            // A device reopened mid-session restarts its sequence: the second frame 000123 is
+            // 000123.2, so no pair replaces another.
+            let (tn, n) = unique_name(
+                &frames,
+                frame_name(path, StreamKind::Thermal, t.time.sequence),
+            );
+            let (rn, _) = unique_name(&frames, frame_name(path, StreamKind::Rgb, r.time.sequence));
             views.push(ViewFiles {
-                key: format!("{:06}", t.time.sequence),
+                key: match n {
+                    1 => format!("{:06}", t.time.sequence),
+                    n => format!("{:06}.{n}", t.time.sequence),
+                },
                 files: [Some(tn.clone()), Some(rn.clone())],
             });
             frames.insert(tn, Stored::Thermal(t));
@@ -206,11 +226,14 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                     }
                     CapturedFrame::Rgb(r) => (StreamKind::Rgb, r.time.sequence, Stored::Rgb(r)),
                 };
-                let name = frame_name(path, stream, sequence);
+                let (name, n) = unique_name(&frames, frame_name(path, stream, sequence));
                 let mut files = [None, None];
                 files[k] = Some(name.clone());
                 views.push(ViewFiles {
-                    key: format!("{}-{sequence:06}", stream.name()),
+                    key: match n {
+                        1 => format!("{}-{sequence:06}", stream.name()),
+                        n => format!("{}-{sequence:06}.{n}", stream.name()),
+                    },
                     files,
                 });
                 frames.insert(name, stored);

@@ -7,6 +7,11 @@
 //!   stream (`queue_drops_*` in the session's status records), never buffered without bound.
 //! - Reconnect: a reader whose device fails (unplugged camera, simulated rig gone) reopens it
 //!   every 200 ms until it returns; each return is counted in `reconnects`.
+//! - Stall watchdog: a device that stays open but delivers nothing for
+//!   [`DaemonConfig::stall_timeout`] (UVC bridges such as the PureThermal are known to stall
+//!   this way; V4L2 only times out) is closed and reopened, counted in `stalls`. Frames lost
+//!   across a reopen are counted as drops by time ([`crate::pairing::SeqTracker`]): a reopened
+//!   V4L2 device restarts its sequence numbers.
 //! - Shutdown: SIGINT/SIGTERM or the end of `--duration` stop the readers, drain the queue,
 //!   decide pending pairs, and finish the file (summary + footer).
 
@@ -62,6 +67,8 @@ pub struct DaemonConfig {
     pub calibration: Option<(String, Vec<u8>)>,
     /// Extra per-buffer write delay (tests: simulates a slow disk).
     pub slow_disk: Option<Duration>,
+    /// A device that delivers no buffer for this long is reopened (the stall watchdog).
+    pub stall_timeout: Duration,
     /// Polls the thermal core's FFC state (Boson over FSLP), every 100 ms in its own thread.
     /// Thermal frames whose device says nothing about FFC (V4L2 Y16 from a Boson carries no
     /// telemetry) take the last polled state, so frozen frames are flagged.
@@ -131,9 +138,14 @@ pub struct Counters {
     pub rejected: [AtomicU64; 2],
     pub queue_drops: [AtomicU64; 2],
     pub reconnects: AtomicU64,
+    pub stalls: AtomicU64,
     pub serial_errors: AtomicU64,
     pub bytes: AtomicU64,
 }
+
+/// Default of [`DaemonConfig::stall_timeout`]: the slowest core (Lepton, 8.7 Hz) delivers ~26
+/// frames in this time, and a Boson FFC freezes the image, not the stream.
+pub const DEFAULT_STALL_TIMEOUT: Duration = Duration::from_secs(3);
 
 impl Counters {
     fn status(&self) -> StatusRecord {
@@ -146,6 +158,7 @@ impl Counters {
             queue_drops_rgb: l(&self.queue_drops[1]),
             reconnects: l(&self.reconnects),
             serial_errors: l(&self.serial_errors),
+            stalls: l(&self.stalls),
         }
     }
 }
@@ -267,13 +280,14 @@ async fn run_async(
         }));
     }
     // Readers: one blocking thread per device.
+    let stall_timeout = cfg.stall_timeout;
     for spec in cfg.sources {
         let tx = tx.clone();
         let stop = stop.clone();
         let counters = counters.clone();
         let ffc = ffc.clone();
         readers.push(tokio::task::spawn_blocking(move || {
-            read_loop(spec, tx, stop, counters, ffc);
+            read_loop(spec, tx, stop, counters, ffc, stall_timeout);
         }));
     }
 
@@ -443,11 +457,16 @@ fn read_loop(
     stop: Arc<AtomicBool>,
     counters: Arc<Counters>,
     ffc: Arc<AtomicU8>,
+    stall_timeout: Duration,
 ) {
     let name: Arc<str> = Arc::from(spec.name.as_str());
     let mut source: Option<Box<dyn FrameSource>> = None;
     let mut ever_opened = false;
     let mut warned_open = false;
+    // When the open device last delivered a buffer (or was opened).
+    let mut last_buffer = Instant::now();
+    // Wait at most this long per call, so a stall is noticed on time.
+    let wait = stall_timeout.min(Duration::from_millis(1000));
     while !stop.load(Ordering::Relaxed) {
         let Some(src) = source.as_mut() else {
             match (spec.open)() {
@@ -458,6 +477,7 @@ fn read_loop(
                     }
                     ever_opened = true;
                     warned_open = false;
+                    last_buffer = Instant::now();
                     source = Some(s);
                 }
                 Err(e) => {
@@ -470,8 +490,9 @@ fn read_loop(
             }
             continue;
         };
-        match src.next_frame(Duration::from_millis(1000)) {
+        match src.next_frame(wait) {
             Ok(Some(mut raw)) => {
+                last_buffer = Instant::now();
                 apply_polled_ffc(&mut raw, ffc_from_u8(ffc.load(Ordering::Relaxed)));
                 let k = idx(raw.stream);
                 let msg = Msg::Frame {
@@ -487,7 +508,17 @@ fn read_loop(
                     Err(mpsc::error::TrySendError::Closed(_)) => return,
                 }
             }
-            Ok(None) => {}
+            Ok(None) => {
+                if last_buffer.elapsed() >= stall_timeout && !stop.load(Ordering::Relaxed) {
+                    counters.stalls.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!(
+                        device = %name,
+                        "no buffer for {:.1} s: the device stalled; reopening it",
+                        last_buffer.elapsed().as_secs_f64()
+                    );
+                    source = None;
+                }
+            }
             // Stopped while waiting (e.g. a simulated walk that has sent its last frame): the
             // source did not fail, the recording ended.
             Err(_) if stop.load(Ordering::Relaxed) => break,

@@ -74,6 +74,10 @@ struct RecordArgs {
     /// beyond it are dropped and counted.
     #[arg(long, default_value_t = 64)]
     queue_frames: usize,
+    /// A device that delivers no frame for this many seconds is closed and reopened (the stall
+    /// watchdog; UVC bridges can stall without an error), and counted in `stalls`.
+    #[arg(long, default_value_t = s3tir_capture::daemon::DEFAULT_STALL_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
+    stall_timeout_s: f64,
     /// Thermal words are TLinear centikelvin (else raw counts); recorded in the metadata.
     #[arg(long)]
     tlinear: bool,
@@ -341,8 +345,8 @@ fn info(file: &std::path::Path, json: bool) -> Result<()> {
         );
     }
     println!(
-        "  reconnects {}  frame digest {}",
-        s.reconnects, s.frame_digest
+        "  reconnects {}  stalls {}  frame digest {}",
+        s.reconnects, s.stalls, s.frame_digest
     );
     damaged(&s)
 }
@@ -641,6 +645,7 @@ fn record(a: RecordArgs) -> Result<()> {
         status_line: true,
         calibration,
         slow_disk: None,
+        stall_timeout: Duration::from_secs_f64(a.stall_timeout_s),
         ffc_poll,
         trigger_poll,
         rough_clock,
@@ -657,7 +662,7 @@ fn record(a: RecordArgs) -> Result<()> {
         tracing::warn!("could not stop the trigger: {e}");
     }
     eprintln!(
-        "recorded {}: thermal {} frames ({} drops, {} FFC, {} rejected), rgb {} frames ({} drops, {} rejected), {} pairs, {} queue drops, {} reconnects, {:.1} MB in {:.1} s",
+        "recorded {}: thermal {} frames ({} drops, {} FFC, {} rejected), rgb {} frames ({} drops, {} rejected), {} pairs, {} queue drops, {} reconnects, {} stalls, {:.1} MB in {:.1} s",
         out.display(),
         report.thermal.frames,
         report.thermal.drops,
@@ -669,6 +674,7 @@ fn record(a: RecordArgs) -> Result<()> {
         report.pairs,
         report.status.queue_drops_thermal + report.status.queue_drops_rgb,
         report.status.reconnects,
+        report.status.stalls,
         report.bytes_written as f64 / 1e6,
         report.elapsed_s
     );

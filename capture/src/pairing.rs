@@ -47,6 +47,11 @@ struct Pending {
     t_ns: u64,
 }
 
+/// How long a frame waits for its partner stream before it is decided without it (pending
+/// queues stay bounded when one camera stops). Far above any delivery lag between the two
+/// streams (tens of ms).
+pub const PAIR_HORIZON_NS: u64 = 2_000_000_000;
+
 /// Online pairer. Feed frames in arrival order; it returns pairs as they are decided.
 #[derive(Debug, Clone)]
 pub struct Pairer {
@@ -137,11 +142,25 @@ impl Pairer {
 
     fn resolve(&mut self, tol: u64, all: bool) -> Vec<PairRecord> {
         let mut out = Vec::new();
+        // Bounded queues when one stream stops: a thermal frame older than the newest by more
+        // than the horizon can only pair with an RGB frame that late, and an RGB frame older
+        // than the newest RGB by the horizon is decided with the thermal frames there are.
+        if let Some(latest) = self.latest_thermal_ns {
+            while self
+                .thermal
+                .front()
+                .is_some_and(|t| t.t_ns.saturating_add(PAIR_HORIZON_NS) < latest)
+            {
+                self.thermal.pop_front();
+            }
+        }
+        let latest_rgb = self.rgb.back().map(|r| r.t_ns);
         while let Some(&r) = self.rgb.front() {
             let decidable = all
                 || self
                     .latest_thermal_ns
-                    .is_some_and(|l| l > r.t_ns.saturating_add(tol));
+                    .is_some_and(|l| l > r.t_ns.saturating_add(tol))
+                || latest_rgb.is_some_and(|l| r.t_ns.saturating_add(PAIR_HORIZON_NS) < l);
             if !decidable {
                 break;
             }
@@ -181,12 +200,19 @@ fn pair(t: Pending, r: Pending) -> PairRecord {
     }
 }
 
-/// Detects dropped frames from sequence gaps of one stream.
+/// Detects dropped frames from sequence gaps of one stream, and across a device reopen by
+/// time: a reopened V4L2 device restarts its sequence numbers at 0, so when the sequence goes
+/// backwards the frames missing in between are estimated from the monotonic stamps (gap over
+/// the stream's frame period, learnt from consecutive frames) rather than ignored.
 #[derive(Debug, Clone)]
 pub struct SeqTracker {
     stream: StreamKind,
-    last: Option<u32>,
+    last: Option<(u32, u64)>,
+    /// Running estimate of the frame period from sequence-consecutive frames, ns.
+    period_ns: Option<f64>,
     pub dropped: u64,
+    /// Sequence restarts seen (device reopened).
+    pub restarts: u64,
 }
 
 impl SeqTracker {
@@ -194,19 +220,33 @@ impl SeqTracker {
         Self {
             stream,
             last: None,
+            period_ns: None,
             dropped: 0,
+            restarts: 0,
         }
     }
 
-    /// Feeds the next sequence number; a gap yields a drop record. A sequence that goes
-    /// backwards (device reopened after a reconnect restarts at 0) restarts tracking.
+    /// Feeds the next frame; a gap yields a drop record: by sequence normally, by time when
+    /// the sequence went backwards (device reopened after a reconnect or a stall).
     pub fn push(&mut self, sequence: u32, monotonic_ns: u64) -> Option<DropRecord> {
-        let prev = self.last.replace(sequence);
-        let last = prev?;
-        if sequence <= last {
-            return None;
-        }
-        let missing = sequence - last - 1;
+        let (last, last_ns) = self.last.replace((sequence, monotonic_ns))?;
+        let missing = if sequence > last {
+            let steps = sequence - last;
+            if monotonic_ns > last_ns {
+                let dt = (monotonic_ns - last_ns) as f64 / f64::from(steps);
+                self.period_ns = Some(self.period_ns.map_or(dt, |p| 0.9 * p + 0.1 * dt));
+            }
+            steps - 1
+        } else {
+            self.restarts += 1;
+            match self.period_ns {
+                Some(p) if p > 0.0 && monotonic_ns > last_ns => {
+                    let frames = ((monotonic_ns - last_ns) as f64 / p).round();
+                    (frames - 1.0).clamp(0.0, f64::from(u32::MAX)) as u32
+                }
+                _ => 0,
+            }
+        };
         if missing == 0 {
             return None;
         }
@@ -331,15 +371,89 @@ mod tests {
     }
 
     #[test]
-    fn gaps_are_counted_and_restarts_are_not_drops() {
+    fn gaps_are_counted_by_sequence_and_across_a_restart_by_time() {
         let mut t = SeqTracker::new(StreamKind::Thermal);
-        assert!(t.push(5, 0).is_none());
-        assert!(t.push(6, 0).is_none());
-        let d = t.push(9, 0).unwrap();
+        // 60 Hz: one frame every 16.67 ms.
+        let at = |k: u64| k * 16_666_667;
+        assert!(t.push(5, at(5)).is_none());
+        assert!(t.push(6, at(6)).is_none());
+        let d = t.push(9, at(9)).unwrap();
         assert_eq!((d.after_sequence, d.missing), (6, 2));
-        assert!(t.push(0, 0).is_none(), "restart after reconnect");
-        assert!(t.push(1, 0).is_none());
-        assert_eq!(t.dropped, 2);
+        // The device is reopened 1 s (60 frame times) later with its sequence back at 0: the
+        // 59 frames in between are drops, not nothing.
+        let Some(d) = t.push(0, at(69)) else {
+            panic!("the outage must be counted as drops");
+        };
+        assert_eq!((d.after_sequence, d.missing), (9, 59), "counted by time");
+        assert!(t.push(1, at(70)).is_none());
+        assert_eq!(t.dropped, 61);
+        assert_eq!(t.restarts, 1);
+        // A restart right away (no frame time passed) loses nothing.
+        assert!(t.push(0, at(71)).is_none());
+        // Before any period is known, a restart cannot be measured: nothing is invented.
+        let mut fresh = SeqTracker::new(StreamKind::Rgb);
+        fresh.push(3, 0);
+        assert!(fresh.push(0, 1_000_000_000).is_none());
+    }
+
+    /// When one stream stops (an RGB camera unplugged, a stalled core), the other's pending
+    /// frames are decided once they are older than the horizon: the queues stay bounded.
+    #[test]
+    fn pending_frames_stay_bounded_when_the_other_stream_stops() {
+        let mut p = Pairer::new(PairingMode::Nearest {
+            tolerance_ns: 10 * MS,
+        });
+        // 10 minutes of 60 Hz thermal, no RGB at all.
+        for k in 0..36_000u64 {
+            assert!(
+                p.push(StreamKind::Thermal, k as u32, k * 16_666_667, false)
+                    .is_empty()
+            );
+        }
+        let horizon_frames = (PAIR_HORIZON_NS / 16_666_667 + 2) as usize;
+        assert!(
+            p.thermal.len() <= horizon_frames,
+            "{} thermal frames pending, at most {horizon_frames} expected",
+            p.thermal.len()
+        );
+        // And the other way round: RGB with the thermal core stalled.
+        let mut p = Pairer::new(PairingMode::Nearest {
+            tolerance_ns: 10 * MS,
+        });
+        p.push(StreamKind::Thermal, 0, 0, false);
+        for k in 0..18_000u64 {
+            p.push(
+                StreamKind::Rgb,
+                k as u32,
+                1_000 * MS + k * 33_333_333,
+                false,
+            );
+        }
+        let horizon_frames = (PAIR_HORIZON_NS / 33_333_333 + 2) as usize;
+        assert!(
+            p.rgb.len() <= horizon_frames,
+            "{} RGB frames pending, at most {horizon_frames} expected",
+            p.rgb.len()
+        );
+        // Pairing resumes when both streams are back.
+        let t0 = 1_000 * MS + 18_000 * 33_333_333;
+        let mut pairs = Vec::new();
+        for k in 0..10u64 {
+            pairs.extend(p.push(
+                StreamKind::Thermal,
+                100 + k as u32,
+                t0 + k * 33_333_333,
+                false,
+            ));
+            pairs.extend(p.push(
+                StreamKind::Rgb,
+                50_000 + k as u32,
+                t0 + k * 33_333_333 + MS,
+                false,
+            ));
+        }
+        pairs.extend(p.finish());
+        assert_eq!(pairs.len(), 10, "pairs after the streams resume: {pairs:?}");
     }
 
     #[test]

@@ -172,6 +172,10 @@ pub struct StatusRecord {
     pub queue_drops_rgb: u64,
     pub reconnects: u64,
     pub serial_errors: u64,
+    /// Times a device delivered nothing for the stall timeout and was reopened (absent in
+    /// sessions recorded before the watchdog).
+    #[serde(default)]
+    pub stalls: u64,
 }
 
 /// A rig-controller trigger pulse (`/rig/triggers`).
@@ -1206,6 +1210,54 @@ fn decode_message(
         topic::CLOCK => Some(SessionItem::Clock(json(data).map_err(bad)?)),
         _ => None,
     })
+}
+
+/// The last frames of one stream as read from a session, for looking up the frames a `/pairs`
+/// record names. Bounded and keyed by *arrival*, not by sequence: after a device reopen the
+/// sequence restarts at 0, so evicting the smallest sequence (a map's first key) would throw
+/// away the newest frames. A lookup returns the newest frame with that sequence (a pair
+/// record follows its frames closely).
+#[derive(Debug, Clone)]
+pub struct FrameWindow<T> {
+    capacity: usize,
+    frames: std::collections::VecDeque<(u32, T)>,
+}
+
+impl<T> FrameWindow<T> {
+    /// Pairs are decided within a few frames; 512 covers seconds of the fastest stream.
+    pub const DEFAULT_CAPACITY: usize = 512;
+
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity: capacity.max(1),
+            frames: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// Adds the newest frame, forgetting the oldest beyond the capacity.
+    pub fn push(&mut self, sequence: u32, frame: T) {
+        if self.frames.len() == self.capacity {
+            self.frames.pop_front();
+        }
+        self.frames.push_back((sequence, frame));
+    }
+
+    /// The newest frame with this sequence.
+    pub fn get(&self, sequence: u32) -> Option<&T> {
+        self.frames
+            .iter()
+            .rev()
+            .find(|(s, _)| *s == sequence)
+            .map(|(_, f)| f)
+    }
+
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
 }
 
 /// Convenience for tests and tools: the frame a recorded item parses to.

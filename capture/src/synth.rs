@@ -150,6 +150,13 @@ impl SynthRig {
             .map(|(_, _, hz)| self.start_ns + 2_000_000 + (i as f64 * 1e9 / hz) as u64)
     }
 
+    /// Numbers the following frames from 0 again, as a V4L2 device does when it is reopened
+    /// (after a re-enumeration or a stall); the clock goes on.
+    pub fn restart_sequences(&mut self) {
+        self.t_seq = 0;
+        self.r_seq = 0;
+    }
+
     /// Monotonic time of the next buffer.
     pub fn next_time_ns(&self) -> u64 {
         let t = self.t_time(self.t_index);

@@ -11,7 +11,7 @@ use crate::frame::{CapturedFrame, StreamKind};
 use crate::pairing::{PairingMode, SyncAccumulator, SyncStats};
 use crate::pipeline::Pipeline;
 use crate::session::{
-    PairRecord, SessionItem, SessionRecord, SessionWriter, StatusRecord, read_session,
+    FrameWindow, PairRecord, SessionItem, SessionRecord, SessionWriter, StatusRecord, read_session,
 };
 
 /// Per-stream counts `info` reports.
@@ -91,6 +91,8 @@ pub struct SessionSummary {
     pub damage: Option<crate::session::Damage>,
     pub chunks: u64,
     pub reconnects: u64,
+    /// Times a device delivered nothing for the stall timeout and was reopened.
+    pub stalls: u64,
     /// FNV-1a over every frame's device buffer and stamps, in file order: equal digests mean
     /// byte-identical frames (`replay` prints the digest of what it pushed through).
     pub frame_digest: String,
@@ -202,6 +204,7 @@ pub fn info(path: &Path) -> Result<SessionSummary, CaptureError> {
     th.queue_drops = last_status.queue_drops_thermal;
     rgb.queue_drops = last_status.queue_drops_rgb;
     s.reconnects = last_status.reconnects;
+    s.stalls = last_status.stalls;
     spans[0].finish(&mut th);
     spans[1].finish(&mut rgb);
     s.streams.insert("thermal".into(), th);
@@ -356,8 +359,9 @@ pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
     };
     mk(dir.join("thermal"))?;
     mk(dir.join("rgb"))?;
-    let mut thermal: BTreeMap<u32, CapturedFrame> = BTreeMap::new();
-    let mut rgb: BTreeMap<u32, CapturedFrame> = BTreeMap::new();
+    // Keyed by arrival: sequences restart when a device is reopened.
+    let mut thermal = FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY);
+    let mut rgb = FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY);
     let mut k = 0u64;
     read_session(path, |item| {
         match item {
@@ -367,15 +371,11 @@ pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
                     StreamKind::Thermal => &mut thermal,
                     StreamKind::Rgb => &mut rgb,
                 };
-                map.insert(f.raw.sequence, frame);
-                // Pairs are decided within a few frames: keep a bounded window.
-                while map.len() > 512 {
-                    map.pop_first();
-                }
+                map.push(f.raw.sequence, frame);
             }
             SessionItem::Pair(p) => {
                 let (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) =
-                    (thermal.get(&p.thermal_sequence), rgb.get(&p.rgb_sequence))
+                    (thermal.get(p.thermal_sequence), rgb.get(p.rgb_sequence))
                 else {
                     return Ok(());
                 };

@@ -3,21 +3,27 @@
 //! FFC freezes are flagged and never paired; scripted drops are counted as drops; corrupt
 //! MJPEG buffers are counted as rejected and not recorded; the daemon reconnects when the rig
 //! vanishes and returns; a slow disk shows up as counted queue drops, not unbounded memory;
-//! replay of the result reproduces every frame (same digest) and every pair.
+//! replay of the result reproduces every frame (same digest) and every pair; a device that
+//! stalls (open, no error, no buffers) is reopened by the watchdog and counted, its restarted
+//! sequence numbers do not lose the pairs after the reopen in `export`, and the outage is
+//! counted as drops by time.
 //! Does NOT run the binaries or the real `s3tir-firmware-sim` (tests/tests/capture_*.rs do)
 //! and does not measure throughput (`s3tir-capture bench` does).
 #![allow(clippy::unwrap_used)]
 
+use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Duration;
 
+use s3tir_capture::CaptureError;
 use s3tir_capture::daemon::{self, Counters, DaemonConfig, SourceSpec};
 use s3tir_capture::device::FrameSource;
+use s3tir_capture::frame::RawFrame;
 use s3tir_capture::pairing::PairingMode;
 use s3tir_capture::session::SessionInfo;
 use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig, SimSource};
-use s3tir_capture::synth::{Script, ThermalSynth};
+use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::tools;
 
 fn config(socket: &std::path::Path, out: &std::path::Path, secs: f64) -> DaemonConfig {
@@ -46,6 +52,7 @@ fn config(socket: &std::path::Path, out: &std::path::Path, secs: f64) -> DaemonC
         status_line: false,
         calibration: None,
         slow_disk: None,
+        stall_timeout: s3tir_capture::daemon::DEFAULT_STALL_TIMEOUT,
         ffc_poll: None,
         trigger_poll: None,
         rough_clock: None,
@@ -276,4 +283,165 @@ fn a_full_disk_is_an_error_naming_the_file_not_a_hang() {
     .to_string();
     assert!(err.contains("/dev/full"), "error names the file: {err}");
     assert!(t0.elapsed() < Duration::from_secs(10), "fails promptly");
+}
+
+/// A camera that delivers `before` buffers, then stalls (stays open, times out forever); once
+/// reopened it restarts its sequence numbers at 0 (as a re-enumerated V4L2 device does) and
+/// its stamps jump by the outage, then it delivers `after` buffers and goes quiet.
+struct StallingCamera {
+    rig: SynthRig,
+    open_index: usize,
+    delivered: usize,
+    before: usize,
+    after: usize,
+}
+
+const OUTAGE_NS: u64 = 1_000_000_000;
+
+impl FrameSource for StallingCamera {
+    fn name(&self) -> &str {
+        "stalling"
+    }
+    fn next_frame(&mut self, timeout: Duration) -> Result<Option<RawFrame>, CaptureError> {
+        let limit = if self.open_index == 0 {
+            self.before
+        } else {
+            self.after
+        };
+        if self.delivered >= limit {
+            std::thread::sleep(timeout);
+            return Ok(None);
+        }
+        let mut raw = self.rig.next_buffer().unwrap();
+        self.delivered += 1;
+        if self.open_index > 0 {
+            raw.monotonic_ns += OUTAGE_NS;
+        }
+        std::thread::sleep(Duration::from_micros(300));
+        Ok(Some(raw))
+    }
+}
+
+#[test]
+fn a_stalled_camera_is_reopened_and_its_restarted_sequences_keep_their_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("stall.mcap");
+    let opens = Arc::new(AtomicUsize::new(0));
+    // Boson-rate thermal (60 Hz) + 30 Hz RGB, 2 ms apart: 900 buffers (10 s of camera time,
+    // more than the 512-frame windows) before the stall, 150 after.
+    let (before, after) = (900, 150);
+    let o = opens.clone();
+    let make = move || -> Result<Box<dyn FrameSource>, CaptureError> {
+        let k = o.fetch_add(1, Ordering::SeqCst);
+        let thermal = ThermalSynth {
+            width: 64,
+            height: 48,
+            ..ThermalSynth::boson640()
+        };
+        let mut rig = SynthRig::new(thermal, Some((64, 48, 30.0)), Script::default(), 0).unwrap();
+        if k > 0 {
+            // The second open continues the scene's clock where the first left it (plus the
+            // outage), but numbers its frames from 0 again.
+            for _ in 0..before {
+                rig.next_buffer();
+            }
+            rig.restart_sequences();
+        }
+        Ok(Box::new(StallingCamera {
+            rig,
+            open_index: k,
+            delivered: 0,
+            before,
+            after,
+        }))
+    };
+    let mut cfg = config(Path::new("/nonexistent"), &out, 0.0);
+    cfg.sources = vec![SourceSpec {
+        name: "stalling".into(),
+        open: Box::new(make),
+    }];
+    cfg.duration = None;
+    cfg.stall_timeout = Duration::from_millis(400);
+    let stop = Arc::new(AtomicBool::new(false));
+    let counters = Arc::new(Counters::default());
+    // Stop once the second open has delivered everything.
+    let watcher = {
+        let stop = stop.clone();
+        let counters = counters.clone();
+        let opens = opens.clone();
+        std::thread::spawn(move || {
+            let t0 = std::time::Instant::now();
+            while t0.elapsed() < Duration::from_secs(30) {
+                let n = counters.frames[0].load(Ordering::Relaxed)
+                    + counters.frames[1].load(Ordering::Relaxed);
+                if opens.load(Ordering::SeqCst) >= 2 && n >= (before + after) as u64 {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            std::thread::sleep(Duration::from_millis(100));
+            stop.store(true, Ordering::SeqCst);
+        })
+    };
+    let report = daemon::run(cfg, stop, counters).unwrap();
+    watcher.join().unwrap();
+    assert_eq!(report.status.stalls, 1, "one stall, counted");
+    assert_eq!(report.status.reconnects, 1, "reopened once");
+    assert_eq!(
+        (report.thermal.frames + report.rgb.frames) as usize,
+        before + after,
+        "every delivered buffer recorded"
+    );
+    // 1 s outage: ~60 thermal and ~30 RGB frame times, minus the one frame that arrives.
+    assert!(
+        (55..=62).contains(&report.thermal.drops),
+        "thermal drops across the outage counted by time: {}",
+        report.thermal.drops
+    );
+    assert!(
+        (26..=32).contains(&report.rgb.drops),
+        "RGB drops across the outage counted by time: {}",
+        report.rgb.drops
+    );
+    let info = tools::info(&out).unwrap();
+    assert_eq!(
+        info.stalls, 1,
+        "the session's status records carry the stall"
+    );
+    // Export finds the frames of every recorded pair, including those after the restart
+    // (a window keyed by sequence evicted exactly those).
+    let pairs_after: u64 = {
+        let mut n = 0;
+        let mut restarted = false;
+        let mut last = 0u32;
+        s3tir_capture::session::read_session(&out, |item| {
+            match item {
+                s3tir_capture::session::SessionItem::Frame(f)
+                    if f.raw.stream == s3tir_capture::frame::StreamKind::Thermal =>
+                {
+                    restarted |= f.raw.sequence < last;
+                    last = f.raw.sequence;
+                }
+                s3tir_capture::session::SessionItem::Pair(_) if restarted => n += 1,
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        n
+    };
+    assert!(pairs_after >= 40, "pairs after the restart: {pairs_after}");
+    let exported = tools::export(&out, &dir.path().join("export")).unwrap();
+    println!(
+        "stall test: {} stall, {} reconnect, drops thermal {} rgb {}, {} pairs ({pairs_after} after the restart), {exported} exported",
+        report.status.stalls,
+        report.status.reconnects,
+        report.thermal.drops,
+        report.rgb.drops,
+        info.pairs
+    );
+    assert_eq!(
+        exported, info.pairs,
+        "export writes every recorded pair ({pairs_after} after the restart)"
+    );
 }

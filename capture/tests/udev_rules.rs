@@ -9,7 +9,7 @@
 //! rules create, writes with `UMask=0027`, and is wanted by that device unit. Does NOT run
 //! udev or systemd (no `udevadm`/`systemd-analyze` on CI machines, no devices): whether a real
 //! device matches is checked on the rig with the steps in udev/README.md.
-#![allow(clippy::unwrap_used)]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::collections::BTreeMap;
 

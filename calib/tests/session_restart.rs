@@ -1,0 +1,87 @@
+//! Proves: a session whose cameras were reopened mid-recording (sequence numbers restart at 0,
+//! as after a USB re-enumeration or the capture daemon's stall watchdog) gives the session
+//! calibration every recorded pair, those after the restart included, under distinct view
+//! names whose frames all load. Before, the frame window was keyed by sequence and evicted the
+//! newest frames (the restarted, small sequences) first, so every pair after the restart was
+//! "a frame not in the session". Does not calibrate (tests/session_input.rs does).
+#![allow(clippy::unwrap_used)]
+
+use std::collections::BTreeSet;
+
+use s3tir_calib::board::Camera;
+use s3tir_calib::session::{SessionOptions, read_views};
+use s3tir_capture::pairing::PairingMode;
+use s3tir_capture::pipeline::Pipeline;
+use s3tir_capture::session::{SessionInfo, SessionItem, SessionWriter, read_session};
+use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
+
+#[test]
+fn pairs_after_a_sequence_restart_are_all_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("restart.mcap");
+    let thermal = ThermalSynth {
+        width: 32,
+        height: 24,
+        ..ThermalSynth::boson640()
+    };
+    let mut rig = SynthRig::new(thermal, Some((32, 24, 30.0)), Script::default(), 0).unwrap();
+    let mut w = SessionWriter::create(&path, &SessionInfo::default()).unwrap();
+    let mut pipe = Pipeline::new(PairingMode::Nearest {
+        tolerance_ns: 20_000_000,
+    });
+    // 900 buffers (600 thermal, 300 RGB: more than the 512-frame window), then the devices are
+    // reopened and number from 0 again for 150 more.
+    for k in 0..1050 {
+        if k == 900 {
+            rig.restart_sequences();
+        }
+        let raw = rig.next_buffer().unwrap();
+        for r in pipe.push("synthetic", &raw, raw.monotonic_ns).unwrap() {
+            w.write(&r).unwrap();
+        }
+    }
+    for r in pipe.finish() {
+        w.write(&r).unwrap();
+    }
+    w.finish().unwrap();
+
+    let mut recorded = 0;
+    read_session(&path, |item| {
+        if let SessionItem::Pair(_) = item {
+            recorded += 1;
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert!(recorded >= 340, "the session holds {recorded} pairs");
+
+    let v = read_views(
+        &path,
+        &SessionOptions {
+            min_interval_s: 0.0,
+        },
+    )
+    .unwrap();
+    assert!(
+        v.problems.is_empty(),
+        "no pair may lose its frames: {:?}",
+        v.problems.iter().take(3).collect::<Vec<_>>()
+    );
+    assert_eq!(v.views.len(), recorded, "every recorded pair is a view");
+    let keys: BTreeSet<&str> = v.views.iter().map(|x| x.key.as_str()).collect();
+    assert_eq!(keys.len(), v.views.len(), "view keys are distinct");
+    let restarted: Vec<_> = v.views.iter().filter(|x| x.key.contains('.')).collect();
+    assert!(
+        restarted.len() >= 40,
+        "the pairs after the restart reuse sequence numbers and get suffixed keys: {}",
+        restarted.len()
+    );
+    for view in &v.views {
+        for (file, camera) in view.files.iter().zip([Camera::Thermal, Camera::Rgb]) {
+            let file = file.as_ref().unwrap();
+            v.images.load(file, camera).unwrap_or_else(|e| {
+                panic!("view {}: {} does not load: {e}", view.key, file.display())
+            });
+        }
+    }
+}
