@@ -45,6 +45,9 @@ pub struct BoardFile {
     pub board: BoardSpec,
 }
 
+/// Most inner corners per board side accepted from a board file (printed boards have tens).
+pub const MAX_INNER_CORNERS: u32 = 200;
+
 /// One chessboard (emissivity-coated on its dark squares).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct BoardSpec {
@@ -144,6 +147,16 @@ impl BoardSpec {
                 path: path.to_path_buf(),
                 reason: format!(
                     "inner_corners = {:?}: need at least 3x2 inner corners",
+                    self.inner_corners
+                ),
+            });
+        }
+        // Before any count is multiplied out (sizes come from a file).
+        if self.cols() > MAX_INNER_CORNERS || self.rows() > MAX_INNER_CORNERS {
+            return Err(CalibError::BoardFile {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "inner_corners = {:?}: at most {MAX_INNER_CORNERS} per side",
                     self.inner_corners
                 ),
             });
@@ -392,6 +405,30 @@ mod tests {
             board.tag_corners_sq(4).is_none(),
             "id 4 is not on the board"
         );
+    }
+
+    /// Sizes from a hostile or mistyped board.toml are refused before anything is multiplied
+    /// out (`(cols + 1) * (rows + 1)` overflowed u32 on [4294967295, 2]).
+    #[test]
+    fn huge_boards_are_refused_not_overflowed() {
+        for corners in [
+            "[4294967295, 2]",
+            "[3, 4294967295]",
+            "[201, 6]",
+            "[100000, 100001]",
+        ] {
+            let text = format!("[board]\ninner_corners = {corners}\nsquare_mm = 20.0\n");
+            let board = toml::from_str::<BoardFile>(&text)
+                .unwrap_or_else(|e| panic!("{e}"))
+                .board;
+            let Err(err) = board.validate(Path::new("b/board.toml")) else {
+                panic!("{corners} must be refused");
+            };
+            assert!(
+                err.to_string().contains("at most 200 per side"),
+                "{corners}: {err}"
+            );
+        }
     }
 
     #[test]

@@ -240,6 +240,31 @@ fn camera_model(
     Ok(model)
 }
 
+/// Why an image record cannot be used, if it cannot: its name must stay inside the images
+/// folder (relative, no `..`: a hostile model must not make the trainer read other files) and
+/// its quaternion must have a length to normalise (a zero quaternion became a NaN pose).
+fn image_problem(name: &str, q: [f64; 4]) -> Option<String> {
+    use std::path::Component;
+    if name.is_empty() {
+        return Some("image name is empty".into());
+    }
+    if !Path::new(name)
+        .components()
+        .all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
+    {
+        return Some(format!(
+            "image name {name:?} leaves the images folder (absolute, or with `..`)"
+        ));
+    }
+    let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if norm.is_nan() || norm <= 1e-9 {
+        return Some(format!(
+            "image {name:?}: quaternion {q:?} has no length (a rotation needs |q| > 0)"
+        ));
+    }
+    None
+}
+
 fn pose(q: [f64; 4], t: [f64; 3]) -> Rigid3 {
     // COLMAP stores QW QX QY QZ of R_cam_from_world and t_cam_from_world.
     let rot = DQuat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
@@ -391,11 +416,19 @@ pub fn read_text_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
                 reason: "pose is not finite".into(),
             });
         }
+        // Names may contain spaces: everything after CAMERA_ID.
+        let name = toks[9..].join(" ");
+        if let Some(reason) = image_problem(&name, [v[0], v[1], v[2], v[3]]) {
+            return Err(ColmapError::Parse {
+                path,
+                line: n + 1,
+                reason,
+            });
+        }
         model.images.push(ColmapImage {
             id,
             camera_id,
-            // Names may contain spaces: everything after CAMERA_ID.
-            name: toks[9..].join(" "),
+            name,
             cam_from_world: pose([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]),
         });
         expect_points_line = true;
@@ -578,10 +611,18 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
                 reason: format!("image {id}: pose is not finite"),
             });
         }
+        let name = String::from_utf8_lossy(&name).into_owned();
+        if let Some(reason) = image_problem(&name, [v[0], v[1], v[2], v[3]]) {
+            return Err(ColmapError::Parse {
+                path: path.clone(),
+                line: 0,
+                reason: format!("image {id}: {reason}"),
+            });
+        }
         model.images.push(ColmapImage {
             id: id as u32,
             camera_id: camera_id as u32,
-            name: String::from_utf8_lossy(&name).into_owned(),
+            name,
             cam_from_world: pose([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]),
         });
     }

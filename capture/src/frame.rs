@@ -62,6 +62,28 @@ pub struct ThermalFrame {
     pub telemetry: Option<LeptonTelemetry>,
 }
 
+/// Row bytes, stride and the bytes a `width`×`height` buffer of `bytes_per_pixel` needs with
+/// rows `bytes_per_line` apart (0 or less than a row: packed). `None` for an empty size or one
+/// whose byte counts overflow: sizes come from devices, files and sockets, never trusted.
+pub fn buffer_geometry(
+    width: u32,
+    height: u32,
+    bytes_per_pixel: u32,
+    bytes_per_line: u32,
+) -> Option<(usize, usize, usize)> {
+    if width == 0 || height == 0 {
+        return None;
+    }
+    let row = usize::try_from(width)
+        .ok()?
+        .checked_mul(usize::try_from(bytes_per_pixel).ok()?)?;
+    let stride = usize::try_from(bytes_per_line).ok()?.max(row);
+    let need = stride
+        .checked_mul(usize::try_from(height - 1).ok()?)?
+        .checked_add(row)?;
+    Some((row, stride, need))
+}
+
 impl ThermalFrame {
     /// Builds a frame from a V4L2 `Y16 ` buffer (little-endian words, rows `bytes_per_line` apart).
     ///
@@ -76,12 +98,16 @@ impl ThermalFrame {
         units: ThermalUnits,
         time: FrameTime,
     ) -> Result<Self, CaptureError> {
-        let row_bytes = width as usize * 2;
-        let stride = (bytes_per_line as usize).max(row_bytes);
-        let expected_bytes = if height == 0 {
-            0
-        } else {
-            stride * (height as usize - 1) + row_bytes
+        let Some((row_bytes, stride, expected_bytes)) =
+            buffer_geometry(width, height, 2, bytes_per_line)
+        else {
+            return Err(CaptureError::CorruptBuffer {
+                device: device.to_owned(),
+                sequence: time.sequence,
+                reason: format!(
+                    "Y16 {width}x{height} with {bytes_per_line} bytes per line is not a frame size"
+                ),
+            });
         };
         if buffer.len() < expected_bytes {
             return Err(CaptureError::BufferSize {
@@ -258,17 +284,13 @@ impl CapturedFrame {
                         raw.telemetry_rows, raw.height
                     )));
                 }
-                let bpl = if raw.bytes_per_line == 0 {
-                    raw.width * 2
-                } else {
-                    raw.bytes_per_line
-                };
+                // bytes_per_line 0 means packed rows (buffer_geometry).
                 let mut f = ThermalFrame::from_y16_buffer(
                     device,
                     &raw.payload,
                     raw.width,
                     raw.height,
-                    bpl,
+                    raw.bytes_per_line,
                     raw.units,
                     time,
                 )?;
@@ -291,13 +313,15 @@ impl CapturedFrame {
                 let payload = if raw.fourcc == FourCc::MJPG {
                     RgbPayload::Mjpeg(mjpeg_frame(&raw.payload).map_err(corrupt)?.to_vec())
                 } else if raw.fourcc == FourCc::YUYV {
-                    let row = raw.width as usize * 2;
-                    let stride = (raw.bytes_per_line as usize).max(row);
-                    let need = if raw.height == 0 {
-                        0
-                    } else {
-                        stride * (raw.height as usize - 1) + row
-                    };
+                    let (row, stride, need) =
+                        buffer_geometry(raw.width, raw.height, 2, raw.bytes_per_line).ok_or_else(
+                            || {
+                                corrupt(format!(
+                                    "YUYV {}x{} with {} bytes per line is not a frame size",
+                                    raw.width, raw.height, raw.bytes_per_line
+                                ))
+                            },
+                        )?;
                     if raw.payload.len() < need {
                         return Err(CaptureError::BufferSize {
                             device: device.to_owned(),

@@ -1155,13 +1155,22 @@ fn decode_message(
             for w in &meta.telemetry_words {
                 payload.extend_from_slice(&w.to_le_bytes());
             }
+            let (Some(height), Some(bytes_per_line)) = (
+                img.height.checked_add(meta.telemetry_rows),
+                img.width.checked_mul(2),
+            ) else {
+                return Err(bad(format!(
+                    "impossible size {}x{} + {} telemetry rows",
+                    img.width, img.height, meta.telemetry_rows
+                )));
+            };
             Some(SessionItem::Frame(RecordedFrame {
                 raw: RawFrame {
                     stream: StreamKind::Thermal,
                     fourcc: FourCc::Y16,
                     width: img.width,
-                    height: img.height + meta.telemetry_rows,
-                    bytes_per_line: img.width * 2,
+                    height,
+                    bytes_per_line,
                     telemetry_rows: meta.telemetry_rows,
                     units: meta.units,
                     ffc_hint: meta.ffc_hint,

@@ -162,7 +162,12 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
     Ok(())
 }
 
-/// Reads a file written by [`write_ply`] back into primitives (bit-exact).
+/// Most frequency bands a PLY header may declare (the trainer uses a handful; the cap keeps a
+/// hostile header from sizing the property list).
+pub const MAX_PLY_BANDS: usize = 256;
+
+/// Reads a file written by [`write_ply`] back into primitives (bit-exact). Every number in the
+/// header is checked before it sizes anything.
 pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
     let fmt = |reason: String| PlyError::Format {
         path: path.to_path_buf(),
@@ -212,6 +217,18 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
     let bands = bands.ok_or_else(|| fmt("missing `comment s3tir bands M`".into()))?;
     let sh_degree = sh_degree.ok_or_else(|| fmt("missing `comment s3tir sh_degree`".into()))?;
     let n = count.ok_or_else(|| fmt("missing `element vertex N`".into()))?;
+    // Header numbers are checked before they size anything.
+    if bands > MAX_PLY_BANDS {
+        return Err(fmt(format!(
+            "{bands} bands (at most {MAX_PLY_BANDS} are read)"
+        )));
+    }
+    if sh_degree.is_some_and(|d| d > crate::sh::SH_MAX_DEGREE) {
+        return Err(fmt(format!(
+            "SH degree {sh_degree:?} (at most {} is read)",
+            crate::sh::SH_MAX_DEGREE
+        )));
+    }
     let expected = property_names(bands, sh_degree);
     // Files written before the band mask existed lack `s3tir_band_count`: every slot is live.
     let legacy: Vec<String> = expected
@@ -227,11 +244,10 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
     }
     let stride = names.len() * 4;
     let body = &data[end..];
-    if body.len() != n * stride {
+    if n.checked_mul(stride) != Some(body.len()) {
         return Err(fmt(format!(
-            "body has {} bytes, expected {} ({n} vertices × {stride})",
+            "body has {} bytes, expected {n} vertices × {stride}",
             body.len(),
-            n * stride
         )));
     }
     let mut prims = Primitives::<f32>::new(bands, sh_degree);
