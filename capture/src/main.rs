@@ -64,7 +64,8 @@ struct RecordArgs {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM).
     #[arg(long, value_parser = positive_seconds)]
     duration: Option<f64>,
-    /// Socket of the simulated rig (default: $XDG_RUNTIME_DIR/s3tir-sim-UID.sock).
+    /// Socket of the simulated rig (default: $XDG_RUNTIME_DIR/s3tir-sim-UID.sock, else
+    /// s3tir-UID/sim.sock in a private temp folder).
     #[arg(long)]
     sim_socket: Option<PathBuf>,
     /// Thermal↔RGB pairing tolerance in milliseconds (nearest-timestamp pairing).
@@ -515,7 +516,7 @@ fn record(a: RecordArgs) -> Result<()> {
         let socket = a
             .sim_socket
             .clone()
-            .unwrap_or_else(sim_backend::default_socket);
+            .map_or_else(sim_backend::default_socket, Ok)?;
         _sim_process = sim_backend::ensure_sim_rig(&spec, a.rgb.is_some(), &socket)?;
         info.notes = format!("simulated rig, profile {}", spec.profile);
         sources.push(SourceSpec {

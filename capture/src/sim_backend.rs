@@ -66,12 +66,63 @@ impl SimSpec {
     }
 }
 
-/// Default socket of the simulated rig for this user.
-pub fn default_socket() -> PathBuf {
-    let dir = std::env::var_os("XDG_RUNTIME_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(std::env::temp_dir);
-    dir.join(format!("s3tir-sim-{}.sock", nix::unistd::getuid()))
+/// Default socket of the simulated rig for this user: `$XDG_RUNTIME_DIR/s3tir-sim-UID.sock`
+/// (a per-user, mode 0700 directory), else `s3tir-UID/sim.sock` in the temp folder, in a
+/// directory this user creates with mode 0700 — a shared-temp path anyone can predict would let
+/// another user put a fake rig (or a symlink) there first.
+pub fn default_socket() -> Result<PathBuf, CaptureError> {
+    let uid = nix::unistd::getuid();
+    if let Some(dir) = std::env::var_os("XDG_RUNTIME_DIR").filter(|d| !d.is_empty()) {
+        return Ok(PathBuf::from(dir).join(format!("s3tir-sim-{uid}.sock")));
+    }
+    let dir = std::env::temp_dir().join(format!("s3tir-{uid}"));
+    private_dir(&dir, uid.as_raw())?;
+    Ok(dir.join("sim.sock"))
+}
+
+/// Creates `dir` with mode 0700, or accepts it only if it is a real directory (not a symlink)
+/// owned by `uid` with no group or other access.
+fn private_dir(dir: &Path, uid: u32) -> Result<(), CaptureError> {
+    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+    let unsafe_dir = |reason: String| CaptureError::DeviceUnavailable {
+        device: dir.display().to_string(),
+        reason: format!(
+            "{reason}: refusing it as the simulated rig's socket folder (set XDG_RUNTIME_DIR or \
+             --sim-socket)"
+        ),
+    };
+    match std::fs::DirBuilder::new().mode(0o700).create(dir) {
+        Ok(()) => return Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(source) => {
+            return Err(CaptureError::Device {
+                path: dir.to_owned(),
+                what: "create the socket folder",
+                source,
+            });
+        }
+    }
+    let m = std::fs::symlink_metadata(dir).map_err(|source| CaptureError::Device {
+        path: dir.to_owned(),
+        what: "inspect the socket folder",
+        source,
+    })?;
+    if !m.file_type().is_dir() {
+        return Err(unsafe_dir("it is not a directory (a symlink?)".into()));
+    }
+    if m.uid() != uid {
+        return Err(unsafe_dir(format!(
+            "it belongs to uid {}, not {uid}",
+            m.uid()
+        )));
+    }
+    if m.mode() & 0o077 != 0 {
+        return Err(unsafe_dir(format!(
+            "its mode is {:o}: others can reach it",
+            m.mode() & 0o777
+        )));
+    }
+    Ok(())
 }
 
 /// Converts a wire frame to the pipeline's device buffer.
@@ -461,10 +512,36 @@ impl Drop for FakeRig {
 #[cfg(test)]
 mod tests {
     //! Proves: `--device sim` specs parse, wire flags map to frame state both ways, and a
-    //! `SimSource` reads a fake rig's frames and reports its disappearance as an error.
+    //! `SimSource` reads a fake rig's frames and reports its disappearance as an error; the
+    //! fallback socket folder is private (created 0700; a symlink, a foreign or group/world-
+    //! reachable folder refused).
     //! Does not run the `s3tir-firmware-sim` binary (tests/tests/capture_*.rs do, when built).
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn the_fallback_socket_folder_is_private() {
+        use std::os::unix::fs::PermissionsExt;
+        let tmp = tempfile::tempdir().unwrap();
+        let uid = nix::unistd::getuid().as_raw();
+        let dir = tmp.path().join("s3tir-1000");
+        private_dir(&dir, uid).unwrap();
+        let mode = std::fs::metadata(&dir).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o700, "created private");
+        private_dir(&dir, uid).unwrap(); // our own private folder is accepted again
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let err = private_dir(&dir, uid).unwrap_err().to_string();
+        assert!(err.contains("others can reach it"), "{err}");
+        let link = tmp.path().join("link");
+        std::os::unix::fs::symlink(&dir, &link).unwrap();
+        let err = private_dir(&link, uid).unwrap_err().to_string();
+        assert!(err.contains("not a directory"), "{err}");
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+        let err = private_dir(&dir, uid.wrapping_add(1))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("belongs to uid"), "{err}");
+    }
 
     #[test]
     fn specs_parse() {

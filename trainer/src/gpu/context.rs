@@ -25,6 +25,69 @@ pub enum DeviceChoice {
     NameContains(String),
 }
 
+/// Kernel work-group sizes the shaders use (`local_size_*` in `shaders/`): at most 256
+/// invocations, 256 along x, 16 along y. Vulkan guarantees only 128 invocations, so devices
+/// are checked when a context opens.
+pub const WORKGROUP_INVOCATIONS_USED: u32 = 256;
+pub const WORKGROUP_SIZE_USED: [u32; 2] = [256, 16];
+
+/// Longest wait for one submission before the device is declared hung. Far above the
+/// longest submission seen (a whole training step at 640×512 on lavapipe takes seconds).
+pub const SUBMIT_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(300);
+
+/// Refuses a device whose work-group limits are below what the shaders use.
+pub fn check_workgroup_limits(report: &DeviceReport) -> Result<(), GpuError> {
+    let too_small = |limit: &'static str, required: u32, actual: u32| GpuError::LimitTooSmall {
+        device: report.name.clone(),
+        limit,
+        required: u64::from(required),
+        actual: u64::from(actual),
+    };
+    if report.max_compute_workgroup_invocations < WORKGROUP_INVOCATIONS_USED {
+        return Err(too_small(
+            "maxComputeWorkGroupInvocations",
+            WORKGROUP_INVOCATIONS_USED,
+            report.max_compute_workgroup_invocations,
+        ));
+    }
+    for (axis, (limit, need)) in ["maxComputeWorkGroupSize[0]", "maxComputeWorkGroupSize[1]"]
+        .into_iter()
+        .zip(WORKGROUP_SIZE_USED)
+        .enumerate()
+    {
+        let have = report.max_compute_workgroup_size[axis];
+        if have < need {
+            return Err(too_small(limit, need, have));
+        }
+    }
+    Ok(())
+}
+
+/// Waits for a fence in one-second slices up to `limit`: a hung device becomes
+/// [`GpuError::SubmitTimeout`] instead of a wait for ever. `wait(ns)` is one
+/// `vkWaitForFences` with that timeout.
+pub fn wait_bounded(
+    mut wait: impl FnMut(u64) -> Result<(), vk::Result>,
+    limit: std::time::Duration,
+    device: &str,
+) -> Result<(), GpuError> {
+    let start = std::time::Instant::now();
+    let slice = std::time::Duration::from_secs(1).min(limit);
+    loop {
+        match wait(u64::try_from(slice.as_nanos()).unwrap_or(u64::MAX)) {
+            Ok(()) => return Ok(()),
+            Err(vk::Result::TIMEOUT) if start.elapsed() < limit => {}
+            Err(vk::Result::TIMEOUT) => {
+                return Err(GpuError::SubmitTimeout {
+                    device: device.to_owned(),
+                    waited_s: start.elapsed().as_secs_f64(),
+                });
+            }
+            Err(e) => return Err(vk_err("vkWaitForFences")(e)),
+        }
+    }
+}
+
 /// Options for opening a context.
 #[derive(Debug, Clone, Default)]
 pub struct ContextOptions {
@@ -151,8 +214,11 @@ pub struct GpuContext {
     host_reads: AtomicU64,
     host_read_bytes: AtomicU64,
     submissions: AtomicU64,
+    /// A submission timed out ([`SUBMIT_TIMEOUT`]): the device is leaked on drop, not waited
+    /// for (waiting would hang) nor destroyed under running work.
+    hung: std::sync::atomic::AtomicBool,
     // Last: destroyed after the device (see Drop).
-    instance: VulkanInstance,
+    instance: ManuallyDrop<VulkanInstance>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -209,6 +275,7 @@ impl GpuContext {
                 ),
             });
         }
+        check_workgroup_limits(&report)?;
         let inst = instance.raw();
         // SAFETY: `pd` belongs to `instance`.
         let families = unsafe { inst.get_physical_device_queue_family_properties(pd) };
@@ -303,7 +370,8 @@ impl GpuContext {
             host_reads: AtomicU64::new(0),
             host_read_bytes: AtomicU64::new(0),
             submissions: AtomicU64::new(0),
-            instance,
+            hung: std::sync::atomic::AtomicBool::new(false),
+            instance: ManuallyDrop::new(instance),
         })
     }
 
@@ -761,9 +829,17 @@ impl GpuContext {
                     .queue_submit(self.queue, &submit, fence)
                     .map_err(vk_err("vkQueueSubmit"))
                     .and_then(|()| {
-                        d.wait_for_fences(&[fence], true, u64::MAX)
-                            .map_err(vk_err("vkWaitForFences"))
+                        wait_bounded(
+                            |ns| d.wait_for_fences(&[fence], true, ns),
+                            SUBMIT_TIMEOUT,
+                            &self.report.name,
+                        )
                     });
+                if let Err(GpuError::SubmitTimeout { .. }) = &waited {
+                    // The device may still run the commands: nothing they use may be freed
+                    // (the fence included), and waiting for idle would hang too.
+                    return waited.map(|()| Vec::new());
+                }
                 if waited.is_err() {
                     // Do not free resources the device may still use.
                     let _ = d.device_wait_idle();
@@ -791,6 +867,12 @@ impl GpuContext {
                     })
                     .collect())
             })();
+            if let Err(GpuError::SubmitTimeout { .. }) = &result {
+                // The hung submission may still use the command buffer, its descriptor pool
+                // and views: leaked, not freed (see SUBMIT_TIMEOUT).
+                self.hung.store(true, Ordering::Relaxed);
+                return result;
+            }
             d.free_command_buffers(self.command_pool, &[cmd]);
             release_pools();
             result
@@ -1116,13 +1198,97 @@ fn descriptor_type(binding: Binding) -> vk::DescriptorType {
 
 impl Drop for GpuContext {
     fn drop(&mut self) {
+        if self.hung.load(Ordering::Relaxed) {
+            // A hung device: waiting would block for ever and destroying it under running
+            // work is undefined. Everything is leaked; the process is about to report the
+            // error and exit.
+            return;
+        }
         // SAFETY: waits for all work, then releases objects in reverse order of creation:
-        // allocator (frees its memory blocks), command pool, device; the instance drops last.
+        // allocator (frees its memory blocks), command pool, device, instance.
         unsafe {
             let _ = self.device.device_wait_idle();
             ManuallyDrop::drop(&mut self.allocator);
             self.device.destroy_command_pool(self.command_pool, None);
             self.device.destroy_device(None);
+            ManuallyDrop::drop(&mut self.instance);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! Proves: a fence wait gives up after its limit with `SubmitTimeout` (a hung device is an
+    //! error, not a wait for ever) and passes other Vulkan errors through; devices whose
+    //! work-group limits are below what the shaders use are refused by name. The real device
+    //! paths are tested on lavapipe in `tests/gpu_*.rs`.
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn a_fence_that_never_signals_times_out() {
+        let mut calls = 0;
+        let r = wait_bounded(
+            |ns| {
+                calls += 1;
+                assert!(ns <= 1_000_000_000, "slices of at most a second");
+                std::thread::sleep(std::time::Duration::from_millis(5));
+                Err(vk::Result::TIMEOUT)
+            },
+            std::time::Duration::from_millis(30),
+            "stuck gpu",
+        );
+        match r {
+            Err(GpuError::SubmitTimeout { device, waited_s }) => {
+                assert_eq!(device, "stuck gpu");
+                assert!(waited_s >= 0.03, "waited {waited_s} s");
+            }
+            other => panic!("expected SubmitTimeout, got {other:?}"),
+        }
+        assert!(calls >= 2, "waited in slices: {calls} calls");
+        let mut n = 0;
+        assert!(
+            wait_bounded(
+                |_| {
+                    n += 1;
+                    if n < 3 {
+                        Err(vk::Result::TIMEOUT)
+                    } else {
+                        Ok(())
+                    }
+                },
+                std::time::Duration::from_secs(60),
+                "slow gpu",
+            )
+            .is_ok(),
+            "a fence that signals within the limit is a success"
+        );
+        assert!(matches!(
+            wait_bounded(
+                |_| Err(vk::Result::ERROR_DEVICE_LOST),
+                SUBMIT_TIMEOUT,
+                "lost"
+            ),
+            Err(GpuError::Vk { .. })
+        ));
+    }
+
+    #[test]
+    fn devices_below_the_shaders_work_group_sizes_are_refused() {
+        let instance = VulkanInstance::new().unwrap();
+        let pd = instance.physical_devices().unwrap()[0];
+        let good = instance.describe(0, pd).unwrap();
+        check_workgroup_limits(&good).unwrap();
+        let mut small = good.clone();
+        small.max_compute_workgroup_invocations = 128; // the Vulkan minimum
+        let err = check_workgroup_limits(&small).unwrap_err().to_string();
+        assert!(
+            err.contains("maxComputeWorkGroupInvocations") && err.contains("256"),
+            "{err}"
+        );
+        let mut narrow = good;
+        narrow.max_compute_workgroup_size = [128, 128, 64];
+        let err = check_workgroup_limits(&narrow).unwrap_err().to_string();
+        assert!(err.contains("maxComputeWorkGroupSize[0]"), "{err}");
     }
 }

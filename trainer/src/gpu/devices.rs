@@ -190,6 +190,7 @@ impl VulkanInstance {
                 max_per_stage_storage_buffers: limits.max_per_stage_descriptor_storage_buffers,
                 max_texel_buffer_elements: u64::from(limits.max_texel_buffer_elements),
                 max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
+                max_compute_workgroup_size: limits.max_compute_work_group_size,
                 max_compute_workgroup_count_x: limits.max_compute_work_group_count[0],
                 subgroup_size: subgroup.subgroup_size,
                 subgroup_operations: subgroup_operation_names(subgroup.supported_operations),
@@ -260,6 +261,9 @@ pub struct DeviceReport {
     /// the Raspberry Pi 5 offer 2^27 or more): the rasterisers read primitive data through them.
     pub max_texel_buffer_elements: u64,
     pub max_compute_workgroup_invocations: u32,
+    /// Largest local size per axis (Vulkan guarantees 128 × 128 × 64).
+    #[serde(default)]
+    pub max_compute_workgroup_size: [u32; 3],
     pub max_compute_workgroup_count_x: u32,
     pub subgroup_size: u32,
     /// Supported subgroup operation classes (`basic`, `arithmetic`, `ballot`, …).

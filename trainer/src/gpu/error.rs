@@ -80,6 +80,13 @@ pub enum GpuError {
         requested_bytes: u64,
         capacity_bytes: u64,
     },
+    /// A submission did not finish in time: a hung GPU or driver. Its resources are leaked
+    /// (the device may still use them); the run stops with its last checkpoint intact.
+    #[error(
+        "Vulkan device {device:?} did not finish a submission in {waited_s:.0} s (hung GPU or \
+         driver); stopping instead of waiting for ever"
+    )]
+    SubmitTimeout { device: String, waited_s: f64 },
 }
 
 /// Maps a `vk::Result` error of `call` into [`GpuError::Vk`].
