@@ -58,6 +58,10 @@ struct CalibrateArgs {
     /// Session input: smallest time between two pairs used, seconds (0 = every pair).
     #[arg(long, default_value_t = 0.5)]
     session_interval_s: f64,
+    /// Session input: most pairs used, spread evenly over the recording (0 = all). Keeps the
+    /// memory of a long session bounded: only the chosen frames' pixels are held.
+    #[arg(long, default_value_t = s3tir_calib::session::DEFAULT_MAX_VIEWS)]
+    session_max_views: usize,
     /// Where to write calibration.yaml; the exports (OpenCV, Kalibr, COLMAP, ROS) go beside it.
     #[arg(long, default_value = "calibration.yaml")]
     out: PathBuf,
@@ -215,6 +219,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         };
         let session_opts = SessionOptions {
             min_interval_s: args.session_interval_s,
+            max_views: args.session_max_views,
         };
         pipeline::calibrate_session(dir, board, &session_opts, &opts)
     } else {

@@ -10,7 +10,13 @@
 //!   no information: a pair is taken only when its thermal frame is at least
 //!   `min_interval_s` after the previously taken one (default 0.5 s; 0 takes every pair);
 //! - a session without pair records (one camera recorded) gives single-camera views from
-//!   each stream's frames at the same interval.
+//!   each stream's frames at the same interval;
+//! - at most `max_views` views are kept (default 300), spread evenly over the session.
+//!
+//! Memory stays bounded however long the session: a first pass keeps only each frame's stream,
+//! sequence, stamp and FFC state and decides the views; a second pass keeps the pixels of the
+//! chosen frames only (an hour of Boson is ~2 GB of thermal frames; 300 views are ~200 MB with
+//! the RGB still compressed).
 //!
 //! The board geometry is not in a session: the caller passes `board.toml`.
 //!
@@ -32,14 +38,30 @@ use crate::frontend::{ScalarImage, SourceKind, luminance};
 pub struct SessionOptions {
     /// Smallest time between two views taken (thermal capture clock), seconds.
     pub min_interval_s: f64,
+    /// Most views kept (spread evenly over the session); 0 keeps every one.
+    pub max_views: usize,
 }
 
 impl Default for SessionOptions {
     fn default() -> Self {
         Self {
             min_interval_s: 0.5,
+            max_views: DEFAULT_MAX_VIEWS,
         }
     }
+}
+
+/// Default [`SessionOptions::max_views`]: far more than a calibration needs (tens of board
+/// poses), few enough to hold in memory.
+pub const DEFAULT_MAX_VIEWS: usize = 300;
+
+/// A frame as pass 1 remembers it: no pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct FrameKey {
+    /// 0 thermal, 1 RGB.
+    stream: usize,
+    sequence: u32,
+    monotonic_ns: u64,
 }
 
 enum Stored {
@@ -81,6 +103,24 @@ fn frame_name(session: &Path, stream: StreamKind, sequence: u32) -> PathBuf {
     ))
 }
 
+/// At most `max` of `items` (0: all), spread evenly; a note says how many were left out.
+fn spread<T>(items: Vec<T>, max: usize, notes: &mut Vec<String>) -> Vec<T> {
+    let n = items.len();
+    if max == 0 || n <= max {
+        return items;
+    }
+    notes.push(format!(
+        "session: {max} of {n} candidate views kept, spread evenly over the recording (--session-max-views)"
+    ));
+    let keep: std::collections::BTreeSet<usize> = (0..max).map(|i| i * n / max).collect();
+    items
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| keep.contains(i))
+        .map(|(_, x)| x)
+        .collect()
+}
+
 /// `name`, or `name.2`, `name.3`, … if taken; with the number used (1: as given).
 fn unique_name(frames: &HashMap<PathBuf, Stored>, name: PathBuf) -> (PathBuf, u32) {
     if !frames.contains_key(&name) {
@@ -102,16 +142,16 @@ fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
 /// Reads a session and chooses its views (module docs).
 pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, CalibError> {
     let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
-    // Recent frames by sequence (pairs refer to frames a few frames back).
-    // Keyed by arrival, not sequence: sequences restart when a device is reopened.
-    let mut recent: [FrameWindow<CapturedFrame>; 2] = [
-        FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY),
-        FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY),
+    // Pass 1: which frames become views. Recent frames (pairs refer to frames a few back),
+    // keyed by arrival, not sequence: sequences restart when a device is reopened.
+    let mut recent: [FrameWindow<(FrameKey, bool)>; 2] = [
+        FrameWindow::new(FrameWindow::<()>::DEFAULT_CAPACITY),
+        FrameWindow::new(FrameWindow::<()>::DEFAULT_CAPACITY),
     ];
     // Single-stream candidates, used when the session has no pairs.
-    let mut singles: [Vec<(u64, CapturedFrame)>; 2] = [Vec::new(), Vec::new()];
+    let mut singles: [Vec<FrameKey>; 2] = [Vec::new(), Vec::new()];
     let mut last_single_ns: [Option<u64>; 2] = [None, None];
-    let mut pairs: Vec<(ThermalFrame, RgbFrame)> = Vec::new();
+    let mut pairs: Vec<(FrameKey, FrameKey)> = Vec::new();
     let mut problems = Vec::new();
     let mut pair_records = 0usize;
     let mut thinned = 0usize;
@@ -120,24 +160,29 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
     let outcome = read_session(path, |item| {
         match item {
             SessionItem::Frame(f) => {
+                // Parsed for its stream and FFC state (telemetry decides it); pixels dropped.
                 let frame = parse_recorded(path, &f)?;
                 let k = match frame.stream() {
                     StreamKind::Thermal => 0,
                     StreamKind::Rgb => 1,
                 };
-                let t_ns = f.raw.monotonic_ns;
+                let key = FrameKey {
+                    stream: k,
+                    sequence: f.raw.sequence,
+                    monotonic_ns: f.raw.monotonic_ns,
+                };
                 let frozen = matches!(&frame, CapturedFrame::Thermal(t) if t.is_ffc_frozen());
                 // Single-stream views are only needed while no pair has been seen.
-                if pair_records == 0 && !frozen && due(last_single_ns[k], t_ns) {
-                    last_single_ns[k] = Some(t_ns);
-                    singles[k].push((t_ns, frame.clone()));
+                if pair_records == 0 && !frozen && due(last_single_ns[k], key.monotonic_ns) {
+                    last_single_ns[k] = Some(key.monotonic_ns);
+                    singles[k].push(key);
                 }
-                recent[k].push(f.raw.sequence, frame);
+                recent[k].push(f.raw.sequence, (key, frozen));
             }
             SessionItem::Pair(p) => {
                 pair_records += 1;
                 singles = [Vec::new(), Vec::new()];
-                let (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) = (
+                let (Some(&(t, frozen)), Some(&(r, _))) = (
                     recent[0].get(p.thermal_sequence),
                     recent[1].get(p.rgb_sequence),
                 ) else {
@@ -150,7 +195,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                     });
                     return Ok(());
                 };
-                if t.is_ffc_frozen() {
+                if frozen {
                     problems.push(FileProblem {
                         path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
                         reason: "FFC-frozen thermal frame (flat-field correction in progress): pair skipped".into(),
@@ -162,7 +207,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                     return Ok(());
                 }
                 last_pair_ns = Some(p.thermal_monotonic_ns);
-                pairs.push((t.clone(), r.clone()));
+                pairs.push((t, r));
             }
             // Drops, status, rig trigger pulses and the rig clock fit do not change which
             // frames show the board.
@@ -174,6 +219,44 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
         Ok(())
     })
     .map_err(|e| capture_err(path, e))?;
+    let mut capped = Vec::new();
+    let pairs = spread(pairs, opts.max_views, &mut capped);
+    let singles = singles.map(|list| spread(list, opts.max_views, &mut capped));
+
+    // Pass 2: the chosen frames' pixels.
+    let wanted: std::collections::HashSet<FrameKey> = pairs
+        .iter()
+        .flat_map(|(t, r)| [*t, *r])
+        .chain(singles.iter().flatten().copied())
+        .collect();
+    let mut found: HashMap<FrameKey, CapturedFrame> = HashMap::with_capacity(wanted.len());
+    read_session(path, |item| {
+        if let SessionItem::Frame(f) = item {
+            let k = usize::from(f.raw.stream == StreamKind::Rgb);
+            let key = FrameKey {
+                stream: k,
+                sequence: f.raw.sequence,
+                monotonic_ns: f.raw.monotonic_ns,
+            };
+            if wanted.contains(&key) && !found.contains_key(&key) {
+                found.insert(key, parse_recorded(path, &f)?);
+            }
+        }
+        Ok(())
+    })
+    .map_err(|e| capture_err(path, e))?;
+    let pairs: Vec<(ThermalFrame, RgbFrame)> = pairs
+        .iter()
+        .filter_map(|(t, r)| match (found.remove(t), found.remove(r)) {
+            (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) => Some((t, r)),
+            _ => None,
+        })
+        .collect();
+    let singles: [Vec<(u64, CapturedFrame)>; 2] = singles.map(|list| {
+        list.iter()
+            .filter_map(|k| found.remove(k).map(|f| (k.monotonic_ns, f)))
+            .collect()
+    });
     let mut notes = Vec::new();
     if outcome.truncated {
         notes.push(format!(
@@ -185,6 +268,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
                 .unwrap_or("no reason given")
         ));
     }
+    notes.extend(capped);
     if thinned > 0 {
         notes.push(format!(
             "session: {} of {pair_records} recorded pairs used, {thinned} skipped as less than {:.2} s after the previous one (--session-interval-s)",

@@ -268,6 +268,7 @@ fn the_committed_capture_session_reads_as_views() {
         &session,
         &SessionOptions {
             min_interval_s: 0.0,
+            ..SessionOptions::default()
         },
     )
     .unwrap();

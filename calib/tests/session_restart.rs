@@ -3,7 +3,8 @@
 //! calibration every recorded pair, those after the restart included, under distinct view
 //! names whose frames all load. Before, the frame window was keyed by sequence and evicted the
 //! newest frames (the restarted, small sequences) first, so every pair after the restart was
-//! "a frame not in the session". Does not calibrate (tests/session_input.rs does).
+//! "a frame not in the session". With `max_views`, the views kept are spread over the whole
+//! session and only their pixels are held. Does not calibrate (tests/session_input.rs does).
 #![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeSet;
@@ -59,6 +60,7 @@ fn pairs_after_a_sequence_restart_are_all_views() {
         &path,
         &SessionOptions {
             min_interval_s: 0.0,
+            max_views: 0,
         },
     )
     .unwrap();
@@ -84,4 +86,30 @@ fn pairs_after_a_sequence_restart_are_all_views() {
             });
         }
     }
+
+    // At most 50 views, from the whole session (both sides of the restart), with a note.
+    let capped = read_views(
+        &path,
+        &SessionOptions {
+            min_interval_s: 0.0,
+            max_views: 50,
+        },
+    )
+    .unwrap();
+    assert_eq!(capped.views.len(), 50, "capped at max_views");
+    // Views are in session order: a sequence number going down is the restart.
+    let seqs: Vec<u32> = capped
+        .views
+        .iter()
+        .map(|x| x.key[..6].parse().unwrap())
+        .collect();
+    assert!(
+        seqs.windows(2).any(|w| w[1] < w[0]),
+        "the kept views spread over the restart too: {seqs:?}"
+    );
+    assert!(
+        capped.notes.iter().any(|n| n.contains("50 of")),
+        "the cap is noted: {:?}",
+        capped.notes
+    );
 }
