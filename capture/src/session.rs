@@ -1279,8 +1279,11 @@ mod tests {
     //! Proves: a session written through the pipeline reads back frame-for-frame byte-exact
     //! (device buffers rebuilt identically, pairs/drops/status kept), metadata and attachments
     //! survive, and a file cut at any byte reads back up to its last complete chunk, reports
-    //! `truncated`, and never returns a frame that was not written. Does not test a real
-    //! SIGKILL (tests/tests/capture_daemon.rs does).
+    //! `truncated` (a cut, never damage), and never returns a frame that was not written; an
+    //! existing file (a replay's own input included) is never overwritten; chunk ends
+    //! `fdatasync` at most once per interval. Does not test a real SIGKILL
+    //! (tests/tests/capture_recording.rs does, and bounds the loss) nor crafted chunks
+    //! (tests/hostile_sessions.rs).
     #![allow(clippy::unwrap_used)]
     use super::*;
     use crate::pairing::PairingMode;
