@@ -569,5 +569,30 @@ mod tests {
             let _ = FslpPacket::decode(&bytes);
             let _ = FslpStreamDecoder::new().push(&bytes);
         }
+
+        /// Long serial streams (up to 8 KiB, far past the longest stuffed frame, rich in
+        /// flag and escape bytes, fed in random slices): no panic, and the decoder's frame
+        /// buffer never grows past the longest legal frame.
+        #[test]
+        fn long_streams_never_panic_and_stay_bounded(
+            bytes in proptest::collection::vec(
+                prop_oneof![Just(START_FLAG), Just(ESCAPE), Just(END_FLAG), any::<u8>(), any::<u8>()],
+                0..8192,
+            ),
+            slices in proptest::collection::vec(1usize..700, 1..16),
+        ) {
+            let _ = FslpPacket::decode(&bytes);
+            let mut dec = FslpStreamDecoder::new();
+            let mut rest = &bytes[..];
+            for n in slices.iter().cycle() {
+                if rest.is_empty() {
+                    break;
+                }
+                let (now, later) = rest.split_at((*n).min(rest.len()));
+                let _ = dec.push(now);
+                prop_assert!(dec.frame.len() <= MAX_STUFFED_FRAME_BYTES + 1, "buffer {}", dec.frame.len());
+                rest = later;
+            }
+        }
     }
 }
