@@ -44,27 +44,13 @@ pub enum CheckpointError {
     },
 }
 
-impl PrimitivesData {
-    /// The first non-finite value, as (parameter group, index, value).
-    pub fn first_non_finite(&self) -> Option<(&'static str, usize, f32)> {
-        let groups: [(&'static str, &[f32]); 10] = [
-            ("means", &self.means),
-            ("log_scales", &self.log_scales),
-            ("quats", &self.quats),
-            ("opacity_logits", &self.opacity_logits),
-            ("beta_raw", &self.beta_raw),
-            ("omega_low", &self.omega_low),
-            ("band_amp", &self.band_amp),
-            ("band_freq", &self.band_freq),
-            ("band_phase", &self.band_phase),
-            ("sh", &self.sh),
-        ];
-        groups.into_iter().find_map(|(name, v)| {
-            v.iter()
-                .position(|x| !x.is_finite())
-                .map(|i| (name, i, v[i]))
-        })
-    }
+/// The first non-finite value of `p`, as (parameter group, index, value).
+fn first_non_finite(p: &Primitives<f32>) -> Option<(&'static str, usize, f32)> {
+    p.groups().into_iter().find_map(|(name, v)| {
+        v.iter()
+            .position(|x| !x.is_finite())
+            .map(|i| (name, i, v[i]))
+    })
 }
 
 /// Serialisable mirror of [`Primitives<f32>`].
@@ -160,7 +146,7 @@ pub fn save(path: &Path, ck: &Checkpoint) -> Result<(), CheckpointError> {
         ("adam_m", &ck.adam_m),
         ("adam_v", &ck.adam_v),
     ] {
-        if let Some((group, index, value)) = d.first_non_finite() {
+        if let Some((group, index, value)) = first_non_finite(&Primitives::from(d.clone())) {
             return Err(CheckpointError::NonFinite {
                 path: path.to_path_buf(),
                 group: format!("{what}.{group}"),
