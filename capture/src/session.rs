@@ -40,7 +40,7 @@
 //! last ~1.5 s (one sync interval plus the chunk in progress) provided the storage honours
 //! flushes (ext4's default barriers do; a card or USB bridge that acknowledges writes it has
 //! only cached can lose more: no software bound holds there). The cost is measured by
-//! `s3tir-capture bench` (`sync_ms` in its report). The reader does not rely on the summary or
+//! `s3tir-capture bench` (`sync_ms_mean`, `sync_ms_max` and the no-sync reference run). The reader does not rely on the summary or
 //! footer: it streams records from the start, decompresses whole chunks only, and stops at
 //! the first incomplete or corrupt record, reporting the session as `truncated`.
 //!
@@ -431,9 +431,20 @@ impl SessionWriter {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
         };
-        File::open(dir)
-            .and_then(|d| d.sync_all())
-            .map_err(io("sync directory"))?;
+        match File::open(dir).and_then(|d| d.sync_all()) {
+            Ok(()) => {}
+            // Some filesystems (FUSE, network mounts) cannot sync a directory: the recording
+            // goes on, with the file's own syncs only.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::InvalidInput | std::io::ErrorKind::Unsupported
+                ) =>
+            {
+                tracing::warn!(dir = %dir.display(), "cannot sync the session's folder: {e}");
+            }
+            Err(e) => return Err(io("sync directory")(e)),
+        }
         let mcap_err = |what: &'static str| {
             let path = path.to_owned();
             move |source| CaptureError::Mcap { path, what, source }
