@@ -124,9 +124,9 @@ struct TrainArgs {
     /// Gaussian warm-up iterations (β ≡ 2, bands off).
     #[arg(long, default_value_t = 3000)]
     warmup: u64,
-    /// Compute backend.
-    #[arg(long, default_value = "cpu", value_parser = ["cpu", "vulkan"])]
-    backend: String,
+    /// Compute backend [default: cpu; on --resume: the run's own].
+    #[arg(long, value_parser = ["cpu", "vulkan"])]
+    backend: Option<String>,
     /// Vulkan device (position in `s3tir-train devices`) [default: the best discrete or
     /// integrated GPU, else the CPU driver].
     #[arg(long)]
@@ -251,7 +251,17 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         if let Some(n) = a.iters {
             cfg.iters = n;
         }
-        cfg.backend = a.backend.clone();
+        // The run's own backend unless --backend says otherwise (a flag default used to
+        // switch a resumed Vulkan run to the CPU).
+        if let Some(b) = &a.backend
+            && *b != cfg.backend
+        {
+            println!(
+                "--resume: switching from the run's {} backend to {b} (--backend)",
+                cfg.backend
+            );
+            cfg.backend = b.clone();
+        }
         cfg
     } else {
         let mut cfg = TrainConfig::new(data);
@@ -284,7 +294,7 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         cfg.lr.beta = a.beta_lr;
         cfg.consist_every = a.consist_every;
         cfg.consist_partner = a.consist_partner;
-        cfg.backend = a.backend.clone();
+        cfg.backend = a.backend.clone().unwrap_or_else(|| "cpu".into());
         cfg
     };
     let dataset = Dataset::load(&cfg.data, &cfg.load)
@@ -301,7 +311,8 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
             ""
         }
     );
-    match a.backend.as_str() {
+    println!("training on the {} backend", cfg.backend);
+    match cfg.backend.as_str() {
         "vulkan" => train_vulkan(
             cfg,
             dataset,

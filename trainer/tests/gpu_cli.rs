@@ -1,6 +1,7 @@
 //! Proves `s3tir-train devices` works as a user runs it: lists lavapipe with the properties the
 //! trainer needs (text and JSON), and exits non-zero with a clear message when the Vulkan
-//! loader finds no driver. Does NOT cover a machine with no loader library at all (the loader
+//! loader finds no driver; `--resume` keeps a Vulkan run on Vulkan unless `--backend` says
+//! otherwise. Does NOT cover a machine with no loader library at all (the loader
 //! is installed system-wide here; that path is the `LoaderMissing` error of `VulkanInstance`).
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -121,5 +122,69 @@ fn bench_json_reports_both_backends_both_modes_and_kernels() {
     assert!(
         kernels.iter().any(|k| k.starts_with("raster_backward_")),
         "no backward kernel in {kernels:?}"
+    );
+}
+
+/// `--resume` continues on the run's own backend: a Vulkan run resumed without `--backend`
+/// stays on Vulkan (the flag's default used to switch it to the CPU silently); an explicit
+/// `--backend` still switches, and says so.
+#[test]
+fn resume_keeps_the_runs_backend_unless_told_otherwise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("scene");
+    let run = tmp.path().join("run");
+    let st = train()
+        .args([
+            "synth",
+            data.to_str().unwrap(),
+            "--views",
+            "6",
+            "--width",
+            "24",
+            "--height",
+            "18",
+        ])
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "synth failed");
+    let common = |iters: &str| {
+        let mut c = train();
+        c.arg(&data).arg("--out").arg(&run).args([
+            "--warmup",
+            "2",
+            "--budget",
+            "60",
+            "--eval-every-s",
+            "1000",
+            "--iters",
+            iters,
+        ]);
+        c
+    };
+    let first = common("3").args(["--backend", "vulkan"]).output().unwrap();
+    let text = String::from_utf8_lossy(&first.stdout);
+    assert!(
+        first.status.success() && text.contains("training on the vulkan backend"),
+        "first run: {text}\n{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let resumed = common("5").arg("--resume").output().unwrap();
+    let text = String::from_utf8_lossy(&resumed.stdout);
+    assert!(
+        resumed.status.success() && text.contains("training on the vulkan backend"),
+        "a resumed Vulkan run must stay on Vulkan: {text}\n{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    let switched = common("6")
+        .args(["--resume", "--backend", "cpu"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&switched.stdout);
+    assert!(
+        switched.status.success()
+            && text.contains("switching from the run's vulkan backend to cpu")
+            && text.contains("training on the cpu backend"),
+        "an explicit --backend switches and says so: {text}\n{}",
+        String::from_utf8_lossy(&switched.stderr)
     );
 }
