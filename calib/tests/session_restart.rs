@@ -4,7 +4,10 @@
 //! names whose frames all load. Before, the frame window was keyed by sequence and evicted the
 //! newest frames (the restarted, small sequences) first, so every pair after the restart was
 //! "a frame not in the session". With `max_views`, the views kept are spread over the whole
-//! session and only their pixels are held. Does not calibrate (tests/session_input.rs does).
+//! session and only their pixels are held. The poses stage numbers the frames of such a
+//! session past the restart (unique, increasing per stream), and the keyframes it writes are
+//! the frames it scanned, on both sides of the restart. Does not calibrate
+//! (tests/session_input.rs does) nor run COLMAP (tests/tests/session_to_dataset.rs does).
 #![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeSet;
@@ -16,22 +19,19 @@ use s3tir_capture::pipeline::Pipeline;
 use s3tir_capture::session::{SessionInfo, SessionItem, SessionWriter, read_session};
 use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
 
-#[test]
-fn pairs_after_a_sequence_restart_are_all_views() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("restart.mcap");
+/// Writes a session whose devices are reopened after 900 buffers (600 thermal, 300 RGB: more
+/// than the 512-frame windows) and number from 0 again for 150 more.
+fn restarted_session(path: &std::path::Path) {
     let thermal = ThermalSynth {
         width: 32,
         height: 24,
         ..ThermalSynth::boson640()
     };
     let mut rig = SynthRig::new(thermal, Some((32, 24, 30.0)), Script::default(), 0).unwrap();
-    let mut w = SessionWriter::create(&path, &SessionInfo::default()).unwrap();
+    let mut w = SessionWriter::create(path, &SessionInfo::default()).unwrap();
     let mut pipe = Pipeline::new(PairingMode::Nearest {
         tolerance_ns: 20_000_000,
     });
-    // 900 buffers (600 thermal, 300 RGB: more than the 512-frame window), then the devices are
-    // reopened and number from 0 again for 150 more.
     for k in 0..1050 {
         if k == 900 {
             rig.restart_sequences();
@@ -45,6 +45,13 @@ fn pairs_after_a_sequence_restart_are_all_views() {
         w.write(&r).unwrap();
     }
     w.finish().unwrap();
+}
+
+#[test]
+fn pairs_after_a_sequence_restart_are_all_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("restart.mcap");
+    restarted_session(&path);
 
     let mut recorded = 0;
     read_session(&path, |item| {
@@ -112,4 +119,36 @@ fn pairs_after_a_sequence_restart_are_all_views() {
         "the cap is noted: {:?}",
         capped.notes
     );
+}
+
+#[test]
+fn the_poses_stage_numbers_frames_past_a_restart() {
+    use s3tir_calib::poses::frames::{Stream, scan_session, write_keyframes};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("restart.mcap");
+    restarted_session(&path);
+    let scan = scan_session(&path, false).unwrap();
+    for (name, frames) in [("thermal", &scan.thermal), ("rgb", &scan.rgb)] {
+        assert!(
+            frames.windows(2).all(|w| w[1].sequence > w[0].sequence),
+            "{name}: session sequences must increase through the restart"
+        );
+    }
+    assert_eq!(scan.thermal.len(), 700, "every thermal frame scanned");
+    // Keyframes on both sides of the restart (thermal 599 is the last before it, 600 the
+    // first after), written under distinct names, each the frame the scan described.
+    let picks: Vec<_> = scan
+        .thermal
+        .iter()
+        .filter(|f| [10, 599, 600, 610].contains(&f.sequence))
+        .copied()
+        .collect();
+    assert_eq!(picks.len(), 4);
+    let out = dir.path().join("kf");
+    let names = write_keyframes(&path, Stream::Thermal, &picks, &out).unwrap();
+    assert_eq!(names.len(), 4, "four distinct files: {names:?}");
+    for f in &picks {
+        let file = out.join(&names[&f.sequence]);
+        assert!(file.is_file(), "{} written", file.display());
+    }
 }

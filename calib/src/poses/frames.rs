@@ -1,5 +1,9 @@
 //! Reading a session for the poses stage: one scan for every frame's numbers (no pixels kept),
 //! then targeted reads that write only the frames the stage chose.
+//!
+//! Frames are named by their *session* sequence ([`SessionSequences`]): the device's V4L2
+//! sequence, continued past a reopen (a re-enumerated or stalled camera restarts at 0), so two
+//! frames of a stream never share a name and every read of the file numbers them alike.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -44,6 +48,32 @@ impl Stream {
         };
         let digits = rest.split('.').next()?;
         digits.parse().ok().map(|s| (stream, s))
+    }
+}
+
+/// Numbers each stream's frames in file order: the recorded sequence while it increases,
+/// continued (last + 1, …) when it goes back, as after a device reopen. Deterministic, so the
+/// scan and every later read of the same file agree. Feed it every frame of the file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SessionSequences {
+    /// Per stream (thermal, RGB): the last recorded sequence and the number it was given.
+    last: [Option<(u32, u32)>; 2],
+    /// Added to recorded sequences since the last restart.
+    offset: [u32; 2],
+}
+
+impl SessionSequences {
+    /// The session sequence of the next frame of `stream` recorded with `sequence`.
+    pub fn next(&mut self, stream: s3tir_capture::frame::StreamKind, sequence: u32) -> u32 {
+        let k = usize::from(stream == s3tir_capture::frame::StreamKind::Rgb);
+        if let Some((raw, given)) = self.last[k]
+            && sequence <= raw
+        {
+            self.offset[k] = given.saturating_add(1).saturating_sub(sequence);
+        }
+        let id = sequence.saturating_add(self.offset[k]);
+        self.last[k] = Some((sequence, id));
+        id
     }
 }
 
@@ -136,9 +166,11 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
         b.set_message(format!("scanning {}", path.display()));
         b
     });
+    let mut ids = SessionSequences::default();
     let outcome = read_session(path, |item| {
         match item {
             SessionItem::Frame(f) => {
+                let sequence = ids.next(f.raw.stream, f.raw.sequence);
                 let Ok(frame) = parse_recorded(path, &f) else {
                     scan.unreadable += 1;
                     return Ok(());
@@ -151,7 +183,7 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
                         let grey: Vec<f32> = t.pixels.iter().map(|&v| f32::from(v)).collect();
                         scan.thermal_size.get_or_insert((t.width, t.height));
                         scan.thermal.push(FrameInfo {
-                            sequence: t.time.sequence,
+                            sequence,
                             monotonic_ns: t.time.monotonic_ns,
                             ffc_frozen: t.ffc == FfcState::InProgress,
                             sharpness: sharpness(&grey, t.width as usize, t.height as usize),
@@ -164,7 +196,7 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
                         };
                         scan.rgb_size.get_or_insert((r.width, r.height));
                         scan.rgb.push(FrameInfo {
-                            sequence: r.time.sequence,
+                            sequence,
                             monotonic_ns: r.time.monotonic_ns,
                             ffc_frozen: false,
                             sharpness: sharpness(
@@ -235,12 +267,14 @@ pub fn write_keyframes(
     let mut names = BTreeMap::new();
     let mut thermal_samples: Vec<u16> = Vec::new();
     let mut pending: Vec<(u32, Vec<u16>, u32, u32)> = Vec::new();
+    let mut ids = SessionSequences::default();
     read_session(path, |item| {
         let SessionItem::Frame(f) = item else {
             return Ok(());
         };
+        let sequence = ids.next(f.raw.stream, f.raw.sequence);
         let is_thermal = f.raw.stream == s3tir_capture::frame::StreamKind::Thermal;
-        if is_thermal != (stream == Stream::Thermal) || !wanted.contains(&f.raw.sequence) {
+        if is_thermal != (stream == Stream::Thermal) || !wanted.contains(&sequence) {
             return Ok(());
         }
         let Ok(frame) = parse_recorded(path, &f) else {
@@ -252,7 +286,7 @@ pub fn write_keyframes(
         };
         match (stream, frame) {
             (Stream::Rgb, CapturedFrame::Rgb(r)) => {
-                let name = stream.file_name(r.time.sequence);
+                let name = stream.file_name(sequence);
                 let p = dir.join(&name);
                 let px = r.to_rgb8(&path.display().to_string())?;
                 let img = image::RgbImage::from_raw(r.width, r.height, px)
@@ -263,12 +297,12 @@ pub fn write_keyframes(
                     95,
                 );
                 enc.encode_image(&img).map_err(|e| io(&p, e.to_string()))?;
-                names.insert(r.time.sequence, name);
+                names.insert(sequence, name);
             }
             (Stream::Thermal, CapturedFrame::Thermal(t)) => {
                 // Percentiles need every keyframe: sample, write after the read.
                 thermal_samples.extend(t.pixels.iter().step_by(7));
-                pending.push((t.time.sequence, t.pixels, t.width, t.height));
+                pending.push((sequence, t.pixels, t.width, t.height));
             }
             _ => {}
         }
@@ -298,25 +332,28 @@ pub fn write_keyframes(
     Ok(names)
 }
 
-/// Reads the thermal frames `sequences` and hands each one's words to `write`.
+/// Reads the thermal frames `sequences` (session sequences) and hands each one's words to
+/// `write`.
 pub fn for_thermal_frames(
     path: &Path,
     sequences: &BTreeSet<u32>,
     mut write: impl FnMut(u32, u32, u32, &[u16]) -> Result<(), PosesError>,
 ) -> Result<(), PosesError> {
     let mut failure: Option<PosesError> = None;
+    let mut ids = SessionSequences::default();
     read_session(path, |item| {
         let SessionItem::Frame(f) = item else {
             return Ok(());
         };
+        let sequence = ids.next(f.raw.stream, f.raw.sequence);
         if failure.is_some()
             || f.raw.stream != s3tir_capture::frame::StreamKind::Thermal
-            || !sequences.contains(&f.raw.sequence)
+            || !sequences.contains(&sequence)
         {
             return Ok(());
         }
         if let Ok(CapturedFrame::Thermal(t)) = parse_recorded(path, &f)
-            && let Err(e) = write(t.time.sequence, t.width, t.height, &t.pixels)
+            && let Err(e) = write(sequence, t.width, t.height, &t.pixels)
         {
             failure = Some(e);
         }
@@ -330,6 +367,27 @@ pub fn for_thermal_frames(
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
+
+    /// A reopened device restarts at 0: its frames continue the stream's session numbering
+    /// (no two frames share a name); the other stream is untouched; a second restart continues
+    /// again.
+    #[test]
+    fn session_sequences_continue_past_a_restart() {
+        use s3tir_capture::frame::StreamKind::{Rgb, Thermal};
+        let mut ids = SessionSequences::default();
+        let got: Vec<u32> = [
+            (Thermal, 5),
+            (Rgb, 100),
+            (Thermal, 6),
+            (Thermal, 9),
+            (Thermal, 0),
+        ]
+        .into_iter()
+        .chain([(Thermal, 1), (Rgb, 101), (Thermal, 0), (Thermal, 3)])
+        .map(|(s, q)| ids.next(s, q))
+        .collect();
+        assert_eq!(got, [5, 100, 6, 9, 10, 11, 101, 12, 15]);
+    }
 
     #[test]
     fn file_names_carry_stream_and_sequence() {
