@@ -87,10 +87,12 @@ pub struct PosesArgs {
     /// four world corners in metres: bottom-left, bottom-right, top-right, top-left as
     /// printed). The size gives COLMAP's world its metric scale (tag corners triangulated);
     /// with corners, keyframes that see two mapped tags are posed by PnP, and COLMAP does not
-    /// run when enough are. s3tir-firmware-sim writes one beside a walk's truth (tags.toml).
+    /// run when enough are; when it does run, its keyframe rotations are checked against the
+    /// tags' PnP poses (a warning if the model disagrees, e.g. hinged in parts).
+    /// s3tir-firmware-sim writes one beside a walk's truth (tags.toml).
     #[arg(long)]
     tags: Option<PathBuf>,
-    /// With a tag layout, run COLMAP anyway (the tags then only give the scale).
+    /// With a tag layout, run COLMAP anyway (the tags then give the scale and the check).
     #[arg(long)]
     no_tag_poses: bool,
     /// Print the report as JSON.

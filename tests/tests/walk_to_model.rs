@@ -13,7 +13,8 @@
 //! their map (`walk-truth/tags.toml`). Three runs of the poses stage on the one recording:
 //! 1. COLMAP with `--tags --no-tag-poses`: the tags give COLMAP's world its metric scale,
 //!    which must be within 1 % of the scale the truth alignment measures (the lever arm
-//!    between the cameras is then applied, so the centre error has no known bias);
+//!    between the cameras is then applied, so the centre error has no known bias), and the
+//!    model's keyframe rotations must agree with the tags' PnP poses (`tag_agreement`);
 //! 2. COLMAP's own model of run 1 as a user's model (`--poses`), with the tags: the
 //!    user-model path on real COLMAP output; its dataset trains in step 4;
 //! 3. the fast path, `--tags` alone: keyframes posed by PnP on the mapped tags, COLMAP not
@@ -272,6 +273,13 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
     assert!(
         registered as f64 >= 0.9 * keyframes as f64,
         "COLMAP must register ≥ 90 % of the simulated walk's keyframes: {registered}/{keyframes}"
+    );
+    // The model's rotations against the tags' PnP poses: one rotation between the worlds.
+    let agreement = &report["tag_agreement"];
+    eprintln!("COLMAP vs AprilTag poses: {agreement}");
+    assert_eq!(
+        agreement["agrees"], true,
+        "COLMAP's keyframe rotations must agree with the tags' PnP poses: {agreement}"
     );
     assert!(first.views >= 20, "views: {}", first.views);
     assert!(

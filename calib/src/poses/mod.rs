@@ -35,7 +35,10 @@
 //!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
 //!    user's model (`--poses DIR`) is read instead. The largest reconstruction is kept, and
 //!    a registered keyframe whose pose jumps from its neighbours' in time is not used
-//!    ([`sfm::drop_jumps`]; the fast path's PnP poses are judged the same way).
+//!    ([`sfm::drop_jumps`]; the fast path's PnP poses are judged the same way). With a tag
+//!    map, the keyframes that see its tags are also posed by PnP and the model's rotations
+//!    are checked against theirs ([`agreement`]: one rotation between the two worlds, or a
+//!    warning that the model disagrees, e.g. hinged in parts).
 //! 4. **Thermal poses** ([`interp`]): every usable thermal frame (not FFC-frozen, not blurred)
 //!    gets the SfM camera's pose interpolated to its capture time (slerp of the rotation, linear
 //!    centre) between the two registered keyframes around it (at most `max_gap_s` apart),
@@ -64,6 +67,7 @@
 //! builds in `OUT.partial` (COLMAP's logs stay there when it fails; the next run clears it) and
 //! renames it to `OUT` when everything is written, and the session is only read.
 
+pub mod agreement;
 pub mod dataset;
 pub mod fiducials;
 pub mod frames;
@@ -267,6 +271,9 @@ pub struct PosesReport {
     pub tag_keyframes: Option<usize>,
     /// The scale measured from the tags on COLMAP's world (with `--tags`, COLMAP path).
     pub tag_scale: Option<fiducials::TagScale>,
+    /// The model's keyframe rotations against the tags' PnP poses (with `--tags`, COLMAP or
+    /// user model; [`agreement`]).
+    pub tag_agreement: Option<agreement::TagAgreement>,
     pub views: usize,
     pub held_out: usize,
     /// Count of thermal frames per reason they were not used.
@@ -598,6 +605,25 @@ pub fn session_to_dataset(
     } else {
         sfm_points.iter().map(|p| p.position_m).collect()
     };
+    // The model against the tags' own PnP poses (module docs, step 3).
+    let tag_agreement = match &tag_map {
+        Some(m) if !fast_path => {
+            let pnp: BTreeMap<u64, fiducials::TagPose> = seen
+                .iter()
+                .filter_map(|s| Some((s.monotonic_ns, fiducials::pnp(m, &sfm_camera, &s.tags)?)))
+                .collect();
+            agreement::rotation_agreement(&registered, &pnp)
+        }
+        _ => None,
+    };
+    if let Some(a) = tag_agreement.as_ref().filter(|a| !a.agrees) {
+        tracing::warn!(
+            median_deg = a.median_deg,
+            disagreeing = a.disagreeing,
+            keyframes = a.keyframes,
+            "the structure-from-motion model disagrees with the AprilTag poses"
+        );
+    }
     let tag_scale = match &tag_map {
         Some(m) if !fast_path => {
             let by_time: BTreeMap<u64, crate::geometry::Rigid3> =
@@ -730,6 +756,7 @@ pub fn session_to_dataset(
             .as_ref()
             .map(|_| seen.iter().filter(|s| !s.tags.is_empty()).count()),
         tag_scale,
+        tag_agreement,
         views: views.iter().filter(|v| !v.held_out).count(),
         held_out: views.iter().filter(|v| v.held_out).count(),
         skipped,
@@ -781,6 +808,24 @@ pub fn summary(r: &PosesReport) -> String {
     }
     if let Some(n) = r.tag_keyframes {
         let _ = writeln!(s, "AprilTags decoded in {n} of {} keyframes", r.keyframes);
+    }
+    if let Some(a) = &r.tag_agreement {
+        let _ = writeln!(
+            s,
+            "{}{} model vs AprilTag poses on {} keyframes: median {:.2}°, max {:.2}°, {} over {:.0}°{}",
+            if a.agrees { "" } else { "warning: " },
+            r.pose_source,
+            a.keyframes,
+            a.median_deg,
+            a.max_deg,
+            a.disagreeing,
+            agreement::DISAGREE_DEG,
+            if a.agrees {
+                ""
+            } else {
+                " — the model disagrees with the tags (hinged in parts?); check poses.json, or run again"
+            }
+        );
     }
     let _ = writeln!(s, "scale: {}", r.scale_source);
     let _ = writeln!(
