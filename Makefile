@@ -17,7 +17,8 @@ build: deps
 
 # The whole chain on the simulated rig, as a user runs it on a real one: calibrate the rig,
 # record a walk around a scene with the calibration attached, pose the walk (COLMAP on the RGB
-# keyframes), train S3-TIR on the posed thermal views and evaluate the held-out ones. Every
+# keyframes, metric scale from the room's AprilTags), train S3-TIR on the posed thermal views
+# and evaluate the held-out ones. Every
 # device is s3tir-firmware-sim; outputs in DEMO_DIR (walk.mcap, walk-dataset/, walk-run/).
 DEMO_ITERS ?= 300
 DEMO_WALK_S ?= 20
@@ -41,8 +42,11 @@ demo: build
 	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration $(DEMO_WALK_S) \
 	  --calibration $(DEMO_DIR)/calibration/calibration.yaml --out $(DEMO_DIR)/walk.mcap
 	$(BIN)/s3tir-capture info $(DEMO_DIR)/walk.mcap
-	@echo "== 4/6 Pose the walk: COLMAP (CPU) on the RGB keyframes, thermal poses from the calibrated extrinsic"
-	$(BIN)/s3tir-capture export $(DEMO_DIR)/walk.mcap --dataset $(DEMO_DIR)/walk-dataset
+	@echo "== 4/6 Pose the walk: COLMAP (CPU) on the RGB keyframes, thermal poses from the calibrated extrinsic;"
+	@echo "        the room's AprilTag map (walk-truth/tags.toml, as a user would measure it) gives the metric"
+	@echo "        scale and checks COLMAP's model against the tags' own poses"
+	$(BIN)/s3tir-capture export $(DEMO_DIR)/walk.mcap --dataset $(DEMO_DIR)/walk-dataset \
+	  --tags $(DEMO_DIR)/walk-truth/tags.toml --no-tag-poses
 	@echo "== 5/6 Train S3-TIR on the posed thermal views ($(DEMO_ITERS) iterations, CPU backend; short"
 	@echo "        warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
 	$(BIN)/s3tir-train $(DEMO_DIR)/walk-dataset --out $(DEMO_DIR)/walk-run --iters $(DEMO_ITERS) \

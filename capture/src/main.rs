@@ -153,6 +153,10 @@ enum Command {
         /// without COLMAP where mapped tags are in view.
         #[arg(long, requires = "dataset")]
         tags: Option<PathBuf>,
+        /// With --tags: run COLMAP anyway (the tags then give the metric scale and check
+        /// COLMAP's model; s3tir-calib poses --no-tag-poses).
+        #[arg(long, requires = "tags")]
+        no_tag_poses: bool,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time, and what the writer's
@@ -193,13 +197,20 @@ fn main() -> Result<()> {
             dataset,
             calibration,
             tags,
+            no_tag_poses,
         }) => {
             if let Some(out) = out {
                 let n = tools::export(&file, &out)?;
                 println!("exported {n} pairs to {}", out.display());
             }
             if let Some(dataset) = dataset {
-                export_dataset(&file, &dataset, calibration.as_deref(), tags.as_deref())?;
+                export_dataset(
+                    &file,
+                    &dataset,
+                    calibration.as_deref(),
+                    tags.as_deref(),
+                    no_tag_poses,
+                )?;
             }
             Ok(())
         }
@@ -256,6 +267,7 @@ fn export_dataset(
     dataset: &std::path::Path,
     calibration: Option<&std::path::Path>,
     tags: Option<&std::path::Path>,
+    no_tag_poses: bool,
 ) -> Result<()> {
     let exe_dir = std::env::current_exe()
         .ok()
@@ -275,6 +287,9 @@ fn export_dataset(
     }
     if let Some(t) = tags {
         cmd.arg("--tags").arg(t);
+    }
+    if no_tag_poses {
+        cmd.arg("--no-tag-poses");
     }
     let status = cmd
         .status()
