@@ -20,14 +20,17 @@
 //!
 //! The board geometry is not in a session: the caller passes `board.toml`.
 //!
-//! Each view is named after the session and the frame's sequence number
-//! (`session.mcap#thermal/000123`), which is what the report's "files not used" list shows.
+//! Each view is named after the session and the frame's session sequence
+//! (`session.mcap#thermal/000123`: the recorded sequence, continued past a device reopen, see
+//! [`SessionSequences`]), which is what the report's "files not used" list shows.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use s3tir_capture::frame::{CapturedFrame, RgbFrame, StreamKind, ThermalFrame};
-use s3tir_capture::session::{FrameWindow, SessionItem, parse_recorded, read_session};
+use s3tir_capture::session::{
+    FrameWindow, SessionItem, SessionSequences, parse_recorded, read_session,
+};
 
 use crate::board::{Camera, FileProblem, ViewFiles};
 use crate::error::CalibError;
@@ -55,14 +58,9 @@ impl Default for SessionOptions {
 /// poses), few enough to hold in memory.
 pub const DEFAULT_MAX_VIEWS: usize = 300;
 
-/// A frame as pass 1 remembers it: no pixels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-struct FrameKey {
-    /// 0 thermal, 1 RGB.
-    stream: usize,
-    sequence: u32,
-    monotonic_ns: u64,
-}
+/// A frame as pass 1 remembers it, no pixels: stream (0 thermal, 1 RGB) and session
+/// sequence (unique per stream; [`SessionSequences`]).
+type FrameKey = (usize, u32);
 
 enum Stored {
     Thermal(ThermalFrame),
@@ -121,17 +119,6 @@ fn spread<T>(items: Vec<T>, max: usize, notes: &mut Vec<String>) -> Vec<T> {
         .collect()
 }
 
-/// `name`, or `name.2`, `name.3`, … if taken; with the number used (1: as given).
-fn unique_name(frames: &HashMap<PathBuf, Stored>, name: PathBuf) -> (PathBuf, u32) {
-    if !frames.contains_key(&name) {
-        return (name, 1);
-    }
-    (2..)
-        .map(|n| (PathBuf::from(format!("{}.{n}", name.display())), n))
-        .find(|(p, _)| !frames.contains_key(p))
-        .unwrap_or((name, 1))
-}
-
 fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
     CalibError::Session {
         path: path.to_path_buf(),
@@ -144,10 +131,10 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
     let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
     // Pass 1: which frames become views. Recent frames (pairs refer to frames a few back),
     // keyed by arrival, not sequence: sequences restart when a device is reopened.
-    let mut recent: [FrameWindow<(FrameKey, bool)>; 2] = [
-        FrameWindow::new(FrameWindow::<()>::DEFAULT_CAPACITY),
-        FrameWindow::new(FrameWindow::<()>::DEFAULT_CAPACITY),
-    ];
+    let mut recent: [FrameWindow<(FrameKey, bool)>; 2] = Default::default();
+    // Frames are named by their session sequence: a reopened device's restarted sequence
+    // numbers neither collide nor pick the wrong frame.
+    let mut ids = SessionSequences::default();
     // Single-stream candidates, used when the session has no pairs.
     let mut singles: [Vec<FrameKey>; 2] = [Vec::new(), Vec::new()];
     let mut last_single_ns: [Option<u64>; 2] = [None, None];
@@ -160,21 +147,15 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
     let outcome = read_session(path, |item| {
         match item {
             SessionItem::Frame(f) => {
-                // Parsed for its stream and FFC state (telemetry decides it); pixels dropped.
+                let k = usize::from(f.raw.stream == StreamKind::Rgb);
+                let key = (k, ids.next(f.raw.stream, f.raw.sequence));
+                // Parsed for its FFC state (telemetry decides it); pixels dropped.
                 let frame = parse_recorded(path, &f)?;
-                let k = match frame.stream() {
-                    StreamKind::Thermal => 0,
-                    StreamKind::Rgb => 1,
-                };
-                let key = FrameKey {
-                    stream: k,
-                    sequence: f.raw.sequence,
-                    monotonic_ns: f.raw.monotonic_ns,
-                };
                 let frozen = matches!(&frame, CapturedFrame::Thermal(t) if t.is_ffc_frozen());
                 // Single-stream views are only needed while no pair has been seen.
-                if pair_records == 0 && !frozen && due(last_single_ns[k], key.monotonic_ns) {
-                    last_single_ns[k] = Some(key.monotonic_ns);
+                let t_ns = f.raw.monotonic_ns;
+                if pair_records == 0 && !frozen && due(last_single_ns[k], t_ns) {
+                    last_single_ns[k] = Some(t_ns);
                     singles[k].push(key);
                 }
                 recent[k].push(f.raw.sequence, (key, frozen));
@@ -230,31 +211,33 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
         .chain(singles.iter().flatten().copied())
         .collect();
     let mut found: HashMap<FrameKey, CapturedFrame> = HashMap::with_capacity(wanted.len());
+    let mut ids = SessionSequences::default();
     read_session(path, |item| {
         if let SessionItem::Frame(f) = item {
-            let k = usize::from(f.raw.stream == StreamKind::Rgb);
-            let key = FrameKey {
-                stream: k,
-                sequence: f.raw.sequence,
-                monotonic_ns: f.raw.monotonic_ns,
-            };
-            if wanted.contains(&key) && !found.contains_key(&key) {
+            let key = (
+                usize::from(f.raw.stream == StreamKind::Rgb),
+                ids.next(f.raw.stream, f.raw.sequence),
+            );
+            if wanted.contains(&key) {
                 found.insert(key, parse_recorded(path, &f)?);
             }
         }
         Ok(())
     })
     .map_err(|e| capture_err(path, e))?;
-    let pairs: Vec<(ThermalFrame, RgbFrame)> = pairs
+    // (session sequence, frame) of each chosen view.
+    let pairs: Vec<((u32, ThermalFrame), (u32, RgbFrame))> = pairs
         .iter()
         .filter_map(|(t, r)| match (found.remove(t), found.remove(r)) {
-            (Some(CapturedFrame::Thermal(t)), Some(CapturedFrame::Rgb(r))) => Some((t, r)),
+            (Some(CapturedFrame::Thermal(tf)), Some(CapturedFrame::Rgb(rf))) => {
+                Some(((t.1, tf), (r.1, rf)))
+            }
             _ => None,
         })
         .collect();
-    let singles: [Vec<(u64, CapturedFrame)>; 2] = singles.map(|list| {
+    let singles: [Vec<(u32, CapturedFrame)>; 2] = singles.map(|list| {
         list.iter()
-            .filter_map(|k| found.remove(k).map(|f| (k.monotonic_ns, f)))
+            .filter_map(|k| found.remove(k).map(|f| (k.1, f)))
             .collect()
     });
     let mut notes = Vec::new();
@@ -279,19 +262,11 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
     let mut frames = HashMap::new();
     let mut views = Vec::new();
     if pair_records > 0 {
-        for (t, r) in pairs {
-            // A device reopened mid-session restarts its sequence: the second frame 000123 is
-            // 000123.2, so no pair replaces another.
-            let (tn, n) = unique_name(
-                &frames,
-                frame_name(path, StreamKind::Thermal, t.time.sequence),
-            );
-            let (rn, _) = unique_name(&frames, frame_name(path, StreamKind::Rgb, r.time.sequence));
+        for ((ts, t), (rs, r)) in pairs {
+            let tn = frame_name(path, StreamKind::Thermal, ts);
+            let rn = frame_name(path, StreamKind::Rgb, rs);
             views.push(ViewFiles {
-                key: match n {
-                    1 => format!("{:06}", t.time.sequence),
-                    n => format!("{:06}.{n}", t.time.sequence),
-                },
+                key: format!("{ts:06}"),
                 files: [Some(tn.clone()), Some(rn.clone())],
             });
             frames.insert(tn, Stored::Thermal(t));
@@ -303,21 +278,16 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
             path.display()
         ));
         for (k, list) in singles.into_iter().enumerate() {
-            for (_, frame) in list {
-                let (stream, sequence, stored) = match frame {
-                    CapturedFrame::Thermal(t) => {
-                        (StreamKind::Thermal, t.time.sequence, Stored::Thermal(t))
-                    }
-                    CapturedFrame::Rgb(r) => (StreamKind::Rgb, r.time.sequence, Stored::Rgb(r)),
+            for (sequence, frame) in list {
+                let (stream, stored) = match frame {
+                    CapturedFrame::Thermal(t) => (StreamKind::Thermal, Stored::Thermal(t)),
+                    CapturedFrame::Rgb(r) => (StreamKind::Rgb, Stored::Rgb(r)),
                 };
-                let (name, n) = unique_name(&frames, frame_name(path, stream, sequence));
+                let name = frame_name(path, stream, sequence);
                 let mut files = [None, None];
                 files[k] = Some(name.clone());
                 views.push(ViewFiles {
-                    key: match n {
-                        1 => format!("{}-{sequence:06}", stream.name()),
-                        n => format!("{}-{sequence:06}.{n}", stream.name()),
-                    },
+                    key: format!("{}-{sequence:06}", stream.name()),
                     files,
                 });
                 frames.insert(name, stored);

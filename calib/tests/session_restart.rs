@@ -1,9 +1,9 @@
 //! Proves: a session whose cameras were reopened mid-recording (sequence numbers restart at 0,
 //! as after a USB re-enumeration or the capture daemon's stall watchdog) gives the session
 //! calibration every recorded pair, those after the restart included, under distinct view
-//! names whose frames all load. Before, the frame window was keyed by sequence and evicted the
-//! newest frames (the restarted, small sequences) first, so every pair after the restart was
-//! "a frame not in the session". With `max_views`, the views kept are spread over the whole
+//! names (session sequences, continued past the restart) whose frames all load. Before, the
+//! frame window was keyed by sequence and evicted the newest frames (the restarted, small
+//! sequences) first, so every pair after the restart was "a frame not in the session". With `max_views`, the views kept are spread over the whole
 //! session and only their pixels are held. The poses stage numbers the frames of such a
 //! session past the restart (unique, increasing per stream), and the keyframes it writes are
 //! the frames it scanned, on both sides of the restart. Does not calibrate
@@ -79,11 +79,17 @@ fn pairs_after_a_sequence_restart_are_all_views() {
     assert_eq!(v.views.len(), recorded, "every recorded pair is a view");
     let keys: BTreeSet<&str> = v.views.iter().map(|x| x.key.as_str()).collect();
     assert_eq!(keys.len(), v.views.len(), "view keys are distinct");
-    let restarted: Vec<_> = v.views.iter().filter(|x| x.key.contains('.')).collect();
+    // Views are keyed by the thermal frame's session sequence: the 600 thermal frames before
+    // the restart are 0..=599, those after it continue from 600 (their recorded sequence is 0…).
+    let seq = |key: &str| -> u32 { key.parse().unwrap() };
+    let after = v.views.iter().filter(|x| seq(&x.key) >= 600).count();
     assert!(
-        restarted.len() >= 40,
-        "the pairs after the restart reuse sequence numbers and get suffixed keys: {}",
-        restarted.len()
+        after >= 40,
+        "the pairs after the restart continue the numbering: {after} views past 600"
+    );
+    assert!(
+        v.views.windows(2).all(|w| seq(&w[1].key) > seq(&w[0].key)),
+        "session sequences increase through the restart"
     );
     for view in &v.views {
         for (file, camera) in view.files.iter().zip([Camera::Thermal, Camera::Rgb]) {
@@ -104,15 +110,10 @@ fn pairs_after_a_sequence_restart_are_all_views() {
     )
     .unwrap();
     assert_eq!(capped.views.len(), 50, "capped at max_views");
-    // Views are in session order: a sequence number going down is the restart.
-    let seqs: Vec<u32> = capped
-        .views
-        .iter()
-        .map(|x| x.key[..6].parse().unwrap())
-        .collect();
+    let seqs: Vec<u32> = capped.views.iter().map(|x| seq(&x.key)).collect();
     assert!(
-        seqs.windows(2).any(|w| w[1] < w[0]),
-        "the kept views spread over the restart too: {seqs:?}"
+        seqs.first().is_some_and(|s| *s < 100) && seqs.last().is_some_and(|s| *s >= 600),
+        "the kept views spread over the whole session, both sides of the restart: {seqs:?}"
     );
     assert!(
         capped.notes.iter().any(|n| n.contains("50 of")),

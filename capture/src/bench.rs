@@ -96,7 +96,8 @@ pub fn run(
     // the bench syncs once per second of *camera* time instead (each sync then carries one
     // second of data, as in a recording).
     writer.set_sync_interval(None);
-    let frames_per_sync = (60.0 * crate::session::SYNC_INTERVAL.as_secs_f64()).round() as u64;
+    let frames_per_sync =
+        (crate::session::SYNC_INTERVAL.as_secs_f64() * 1e9 / period_ns[0]).round() as u64;
     let mut pipe = Pipeline::new(PairingMode::Nearest {
         tolerance_ns: DEFAULT_TOLERANCE_NS,
     });

@@ -1243,6 +1243,12 @@ pub struct FrameWindow<T> {
     frames: std::collections::VecDeque<(u32, T)>,
 }
 
+impl<T> Default for FrameWindow<T> {
+    fn default() -> Self {
+        Self::new(Self::DEFAULT_CAPACITY)
+    }
+}
+
 impl<T> FrameWindow<T> {
     /// Pairs are decided within a few frames; 512 covers seconds of the fastest stream.
     pub const DEFAULT_CAPACITY: usize = 512;
@@ -1277,6 +1283,32 @@ impl<T> FrameWindow<T> {
 
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()
+    }
+}
+
+/// Numbers each stream's frames in file order: the recorded sequence while it increases,
+/// continued (last + 1, …) when it goes back, as after a device reopen. Deterministic, so the
+/// scan and every later read of the same file agree. Feed it every frame of the file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SessionSequences {
+    /// Per stream (thermal, RGB): the last recorded sequence and the number it was given.
+    last: [Option<(u32, u32)>; 2],
+    /// Added to recorded sequences since the last restart.
+    offset: [u32; 2],
+}
+
+impl SessionSequences {
+    /// The session sequence of the next frame of `stream` recorded with `sequence`.
+    pub fn next(&mut self, stream: StreamKind, sequence: u32) -> u32 {
+        let k = usize::from(stream == StreamKind::Rgb);
+        if let Some((raw, given)) = self.last[k]
+            && sequence <= raw
+        {
+            self.offset[k] = given.saturating_add(1).saturating_sub(sequence);
+        }
+        let id = sequence.saturating_add(self.offset[k]);
+        self.last[k] = Some((sequence, id));
+        id
     }
 }
 
@@ -1384,6 +1416,27 @@ mod tests {
         assert!(pairs > 0, "pairs recorded");
         assert_eq!(out.info.thermal_device, "synthetic");
         assert_eq!(out.attachments.get("calibration").unwrap(), b"fx = 1.0");
+    }
+
+    /// A reopened device restarts at 0: its frames continue the stream's session numbering
+    /// (no two frames share a name); the other stream is untouched; a second restart continues
+    /// again.
+    #[test]
+    fn session_sequences_continue_past_a_restart() {
+        use crate::frame::StreamKind::{Rgb, Thermal};
+        let mut ids = SessionSequences::default();
+        let got: Vec<u32> = [
+            (Thermal, 5),
+            (Rgb, 100),
+            (Thermal, 6),
+            (Thermal, 9),
+            (Thermal, 0),
+        ]
+        .into_iter()
+        .chain([(Thermal, 1), (Rgb, 101), (Thermal, 0), (Thermal, 3)])
+        .map(|(s, q)| ids.next(s, q))
+        .collect();
+        assert_eq!(got, [5, 100, 6, 9, 10, 11, 101, 12, 15]);
     }
 
     #[test]

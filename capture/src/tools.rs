@@ -360,8 +360,8 @@ pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
     mk(dir.join("thermal"))?;
     mk(dir.join("rgb"))?;
     // Keyed by arrival: sequences restart when a device is reopened.
-    let mut thermal = FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY);
-    let mut rgb = FrameWindow::new(FrameWindow::<CapturedFrame>::DEFAULT_CAPACITY);
+    let mut thermal = FrameWindow::<CapturedFrame>::default();
+    let mut rgb = FrameWindow::<CapturedFrame>::default();
     let mut k = 0u64;
     read_session(path, |item| {
         match item {

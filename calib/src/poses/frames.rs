@@ -1,15 +1,15 @@
 //! Reading a session for the poses stage: one scan for every frame's numbers (no pixels kept),
 //! then targeted reads that write only the frames the stage chose.
 //!
-//! Frames are named by their *session* sequence ([`SessionSequences`]): the device's V4L2
-//! sequence, continued past a reopen (a re-enumerated or stalled camera restarts at 0), so two
-//! frames of a stream never share a name and every read of the file numbers them alike.
+//! Frames are named by their *session* sequence (capture's [`SessionSequences`]): the
+//! device's V4L2 sequence, continued past a reopen (a re-enumerated or stalled camera restarts
+//! at 0), so two frames of a stream never share a name and every read numbers them alike.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use s3tir_capture::frame::{CapturedFrame, FfcState};
-use s3tir_capture::session::{SessionItem, parse_recorded, read_session};
+use s3tir_capture::session::{SessionItem, SessionSequences, parse_recorded, read_session};
 
 use super::PosesError;
 
@@ -48,32 +48,6 @@ impl Stream {
         };
         let digits = rest.split('.').next()?;
         digits.parse().ok().map(|s| (stream, s))
-    }
-}
-
-/// Numbers each stream's frames in file order: the recorded sequence while it increases,
-/// continued (last + 1, …) when it goes back, as after a device reopen. Deterministic, so the
-/// scan and every later read of the same file agree. Feed it every frame of the file.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct SessionSequences {
-    /// Per stream (thermal, RGB): the last recorded sequence and the number it was given.
-    last: [Option<(u32, u32)>; 2],
-    /// Added to recorded sequences since the last restart.
-    offset: [u32; 2],
-}
-
-impl SessionSequences {
-    /// The session sequence of the next frame of `stream` recorded with `sequence`.
-    pub fn next(&mut self, stream: s3tir_capture::frame::StreamKind, sequence: u32) -> u32 {
-        let k = usize::from(stream == s3tir_capture::frame::StreamKind::Rgb);
-        if let Some((raw, given)) = self.last[k]
-            && sequence <= raw
-        {
-            self.offset[k] = given.saturating_add(1).saturating_sub(sequence);
-        }
-        let id = sequence.saturating_add(self.offset[k]);
-        self.last[k] = Some((sequence, id));
-        id
     }
 }
 
@@ -367,27 +341,6 @@ pub fn for_thermal_frames(
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
-
-    /// A reopened device restarts at 0: its frames continue the stream's session numbering
-    /// (no two frames share a name); the other stream is untouched; a second restart continues
-    /// again.
-    #[test]
-    fn session_sequences_continue_past_a_restart() {
-        use s3tir_capture::frame::StreamKind::{Rgb, Thermal};
-        let mut ids = SessionSequences::default();
-        let got: Vec<u32> = [
-            (Thermal, 5),
-            (Rgb, 100),
-            (Thermal, 6),
-            (Thermal, 9),
-            (Thermal, 0),
-        ]
-        .into_iter()
-        .chain([(Thermal, 1), (Rgb, 101), (Thermal, 0), (Thermal, 3)])
-        .map(|(s, q)| ids.next(s, q))
-        .collect();
-        assert_eq!(got, [5, 100, 6, 9, 10, 11, 101, 12, 15]);
-    }
 
     #[test]
     fn file_names_carry_stream_and_sequence() {
