@@ -53,12 +53,20 @@ layout(push_constant) uniform Push {
     float eps;
     float bc2s;
     float min_log_scale;
-    // Third row of R_cam_from_world and t.z of the reference view, and 1 / fx.
+    // R_cam_from_world (row-major) and t.z of the reference view, and z-free NDC scales
+    // W / (2 fx), H / (2 fy): the densification statistic (train::view_space_gradient).
+    float r00;
+    float r01;
+    float r02;
+    float r10;
+    float r11;
+    float r12;
     float r2x;
     float r2y;
     float r2z;
     float tz;
-    float inv_fx;
+    float ndc_sx;
+    float ndc_sy;
 } pc;
 
 // beta_raw at or below this is the frozen Gaussian sentinel (0.5 * BETA_RAW_FROZEN).
@@ -125,8 +133,15 @@ void main() {
     if (norm > 0.0 && finite(norm)) {
         vec3 mu = vec3(params[km], params[km + 1u], params[km + 2u]);
         float z = abs(pc.r2x * mu.x + pc.r2y * mu.y + pc.r2z * mu.z + pc.tz);
-        stats_accum[i] += norm * z * pc.inv_fx;
-        stats_count[i] += 1u;
+        float gx = pc.r00 * g_mu.x + pc.r01 * g_mu.y + pc.r02 * g_mu.z;
+        float gy = pc.r10 * g_mu.x + pc.r11 * g_mu.y + pc.r12 * g_mu.z;
+        float sx = gx * z * pc.ndc_sx;
+        float sy = gy * z * pc.ndc_sy;
+        float stat = sqrt(sx * sx + sy * sy);
+        if (finite(stat)) {
+            stats_accum[i] += stat;
+            stats_count[i] += 1u;
+        }
     }
 
     if (pc.step_means != 0.0) {

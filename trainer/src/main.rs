@@ -153,7 +153,8 @@ struct TrainArgs {
     /// No TV smoothness on Ψ_β.
     #[arg(long)]
     no_smooth: bool,
-    /// Continue the run in --out from its checkpoint (its config.json; only --iters may change).
+    /// Continue the run in --out from its checkpoint (its config.json; only --iters,
+    /// --time-budget and --backend may change).
     #[arg(long)]
     resume: bool,
     /// Hold out every k-th view (by name) for evaluation; 0: none.
@@ -186,6 +187,64 @@ struct TrainArgs {
     /// partner in the same step (both views get gradients; about 2x the step time).
     #[arg(long, default_value_t = ConsistPartner::Previous)]
     consist_partner: ConsistPartner,
+    /// Train for this much training time instead of a number of iterations: `90s`, `10m`,
+    /// `1h30m` or plain seconds. Training time is step time, as the error-vs-time plot counts
+    /// it (held-out evaluations and checkpoints are not counted). The schedule (warm-up,
+    /// densification window, learning-rate decay) keeps its shape and follows the fraction
+    /// of the budget spent; --iters then only sets the nominal length it is written in.
+    #[arg(long, value_parser = parse_duration)]
+    time_budget: Option<f64>,
+    /// Density control: densify primitives whose mean view-space positional gradient (3DGS's
+    /// statistic, in normalised device coordinates) exceeds this.
+    #[arg(long, default_value_t = 2e-4)]
+    densify_grad: f64,
+    /// Density control runs from this (schedule) iteration…
+    #[arg(long, default_value_t = 500)]
+    densify_from: u64,
+    /// …until this one (and never in the second half of the run)…
+    #[arg(long, default_value_t = 15_000)]
+    densify_until: u64,
+    /// …every this many iterations (0: no density control).
+    #[arg(long, default_value_t = 100)]
+    densify_every: u64,
+    /// Density control removes primitives whose opacity is below this.
+    #[arg(long, default_value_t = 0.005)]
+    prune_opacity: f64,
+}
+
+/// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
+/// (`1h30m`, `10m`, `90s`, `2.5m`); must be positive.
+fn parse_duration(text: &str) -> std::result::Result<f64, String> {
+    let t = text.trim();
+    let bad = || format!("{text:?} is not a duration (e.g. 600, 90s, 10m, 1h30m)");
+    if let Ok(s) = t.parse::<f64>() {
+        return if s.is_finite() && s > 0.0 {
+            Ok(s)
+        } else {
+            Err(format!("{text:?}: the duration must be positive"))
+        };
+    }
+    let mut total = 0.0;
+    let mut number = String::new();
+    for c in t.chars() {
+        if c.is_ascii_digit() || c == '.' {
+            number.push(c);
+            continue;
+        }
+        let unit = match c {
+            'h' => 3600.0,
+            'm' => 60.0,
+            's' => 1.0,
+            _ => return Err(bad()),
+        };
+        let n: f64 = number.parse().map_err(|_| bad())?;
+        total += n * unit;
+        number.clear();
+    }
+    if !(number.is_empty() && total.is_finite() && total > 0.0) {
+        return Err(bad());
+    }
+    Ok(total)
 }
 
 fn main() -> Result<()> {
@@ -251,6 +310,9 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         if let Some(n) = a.iters {
             cfg.iters = n;
         }
+        if let Some(b) = a.time_budget {
+            cfg.time_budget_s = Some(b);
+        }
         // The run's own backend unless --backend says otherwise (a flag default used to
         // switch a resumed Vulkan run to the CPU).
         if let Some(b) = &a.backend
@@ -282,6 +344,12 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         };
         cfg.mode = a.mode;
         cfg.iters = a.iters.unwrap_or(30_000);
+        cfg.time_budget_s = a.time_budget;
+        cfg.densify.grad_threshold = a.densify_grad;
+        cfg.densify.from = a.densify_from;
+        cfg.densify.until = a.densify_until;
+        cfg.densify.every = a.densify_every;
+        cfg.densify.prune_opacity = a.prune_opacity;
         cfg.warmup = a.warmup;
         cfg.budget = a.budget;
         cfg.seed = a.seed;
@@ -545,32 +613,57 @@ fn run_training<B: Backend>(
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the Ctrl-C handler")?;
     }
-    let bar = indicatif::ProgressBar::new(trainer.cfg.iters);
+    // With a time budget the bar counts training seconds, else iterations.
+    let budget = trainer.cfg.time_budget_s;
+    let (len, unit) = match budget {
+        Some(b) => (b.ceil() as u64, "s"),
+        None => (trainer.cfg.iters, "it"),
+    };
+    let bar = indicatif::ProgressBar::new(len);
     bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {pos}/{len} it  {msg}",
-        )
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{elapsed_precise}} [{{bar:30}}] {{pos}}/{{len}} {unit}  {{msg}}"
+        ))
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
-    bar.set_position(trainer.iteration);
+    let position = |t: &Trainer<B>| match budget {
+        Some(_) => t.train_seconds as u64,
+        None => t.iteration,
+    };
+    bar.set_position(position(&trainer));
+    let wall = std::time::Instant::now();
     let mut psnr = f64::NAN;
     let mut loss_ema = f64::NAN;
+    let mut prims = trainer.prims.len();
     let outcome = trainer.run(&stop, &mut |e| match e {
-        Event::Step { iteration, loss } => {
+        Event::Step {
+            iteration,
+            loss,
+            seconds,
+            primitives,
+        } => {
             loss_ema = if loss_ema.is_nan() {
                 *loss
             } else {
                 0.95 * loss_ema + 0.05 * loss
             };
-            bar.set_position(*iteration);
+            prims = *primitives;
+            bar.set_position(match budget {
+                Some(_) => *seconds as u64,
+                None => *iteration,
+            });
             if iteration % 10 == 0 {
-                bar.set_message(format!("loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB"));
+                bar.set_message(format!(
+                    "it {iteration}  loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB  {prims} primitives"
+                ));
             }
         }
         Event::Eval(row) => {
             psnr = row.psnr;
-            bar.set_message(format!("loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB"));
+            bar.set_message(format!(
+                "loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB  {prims} primitives"
+            ));
         }
         Event::Checkpoint { .. } => {}
     })?;
@@ -615,6 +708,23 @@ fn run_training<B: Backend>(
                 cap.band_bytes_saved,
                 cap.gaussian_path_primitives
             );
+            println!(
+                "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
+                cap.densify_rounds.len(),
+                cap.densify_cloned,
+                cap.densify_split,
+                cap.densify_pruned,
+                cap.primitives,
+                trainer.cfg.budget
+            );
+            if let Some(b) = budget {
+                println!(
+                    "time budget: {:.1} s of training time of {b:.1} s ({} iterations); {:.1} s wall clock with evaluations, checkpoints and outputs",
+                    trainer.train_seconds,
+                    trainer.iteration,
+                    wall.elapsed().as_secs_f64()
+                );
+            }
             Ok(())
         }
     }
@@ -761,4 +871,22 @@ fn devices(_json: bool) -> Result<()> {
     anyhow::bail!(
         "this s3tir-train was built without the `vulkan` feature: it has no Vulkan backend"
     )
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::parse_duration;
+
+    #[test]
+    fn durations_read_as_seconds() {
+        assert_eq!(parse_duration("600").unwrap(), 600.0);
+        assert_eq!(parse_duration("90s").unwrap(), 90.0);
+        assert_eq!(parse_duration("10m").unwrap(), 600.0);
+        assert_eq!(parse_duration("2.5m").unwrap(), 150.0);
+        assert_eq!(parse_duration("1h30m").unwrap(), 5400.0);
+        for bad in ["", "0", "-5", "10x", "m", "5m3", "nan", "0s"] {
+            assert!(parse_duration(bad).is_err(), "{bad:?} must be refused");
+        }
+    }
 }

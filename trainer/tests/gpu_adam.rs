@@ -19,7 +19,7 @@ use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{
     BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw,
 };
-use s3tir_trainer::train::{AdamParams, AdamState, GroupLrs};
+use s3tir_trainer::train::{AdamParams, AdamState, GroupLrs, view_space_gradient};
 
 const N: usize = 300;
 const M: usize = 3;
@@ -117,8 +117,8 @@ fn adam_kernel_takes_the_host_optimiser_step() {
         let g = &g_sum.means[3 * i..3 * i + 3];
         let n = f64::from(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
         if n > 0.0 && n.is_finite() {
-            let z = cam.to_cam(p.mean(i).map(f64::from))[2].abs();
-            accum_h[i] += n * z / cam.fx_px;
+            let g = [0, 1, 2].map(|a| f64::from(g[a]));
+            accum_h[i] += view_space_gradient(&cam, p.mean(i).map(f64::from), g);
             count_h[i] += 1;
         }
     }

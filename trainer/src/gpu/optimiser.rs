@@ -17,6 +17,10 @@ use crate::primitive::Primitives;
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 const ADAM_WG: usize = 128;
+/// The optimiser kernel's push constants: 4 words of sizes and gate, 9 step sizes, 5 Adam and
+/// clamp constants, 12 for the densification statistic's camera (within Vulkan's guaranteed
+/// 128 bytes).
+pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 5 + 12);
 
 /// The state on the GPU.
 #[derive(Debug)]
@@ -399,7 +403,7 @@ impl GpuOptimiser {
         let l = adam.lrs;
         let r = cam_i.rotation_cam_from_world();
         let tz = cam_i.cam_from_world.translation_m.z;
-        let mut push: Vec<u8> = Vec::with_capacity(92);
+        let mut push: Vec<u8> = Vec::with_capacity(ADAM_PUSH_BYTES as usize);
         let (gate_buffer, capacity, views) = match gate {
             Some(g) => (g.totals, g.capacity, g.views),
             None => (&s.band_count, u32::MAX, 0),
@@ -422,11 +426,18 @@ impl GpuOptimiser {
             hp.eps,
             bc2s,
             f64::from(adam.min_log_scale),
+            r[0],
+            r[1],
+            r[2],
+            r[3],
+            r[4],
+            r[5],
             r[6],
             r[7],
             r[8],
             tz,
-            1.0 / cam_i.fx_px,
+            cam_i.width as f64 / (2.0 * cam_i.fx_px),
+            cam_i.height as f64 / (2.0 * cam_i.fy_px),
         ];
         for f in floats {
             push.extend_from_slice(&(f as f32).to_le_bytes());

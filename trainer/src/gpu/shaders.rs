@@ -168,7 +168,7 @@ pub const KERNELS: &[KernelSpec] = &[
         name: "adam",
         bindings: 9,
         texel: &[],
-        push_constant_bytes: 92,
+        push_constant_bytes: super::optimiser::ADAM_PUSH_BYTES,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },

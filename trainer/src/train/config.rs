@@ -84,12 +84,15 @@ impl Default for Weights {
 
 /// Density control: 3DGS-style clone/split/prune under a **hard primitive budget**.
 ///
-/// Every `every` iterations in `[from, min(until, iters/2))`: primitives whose mean screen-space positional
-/// gradient (`‖dL/dμ‖ · z / f`, pixels⁻¹) exceeds `grad_threshold` are densified — split in two
-/// (scales ÷ 1.6, centres drawn from the primitive) when their largest scale exceeds
-/// `split_scale_frac` × the scene extent, cloned otherwise — highest gradients first, and only
-/// while the count stays ≤ the budget; then primitives with opacity < `prune_opacity` are
-/// removed. Initialisation never exceeds the budget either (points are subsampled).
+/// Every `every` iterations while the schedule is in `[from, min(until, iters/2))` (see the
+/// `schedule` module for time-budgeted runs): primitives whose mean view-space positional
+/// gradient — 3DGS's statistic, the gradient with respect to the projected centre in
+/// normalised device coordinates (`train::view_space_gradient`) — exceeds `grad_threshold`
+/// (3DGS's 2e-4) are densified — split in two (scales ÷ 1.6, centres drawn from the primitive)
+/// when their largest scale exceeds `split_scale_frac` × the scene extent, cloned otherwise —
+/// highest gradients first, and only while the count stays ≤ the budget; then primitives with
+/// opacity < `prune_opacity` are removed. Initialisation never exceeds the budget either
+/// (points are subsampled). Each round's figures are in `capacity.json` (`densify_rounds`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Densify {
     pub from: u64,
@@ -188,7 +191,13 @@ pub struct TrainConfig {
     pub data: PathBuf,
     pub load: LoadOptions,
     pub mode: Mode,
+    /// Iterations; with `time_budget_s` the nominal length the schedule is written in.
     pub iters: u64,
+    /// Training-time budget (seconds of step time): the run stops when it is spent and the
+    /// schedule (warm-up, densification window, learning-rate decay) follows the fraction
+    /// spent instead of iterations (configs written before this option read as none).
+    #[serde(default)]
+    pub time_budget_s: Option<f64>,
     /// Gaussian warm-up: β ≡ 2 and bands off until this iteration (paper: 3000).
     pub warmup: u64,
     /// Gabor bands per primitive in modes with bands (paper: M = 4).
@@ -233,6 +242,7 @@ impl TrainConfig {
             load: LoadOptions::default(),
             mode: Mode::S3tir,
             iters: 30_000,
+            time_budget_s: None,
             warmup: 3_000,
             bands: crate::primitive::DEFAULT_BANDS,
             budget: 100_000,

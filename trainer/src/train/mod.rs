@@ -4,8 +4,10 @@
 //!
 //! # Schedule (paper §4.1)
 //! Iterations `< warmup`: Gaussian warm-up — β frozen at exactly 2 (`beta_raw` =
-//! [`BETA_RAW_FROZEN`], so the renderer takes the cheap Gaussian path) and band amplitudes
-//! held at 0 (band lrs 0), only the photometric loss. At the warm-up's end, in modes that learn β,
+//! [`BETA_RAW_FROZEN`], so the renderer takes the cheap Gaussian path) and the bands off (no
+//! live slot, amplitudes 0, band lrs 0: a warm-up step costs what a 3dgs step does), only the
+//! photometric loss; with a time budget the warm-up is the same fraction of the budget (see
+//! `schedule`). At the warm-up's end every band slot goes live, and in modes that learn β
 //! every frozen β is released to [`BETA_RAW_GAUSSIAN`] (β = 2 + 4.5e-5, learnable); in 3dgs and
 //! gabor modes β stays frozen for the whole run. From `warmup` on, in the modes that have
 //! them, β and the bands train, and `L_sparse` (Ψ_high), `L_smooth` (TV of Ψ_β) and
@@ -50,8 +52,14 @@
 
 pub mod adam;
 pub mod backend;
+mod capacity;
 pub mod config;
+mod density;
+mod error;
+mod init;
+mod outputs;
 pub mod params;
+mod schedule;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -60,29 +68,29 @@ use std::time::Instant;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
 pub use adam::{AdamParams, AdamState, GroupLrs};
 pub use backend::{
     Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
     RunShape,
 };
+pub use capacity::CapacityReport;
 pub use config::{Capacity, ConsistPartner, Densify, Mode, TrainConfig, Weights};
+pub use density::{DensifyRound, view_space_gradient};
+pub use error::TrainError;
+use error::io_err;
+use init::choose_pairs;
+pub use outputs::{RunEval, evaluate_run, load_config};
 
 use crate::camera::PinholeCamera;
-use crate::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint, CheckpointError};
-use crate::dataset::{Dataset, DatasetError};
-use crate::error::TrainerError;
+use crate::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint};
+use crate::dataset::Dataset;
 use crate::loss::consistency::{ConsistencyOptions, consistency_loss};
 use crate::loss::photometric::l1_dssim;
 use crate::loss::{LossWeights, view_loss};
-use crate::metrics::{EvalSummary, view_metrics};
-use crate::ply::PlyError;
-use crate::primitive::{
-    BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw, is_beta_frozen,
-};
+use crate::primitive::Primitives;
 use crate::render::GBuffers;
-use crate::report::{self, MetricsRow, ReportError};
+use crate::report::MetricsRow;
 
 /// Files of a run folder.
 pub mod files {
@@ -98,54 +106,20 @@ pub mod files {
     pub const GBUFFERS: &str = "gbuffers";
 }
 
-#[derive(Debug, Error)]
-pub enum TrainError {
-    #[error(transparent)]
-    Dataset(#[from] DatasetError),
-    #[error(transparent)]
-    Render(#[from] TrainerError),
-    #[error(transparent)]
-    Checkpoint(#[from] CheckpointError),
-    #[error(transparent)]
-    Ply(#[from] PlyError),
-    #[error(transparent)]
-    Report(#[from] ReportError),
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("configuration: {reason}")]
-    Config { reason: String },
-    #[error("run {run_dir}: {reason}")]
-    Run { run_dir: PathBuf, reason: String },
-    /// A step's loss is NaN or infinite: the run stops before anything is saved from it.
-    #[error(
-        "run {run_dir}: iteration {iteration}: the loss is {loss} (the run diverged); stopped \
-         without saving this state: the last checkpoint is intact, `--resume` continues from it \
-         (lower the learning rates if it recurs)"
-    )]
-    NonFinite {
-        run_dir: PathBuf,
-        iteration: u64,
-        loss: f64,
-    },
-}
-
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
-    move |source| TrainError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// What the loop reports as it goes (the CLI draws it).
 #[derive(Debug, Clone)]
 pub enum Event {
-    Step { iteration: u64, loss: f64 },
+    Step {
+        iteration: u64,
+        loss: f64,
+        /// Training seconds so far.
+        seconds: f64,
+        primitives: usize,
+    },
     Eval(MetricsRow),
-    Checkpoint { iteration: u64 },
+    Checkpoint {
+        iteration: u64,
+    },
 }
 
 /// How a run ended.
@@ -158,44 +132,6 @@ pub enum Outcome {
     },
 }
 
-/// What capacity adaptation left out and what it saved.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct CapacityReport {
-    pub mode: String,
-    pub colour_allocated: bool,
-    pub colour_reason: String,
-    pub consistency_pairs: usize,
-    pub consistency_reason: String,
-    pub bands_initial: usize,
-    pub bands_now: usize,
-    /// Bands dropped at the last check (sum over primitives).
-    pub bands_dropped_total: usize,
-    /// Dropped band slots still in storage (below M, above a primitive's live count): the
-    /// renderer skips them and Adam never updates them.
-    #[serde(default)]
-    pub band_slots_dropped: usize,
-    /// Bytes freed by band compaction (parameters and both Adam moments).
-    pub band_bytes_saved: usize,
-    /// Primitives on the cheap Gaussian path (β exactly 2 and frozen, no live band).
-    pub gaussian_path_primitives: usize,
-    /// Primitives snapped to β = 2 and frozen by the last check.
-    #[serde(default)]
-    pub gaussian_frozen_last_check: usize,
-    /// CPU reference renderer, forward + backward of one training view at the end of the run:
-    /// with the shortcuts (cheap Gaussian path, dropped slots skipped) and with every primitive
-    /// forced through the general path (ms, best of 3).
-    #[serde(default)]
-    pub cpu_step_ms_with_shortcuts: Option<f64>,
-    #[serde(default)]
-    pub cpu_step_ms_general_path: Option<f64>,
-    pub primitives: usize,
-    pub memory_bytes: usize,
-    /// Mean step time before and after the last band compaction (ms).
-    pub step_ms_before_compaction: Option<f64>,
-    pub step_ms_after_compaction: Option<f64>,
-    pub notes: Vec<String>,
-}
-
 /// Loop state that is not parameters (kept in checkpoints).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 struct LoopState {
@@ -206,6 +142,12 @@ struct LoopState {
     loss_count: u64,
     step_ms_sum: f64,
     step_count: u64,
+    /// The iteration at which the warm-up ended (β released, bands and the extra terms on).
+    #[serde(default)]
+    warmup_ended_at: Option<u64>,
+    /// Capacity checks run so far.
+    #[serde(default)]
+    capacity_checks: u64,
 }
 
 /// A training run on a backend.
@@ -363,6 +305,14 @@ impl<B: Backend> Trainer<B> {
         t.iteration = ck.iteration;
         t.train_seconds = ck.train_seconds;
         t.state = serde_json::from_value(ck.state).unwrap_or_default();
+        // Checkpoints written before the warm-up's end was recorded: an iteration-counted
+        // run past it ended it at exactly `warmup`.
+        if t.state.warmup_ended_at.is_none()
+            && t.cfg.time_budget_s.is_none()
+            && t.iteration > t.cfg.warmup
+        {
+            t.state.warmup_ended_at = Some(t.cfg.warmup);
+        }
         t.grad_accum = vec![0.0; t.prims.len()];
         t.grad_count = vec![0; t.prims.len()];
         tracing::info!(iteration = t.iteration, "resumed from checkpoint");
@@ -415,197 +365,9 @@ impl<B: Backend> Trainer<B> {
         }
     }
 
-    fn bands_for_mode(&self) -> usize {
-        if self.cfg.mode.has_bands() {
-            self.cfg.bands
-        } else {
-            0
-        }
-    }
-
-    fn initial_primitives(&mut self) -> Primitives<f32> {
-        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed ^ 0x5eed_1417);
-        let sh = self.data.has_rgb().then_some(self.cfg.sh_degree);
-        let mut prims = Primitives::<f64>::new(self.bands_for_mode(), sh);
-        let mut pts: Vec<([f64; 3], [u8; 3])> = self
-            .data
-            .points_m
-            .iter()
-            .copied()
-            .zip(self.data.point_rgb.iter().copied())
-            .collect();
-        let (lo, hi) = self.data.bounds_m();
-        if pts.is_empty() {
-            let n = self.cfg.budget.min(10_000);
-            pts = (0..n)
-                .map(|_| {
-                    (
-                        [0, 1, 2].map(|a| rng.random_range(lo[a]..=hi[a].max(lo[a] + 1e-9))),
-                        [128; 3],
-                    )
-                })
-                .collect();
-        }
-        // Hard budget: subsample (seeded partial shuffle).
-        if pts.len() > self.cfg.budget {
-            for i in 0..self.cfg.budget {
-                let j = rng.random_range(i..pts.len());
-                pts.swap(i, j);
-            }
-            pts.truncate(self.cfg.budget);
-        }
-        let positions: Vec<[f64; 3]> = pts.iter().map(|p| p.0).collect();
-        let nn = knn3_mean_distance(&positions, lo, hi);
-        let min_scale = f64::from(self.min_log_scale).exp();
-        for (k, (p, rgb)) in pts.iter().enumerate() {
-            // 3DGS initialises σ to the mean distance to the 3 nearest points; our kernel has no
-            // ½, so s = √2·σ gives the same footprint.
-            let s = (nn[k] * std::f64::consts::SQRT_2).max(min_scale);
-            let bands = (0..prims.bands)
-                .map(|_| {
-                    let d = random_unit(&mut rng);
-                    let f = rng.random_range(0.5..2.0) / (4.0 * s);
-                    (
-                        0.0,
-                        [d[0] * f, d[1] * f, d[2] * f],
-                        rng.random_range(0.0..std::f64::consts::TAU),
-                    )
-                })
-                .collect();
-            let c0 = crate::ply::SH_C0;
-            prims.push(&PrimitiveInit {
-                mean_m: *p,
-                scale_m: [s; 3],
-                quat: [1.0, 0.0, 0.0, 0.0],
-                opacity: self.cfg.init_opacity,
-                beta: 2.0,
-                omega_low: self.data.thermal_at(*p).map_or(0.5, f64::from),
-                bands,
-                sh: vec![rgb.map(|c| (f64::from(c) / 255.0 - 0.5) / c0)],
-            });
-        }
-        let mut prims = prims.cast::<f32>();
-        // β ≡ 2 during the warm-up (and for the whole run in modes without learnable β): frozen
-        // on the cheap Gaussian path; released at the warm-up's end (see `step`).
-        if !self.cfg.mode.learns_beta() || self.cfg.warmup > 0 {
-            prims.beta_raw.fill(BETA_RAW_FROZEN as f32);
-        }
-        self.grad_accum = vec![0.0; prims.len()];
-        self.grad_count = vec![0; prims.len()];
-        prims
-    }
-
-    fn initial_capacity(&self) -> CapacityReport {
-        let pairs = self.pairs.iter().filter(|p| p.is_some()).count();
-        let has_rgb = self.data.has_rgb();
-        let mut notes = Vec::new();
-        if !self.data.undistorted_models.is_empty() {
-            notes.push(format!(
-                "undistorted at load: {}",
-                self.data.undistorted_models.join(", ")
-            ));
-        }
-        CapacityReport {
-            mode: self.cfg.mode.to_string(),
-            colour_allocated: has_rgb,
-            colour_reason: if has_rgb {
-                "the dataset has RGB views".into()
-            } else {
-                "no RGB views: no SH colour allocated".into()
-            },
-            consistency_pairs: pairs,
-            consistency_reason: if !self.cfg.consist {
-                "disabled (--no-consist)".into()
-            } else if !(self.cfg.mode.learns_beta() || self.cfg.mode.has_bands()) {
-                "not needed: Ψ_high and Ψ_β are constant in this mode".into()
-            } else if pairs == 0 {
-                "skipped: no view pair overlaps enough".into()
-            } else {
-                format!("{pairs} views have an overlap partner")
-            },
-            bands_initial: self.prims.bands,
-            bands_now: self.prims.bands,
-            notes,
-            ..CapacityReport::default()
-        }
-    }
-
     /// Bytes of parameters plus the two Adam moments (each with its copy of the band mask).
     pub fn memory_bytes(&self) -> usize {
         3 * 4 * (params::value_count(&self.prims) + self.prims.band_count.len())
-    }
-
-    fn after_warmup(&self) -> bool {
-        self.iteration >= self.cfg.warmup
-    }
-
-    fn lrs(&self) -> GroupLrs {
-        let mut lr = self.cfg.lr;
-        let t = (self.iteration as f64 / self.cfg.iters.max(1) as f64).clamp(0.0, 1.0);
-        lr.means *= self.extent_m * self.cfg.means_lr_final_ratio.powf(t);
-        let warm = self.after_warmup();
-        if !(self.cfg.mode.learns_beta() && warm) {
-            lr.beta = 0.0;
-        }
-        if !(self.prims.bands > 0 && warm) {
-            lr.band_amp = 0.0;
-            lr.band_freq = 0.0;
-            lr.band_phase = 0.0;
-        }
-        lr
-    }
-
-    fn loss_weights(&self) -> LossWeights {
-        let warm = self.after_warmup();
-        LossWeights {
-            lambda_dssim: self.cfg.weights.dssim,
-            lambda_consist: self.cfg.weights.consist,
-            lambda_sparse: if warm && self.cfg.sparse && self.prims.bands > 0 {
-                self.cfg.weights.sparse
-            } else {
-                0.0
-            },
-            lambda_smooth: if warm && self.cfg.smooth && self.cfg.mode.learns_beta() {
-                self.cfg.weights.smooth
-            } else {
-                0.0
-            },
-        }
-    }
-
-    fn consist_active(&self) -> bool {
-        self.cfg.consist
-            && self.after_warmup()
-            && (self.cfg.mode.learns_beta() || self.prims.bands > 0)
-            && self.cfg.consist_every > 0
-            && self.iteration.is_multiple_of(self.cfg.consist_every)
-    }
-
-    /// The view of a step and its consistency partner, from the view `drawn` at random (see
-    /// [`ConsistPartner`]): with [`ConsistPartner::Previous`], a step that follows a step
-    /// without a term (on view i, whose G-buffers are kept) trains one of i's overlapping
-    /// views j, drawn from `rng`, against them instead of `drawn`.
-    fn schedule(&self, drawn: usize, rng: &mut ChaCha8Rng) -> (usize, Option<PairChoice>) {
-        if !self.consist_active() {
-            return (drawn, None);
-        }
-        match self.cfg.consist_partner {
-            ConsistPartner::Render => (drawn, self.pairs[drawn].map(PairChoice::Render)),
-            ConsistPartner::Previous => match &self.kept {
-                // One of i's overlapping views at random, not i's best partner: views that are
-                // nobody's best partner would otherwise train only on lead steps.
-                Some(k) if !k.followed && k.iteration + 1 == self.iteration => {
-                    match self.neighbours[k.view].as_slice() {
-                        [] => (drawn, None),
-                        near => (
-                            near[rng.random_range(0..near.len())],
-                            Some(PairChoice::Previous(k.view)),
-                        ),
-                    }
-                }
-                _ => (drawn, None),
-            },
-        }
     }
 
     /// Records the step's training view `vi` as kept for the next step (`gbuffers`: the host's
@@ -677,9 +439,17 @@ impl<B: Backend> Trainer<B> {
             self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.iteration,
         );
         let drawn = self.data.train[rng.random_range(0..self.data.train.len())];
-        if self.iteration == self.cfg.warmup && self.cfg.mode.learns_beta() {
-            self.sync_host()?;
-            self.release_warmup_beta();
+        if self.state.warmup_ended_at.is_none() && self.after_warmup() {
+            self.state.warmup_ended_at = Some(self.iteration);
+            if self.cfg.mode.learns_beta() || self.prims.bands > 0 {
+                self.sync_host()?;
+            }
+            if self.cfg.mode.learns_beta() {
+                self.release_warmup_beta();
+            }
+            if self.prims.bands > 0 {
+                self.release_warmup_bands();
+            }
         }
         let weights = self.loss_weights();
         let has_rgb = !self.prims.sh.is_empty();
@@ -725,23 +495,12 @@ impl<B: Backend> Trainer<B> {
         };
         self.iteration += 1;
 
-        let d = self.cfg.densify;
-        // As 3DGS (15 000 of 30 000): no density changes in the second half of the run, so the
-        // last primitives added have time to settle.
-        if d.every > 0
-            && self.iteration >= d.from
-            && self.iteration < d.until.min(self.cfg.iters / 2)
-            && self.iteration.is_multiple_of(d.every)
-        {
+        if self.densify_due() {
             self.sync_host()?;
             self.densify(&mut rng);
         }
-        let c = self.cfg.capacity;
-        if (self.prims.bands > 0 || self.cfg.mode.learns_beta())
-            && c.every > 0
-            && self.iteration > self.cfg.warmup
-            && (self.iteration - self.cfg.warmup).is_multiple_of(c.every)
-        {
+        if self.capacity_due() {
+            self.state.capacity_checks += 1;
             self.sync_host()?;
             if self.prims.bands > 0 {
                 self.drop_bands();
@@ -847,17 +606,7 @@ impl<B: Backend> Trainer<B> {
             }
         };
 
-        // Densification statistics: screen-space positional gradient ‖dL/dμ‖·z/f.
-        for i in 0..self.prims.len() {
-            let g = &grads.means[3 * i..3 * i + 3];
-            let n = f64::from(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-            if n > 0.0 && n.is_finite() {
-                let mu = self.prims.mean(i).map(f64::from);
-                let z = cam_i.to_cam(mu)[2].abs();
-                self.grad_accum[i] += n * z / cam_i.fx_px;
-                self.grad_count[i] += 1;
-            }
-        }
+        self.accumulate_densify_stats(&cam_i, &grads.means);
 
         self.adam
             .step(&mut self.prims, &grads, lrs, &AdamParams::default());
@@ -865,225 +614,6 @@ impl<B: Backend> Trainer<B> {
             *s = s.max(self.min_log_scale);
         }
         Ok(loss)
-    }
-
-    /// End of the warm-up: every frozen β becomes learnable (β = 2 + 4.5e-5).
-    fn release_warmup_beta(&mut self) {
-        // The kept G-buffers show the primitives before this change.
-        self.kept = None;
-        let mut released = 0;
-        for (r, (m, v)) in self.prims.beta_raw.iter_mut().zip(
-            self.adam
-                .m
-                .beta_raw
-                .iter_mut()
-                .zip(&mut self.adam.v.beta_raw),
-        ) {
-            if is_beta_frozen(f64::from(*r)) {
-                *r = BETA_RAW_GAUSSIAN as f32;
-                (*m, *v) = (0.0, 0.0);
-                released += 1;
-            }
-        }
-        tracing::debug!(
-            iteration = self.iteration,
-            released,
-            "warm-up over: β learnable"
-        );
-    }
-
-    /// Snaps primitives with β ≤ `gaussian_beta_max` and no live band to β = 2, frozen.
-    fn freeze_gaussians(&mut self) {
-        // The kept G-buffers show the primitives before this change.
-        self.kept = None;
-        let max = self.cfg.capacity.gaussian_beta_max;
-        let mut frozen = 0;
-        for i in 0..self.prims.len() {
-            let raw = f64::from(self.prims.beta_raw[i]);
-            if !is_beta_frozen(raw) && beta_of_raw(raw).0 <= max && self.prims.live_bands(i) == 0 {
-                self.prims.beta_raw[i] = BETA_RAW_FROZEN as f32;
-                self.adam.m.beta_raw[i] = 0.0;
-                self.adam.v.beta_raw[i] = 0.0;
-                frozen += 1;
-            }
-        }
-        self.state.capacity.gaussian_frozen_last_check = frozen;
-        tracing::debug!(
-            iteration = self.iteration,
-            frozen,
-            "β snapped to 2 (Gaussian path)"
-        );
-    }
-
-    /// Clone/split/prune under the budget (see [`Densify`]).
-    fn densify(&mut self, rng: &mut ChaCha8Rng) {
-        // The kept G-buffers show the primitives before this change.
-        self.kept = None;
-        let d = self.cfg.densify;
-        let n = self.prims.len();
-        let mut cand: Vec<(f64, usize)> = (0..n)
-            .filter(|&i| self.grad_count[i] > 0)
-            .map(|i| (self.grad_accum[i] / f64::from(self.grad_count[i]), i))
-            .filter(|(g, _)| *g > d.grad_threshold)
-            .collect();
-        cand.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let room = self.cfg.budget.saturating_sub(n);
-        cand.truncate(room);
-        let split_scale = d.split_scale_frac * self.extent_m;
-        let mut keep: Vec<usize> = Vec::with_capacity(n + cand.len());
-        let mut split = vec![false; n];
-        let mut new_rows: Vec<(usize, Option<[f32; 3]>)> = Vec::new();
-        for &(_, i) in &cand {
-            let s = self.prims.scales(i);
-            if f64::from(s[0].max(s[1]).max(s[2])) > split_scale {
-                split[i] = true;
-                // Two samples from the primitive replace it.
-                for _ in 0..2 {
-                    let (rot, _, _) = crate::primitive::rotation_from_quat(self.prims.quat(i));
-                    let z: [f32; 3] = [0, 1, 2].map(|a| {
-                        let u: f64 = rng.random_range(-1.0..1.0);
-                        (u * f64::from(s[a]) / std::f64::consts::SQRT_2) as f32
-                    });
-                    let off = [0, 1, 2]
-                        .map(|r| rot[3 * r] * z[0] + rot[3 * r + 1] * z[1] + rot[3 * r + 2] * z[2]);
-                    new_rows.push((i, Some(off)));
-                }
-            } else {
-                new_rows.push((i, None));
-            }
-        }
-        for (i, &was_split) in split.iter().enumerate() {
-            let o = f64::from(self.prims.opacity(i).0);
-            if !was_split && o >= d.prune_opacity {
-                keep.push(i);
-            }
-        }
-        let n_keep = keep.len();
-        let idx: Vec<usize> = keep
-            .iter()
-            .copied()
-            .chain(new_rows.iter().map(|r| r.0))
-            .collect();
-        let mut p = params::gather(&self.prims, &idx);
-        let mut m = params::gather(&self.adam.m, &idx);
-        let mut v = params::gather(&self.adam.v, &idx);
-        let ln16 = 1.6f32.ln();
-        for (k, (_, off)) in new_rows.iter().enumerate() {
-            let r = n_keep + k;
-            if let Some(off) = off {
-                for (a, o) in off.iter().enumerate() {
-                    p.means[3 * r + a] += o;
-                    p.log_scales[3 * r + a] =
-                        (p.log_scales[3 * r + a] - ln16).max(self.min_log_scale);
-                }
-            }
-        }
-        params::zero_rows_from(&mut m, n_keep);
-        params::zero_rows_from(&mut v, n_keep);
-        tracing::debug!(
-            iteration = self.iteration,
-            before = n,
-            after = p.len(),
-            densified = new_rows.len(),
-            "density control"
-        );
-        self.prims = p;
-        self.adam.m = m;
-        self.adam.v = v;
-        self.grad_accum = vec![0.0; self.prims.len()];
-        self.grad_count = vec![0; self.prims.len()];
-    }
-
-    /// Drops negligible bands per primitive and compacts the band storage.
-    fn drop_bands(&mut self) {
-        // The kept G-buffers show the primitives before this change.
-        self.kept = None;
-        let m = self.prims.bands;
-        let thr = self.cfg.capacity.band_amp_threshold as f32;
-        let mut keep: Vec<Vec<usize>> = Vec::with_capacity(self.prims.len());
-        let mut dropped = 0;
-        for i in 0..self.prims.len() {
-            let mut live: Vec<usize> = (0..self.prims.live_bands(i))
-                .filter(|&j| self.prims.band_amp[m * i + j].abs() >= thr)
-                .collect();
-            live.sort_by(|&a, &b| {
-                self.prims.band_amp[m * i + b]
-                    .abs()
-                    .total_cmp(&self.prims.band_amp[m * i + a].abs())
-            });
-            dropped += self.prims.live_bands(i) - live.len();
-            keep.push(live);
-        }
-        let new_m = keep.iter().map(Vec::len).max().unwrap_or(0);
-        let before = self.state.step_ms_sum / self.state.step_count.max(1) as f64;
-        self.prims = params::compact_bands(&self.prims, &keep, new_m);
-        self.adam.m = params::compact_bands(&self.adam.m, &keep, new_m);
-        self.adam.v = params::compact_bands(&self.adam.v, &keep, new_m);
-        let cap = &mut self.state.capacity;
-        cap.bands_dropped_total = dropped;
-        if new_m < m {
-            cap.step_ms_before_compaction = Some(before);
-            cap.step_ms_after_compaction = None;
-            self.state.step_ms_sum = 0.0;
-            self.state.step_count = 0;
-            tracing::info!(
-                iteration = self.iteration,
-                from = m,
-                to = new_m,
-                "band storage compacted"
-            );
-        }
-        cap.bands_now = new_m;
-    }
-
-    /// Renders the held-out views (all training views if there are none) and measures them.
-    pub fn evaluate(&mut self) -> Result<EvalSummary, TrainError> {
-        self.sync_host()?;
-        let ids = if self.data.test.is_empty() {
-            self.data.train.clone()
-        } else {
-            self.data.test.clone()
-        };
-        let mut out = Vec::new();
-        for i in ids {
-            let v = &self.data.views[i];
-            let Some(target) = &v.thermal else { continue };
-            let gb = self.backend.render(&self.prims, &v.camera)?;
-            out.push(view_metrics(
-                &v.name,
-                &gb.thermal,
-                target,
-                gb.width,
-                gb.height,
-                self.data.range.as_ref(),
-            ));
-        }
-        Ok(EvalSummary::from_views(out))
-    }
-
-    fn eval_row(&mut self) -> Result<MetricsRow, TrainError> {
-        let e = self.evaluate()?;
-        let loss = if self.state.loss_count > 0 {
-            self.state.loss_sum / self.state.loss_count as f64
-        } else {
-            f64::NAN
-        };
-        self.state.loss_sum = 0.0;
-        self.state.loss_count = 0;
-        let row = MetricsRow {
-            iteration: self.iteration,
-            seconds: self.train_seconds,
-            loss,
-            psnr: e.psnr,
-            ssim: e.ssim,
-            kelvin_mae: e.kelvin_mae,
-            kelvin_rmse: e.kelvin_rmse,
-            primitives: self.prims.len(),
-            memory_bytes: self.memory_bytes(),
-        };
-        report::append_row(&self.run_dir.join(files::METRICS_CSV), &row)?;
-        self.state.last_eval_s = self.train_seconds;
-        Ok(row)
     }
 
     /// Writes `checkpoint.json` atomically.
@@ -1104,7 +634,8 @@ impl<B: Backend> Trainer<B> {
         Ok(())
     }
 
-    /// Trains until `cfg.iters` or until `stop` is set (then checkpoints and returns
+    /// Trains until `cfg.iters` (or `cfg.time_budget_s` of training time; see the
+    /// `schedule` module) or until `stop` is set (then checkpoints and returns
     /// [`Outcome::Interrupted`]). Writes the outputs when finished. A non-finite loss stops the
     /// run with [`TrainError::NonFinite`] and non-finite parameters are refused by the
     /// checkpoint writer, so a diverged run never overwrites its last good checkpoint.
@@ -1117,7 +648,7 @@ impl<B: Backend> Trainer<B> {
             let row = self.eval_row()?;
             on_event(&Event::Eval(row));
         }
-        while self.iteration < self.cfg.iters {
+        while !self.finished() {
             if stop.load(Ordering::SeqCst) {
                 self.save_checkpoint()?;
                 on_event(&Event::Checkpoint {
@@ -1145,9 +676,11 @@ impl<B: Backend> Trainer<B> {
             on_event(&Event::Step {
                 iteration: self.iteration,
                 loss,
+                seconds: self.train_seconds,
+                primitives: self.prims.len(),
             });
             if self.train_seconds - self.state.last_eval_s >= self.cfg.eval_every_s
-                && self.iteration < self.cfg.iters
+                && !self.finished()
             {
                 let row = self.eval_row()?;
                 on_event(&Event::Eval(row));
@@ -1167,108 +700,6 @@ impl<B: Backend> Trainer<B> {
         });
         self.write_outputs()?;
         Ok(Outcome::Finished)
-    }
-
-    /// The capacity report as of now.
-    pub fn capacity_report(&self) -> CapacityReport {
-        let mut cap = self.state.capacity.clone();
-        let m = self.prims.bands;
-        cap.bands_now = m;
-        cap.primitives = self.prims.len();
-        cap.memory_bytes = self.memory_bytes();
-        // Each band is 5 floats; ×3 with the Adam moments.
-        cap.band_bytes_saved =
-            (cap.bands_initial - m.min(cap.bands_initial)) * 5 * 4 * 3 * self.prims.len();
-        cap.gaussian_path_primitives = (0..self.prims.len())
-            .filter(|&i| {
-                is_beta_frozen(f64::from(self.prims.beta_raw[i])) && self.prims.live_bands(i) == 0
-            })
-            .count();
-        cap.band_slots_dropped = (0..self.prims.len())
-            .map(|i| m - self.prims.live_bands(i))
-            .sum();
-        if cap.step_ms_before_compaction.is_some() && self.state.step_count > 0 {
-            cap.step_ms_after_compaction =
-                Some(self.state.step_ms_sum / self.state.step_count as f64);
-        }
-        cap
-    }
-
-    /// PLY, renders and G-buffers of the test views, β histogram, plots, eval and capacity JSON.
-    pub fn write_outputs(&mut self) -> Result<(), TrainError> {
-        self.sync_host()?;
-        let dir = self.run_dir.clone();
-        crate::ply::write_ply(&dir.join(files::PLY), &self.prims)?;
-        let renders = dir.join(files::RENDERS);
-        let gbuf = dir.join(files::GBUFFERS);
-        std::fs::create_dir_all(&renders).map_err(io_err(&renders))?;
-        std::fs::create_dir_all(&gbuf).map_err(io_err(&gbuf))?;
-        for &i in &self.data.test {
-            let v = &self.data.views[i];
-            let gb = self.backend.render(&self.prims, &v.camera)?;
-            let stem = Path::new(&v.name)
-                .file_stem()
-                .map_or_else(|| format!("view{i}"), |s| s.to_string_lossy().into_owned());
-            if let Some(range) = &self.data.range {
-                report::write_thermal_png16(
-                    &renders.join(format!("{stem}.png")),
-                    &gb.thermal,
-                    gb.width,
-                    gb.height,
-                    range,
-                )?;
-            }
-            report::write_gbuffers(&gbuf, &stem, &gb)?;
-        }
-        let betas: Vec<f64> = self
-            .prims
-            .beta_raw
-            .iter()
-            .map(|&r| beta_of_raw(f64::from(r)).0)
-            .collect();
-        report::plot_beta_histogram(&dir.join(files::BETA_HIST), &betas)?;
-        let rows = report::read_rows(&dir.join(files::METRICS_CSV))?;
-        report::plot_runs(
-            &dir.join(files::METRICS_PNG),
-            &[(self.cfg.mode.to_string(), rows)],
-        )?;
-        let eval = self.evaluate()?;
-        write_json(&dir.join(files::EVAL), &eval)?;
-        let mut cap = self.capacity_report();
-        if let Some((with, general)) = self.cpu_shortcut_timing()? {
-            cap.cpu_step_ms_with_shortcuts = Some(with);
-            cap.cpu_step_ms_general_path = Some(general);
-        }
-        write_json(&dir.join(files::CAPACITY), &cap)?;
-        Ok(())
-    }
-}
-
-impl<B: Backend> Trainer<B> {
-    /// CPU reference forward + backward of the first training view, best of 3, with the
-    /// renderer's shortcuts and with every primitive forced through the general path (ms).
-    fn cpu_shortcut_timing(&self) -> Result<Option<(f64, f64)>, TrainError> {
-        use crate::render::{RenderSettings, prepare, render_backward_prepared, render_prepared};
-        let Some(&vi) = self.data.train.first() else {
-            return Ok(None);
-        };
-        let cam = self.data.views[vi].camera;
-        let prep = prepare(&self.prims, &cam, &RenderSettings::default())?;
-        let general = prep.without_shortcuts(self.prims.bands);
-        let mut up = GBuffers::<f32>::zeros(prep.width, prep.height, !self.prims.sh.is_empty());
-        up.thermal.fill(1.0);
-        let time = |p: &crate::render::Prepared<f32>| {
-            (0..3)
-                .map(|_| {
-                    let t0 = Instant::now();
-                    let gb = render_prepared(&self.prims, p);
-                    let g = render_backward_prepared(&self.prims, p, &up);
-                    std::hint::black_box((gb, g));
-                    t0.elapsed().as_secs_f64() * 1e3
-                })
-                .fold(f64::INFINITY, f64::min)
-        };
-        Ok(Some((time(&prep), time(&general))))
     }
 }
 
@@ -1295,203 +726,6 @@ fn thermal_step<'a>(
         }),
         weights,
         consistency: ConsistencyOptions::default(),
-    })
-}
-
-fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainError> {
-    let s = serde_json::to_string_pretty(v).map_err(|e| TrainError::Config {
-        reason: e.to_string(),
-    })?;
-    std::fs::write(path, s).map_err(io_err(path))
-}
-
-fn random_unit(rng: &mut ChaCha8Rng) -> [f64; 3] {
-    loop {
-        let v: [f64; 3] = [0, 1, 2].map(|_| rng.random_range(-1.0..1.0));
-        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if n > 0.1 && n <= 1.0 {
-            return v.map(|x| x / n);
-        }
-    }
-}
-
-/// Mean distance to the 3 nearest neighbours (grid search over the 27 cells around each point;
-/// a point with fewer neighbours there gets the mean of the others, or a scene-size default).
-fn knn3_mean_distance(pts: &[[f64; 3]], lo: [f64; 3], hi: [f64; 3]) -> Vec<f64> {
-    use std::collections::HashMap;
-    let n = pts.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2))
-        .sqrt()
-        .max(1e-6);
-    let cell = (diag / (n as f64).cbrt()).max(1e-9);
-    let key = |p: &[f64; 3]| [0, 1, 2].map(|a| ((p[a] - lo[a]) / cell).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, p) in pts.iter().enumerate() {
-        grid.entry(key(p)).or_default().push(i);
-    }
-    let mut out = vec![f64::NAN; n];
-    for (i, p) in pts.iter().enumerate() {
-        let k = key(p);
-        let mut best = [f64::INFINITY; 3];
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(list) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        for &j in list {
-                            if j == i {
-                                continue;
-                            }
-                            let q = &pts[j];
-                            let d = ((p[0] - q[0]).powi(2)
-                                + (p[1] - q[1]).powi(2)
-                                + (p[2] - q[2]).powi(2))
-                            .sqrt();
-                            if d < best[2] {
-                                best[2] = d;
-                                best.sort_by(f64::total_cmp);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        let found: Vec<f64> = best
-            .iter()
-            .copied()
-            .filter(|d| d.is_finite() && *d > 0.0)
-            .collect();
-        if !found.is_empty() {
-            out[i] = found.iter().sum::<f64>() / found.len() as f64;
-        }
-    }
-    let valid: Vec<f64> = out.iter().copied().filter(|d| d.is_finite()).collect();
-    let fallback = if valid.is_empty() {
-        cell
-    } else {
-        valid.iter().sum::<f64>() / valid.len() as f64
-    };
-    out.iter()
-        .map(|d| if d.is_finite() { *d } else { fallback })
-        .collect()
-}
-
-/// Overlap partner of every training view (see the module docs), and every training view's
-/// overlapping views (overlap ≥ `min_overlap`, ascending index).
-fn choose_pairs(
-    data: &Dataset,
-    centre: [f64; 3],
-    min_overlap: f64,
-) -> (Vec<Option<usize>>, Vec<Vec<usize>>) {
-    let overlap = |a: &PinholeCamera, b: &PinholeCamera| -> f64 {
-        let depth = a.to_cam(centre)[2];
-        if depth.is_nan() || depth <= 0.0 {
-            return 0.0;
-        }
-        let mut hit = 0;
-        const G: usize = 6;
-        for gy in 0..G {
-            for gx in 0..G {
-                let u = (gx as f64 + 0.5) / G as f64 * a.width as f64 - 0.5;
-                let v = (gy as f64 + 0.5) / G as f64 * a.height as f64 - 0.5;
-                let pc = b.to_cam(a.unproject(u, v, depth));
-                if pc[2] > 0.0 {
-                    let [x, y] = b.project_cam(pc);
-                    if x >= 0.0
-                        && y >= 0.0
-                        && x <= (b.width - 1) as f64
-                        && y <= (b.height - 1) as f64
-                    {
-                        hit += 1;
-                    }
-                }
-            }
-        }
-        f64::from(hit) / (G * G) as f64
-    };
-    let mut pairs = vec![None; data.views.len()];
-    let mut neighbours = vec![Vec::new(); data.views.len()];
-    for &i in &data.train {
-        let a = &data.views[i].camera;
-        let ca = a.centre_world();
-        let mut best: Option<(f64, usize)> = None;
-        for &j in &data.train {
-            if j == i {
-                continue;
-            }
-            let b = &data.views[j].camera;
-            let cb = b.centre_world();
-            let baseline =
-                ((ca[0] - cb[0]).powi(2) + (ca[1] - cb[1]).powi(2) + (ca[2] - cb[2]).powi(2))
-                    .sqrt();
-            if baseline < 1e-9 {
-                continue;
-            }
-            let o = overlap(a, b);
-            if o >= min_overlap {
-                neighbours[i].push(j);
-                if best.is_none_or(|(bo, _)| o > bo) {
-                    best = Some((o, j));
-                }
-            }
-        }
-        pairs[i] = best.map(|b| b.1);
-    }
-    (pairs, neighbours)
-}
-
-/// Held-out evaluation of a finished (or checkpointed) run, as `s3tir-train eval` prints it.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct RunEval {
-    pub run_dir: PathBuf,
-    pub mode: String,
-    pub psnr: f64,
-    pub ssim: f64,
-    /// `null` when the data are not radiometric.
-    pub kelvin_mae: Option<f64>,
-    pub kelvin_rmse: Option<f64>,
-    pub primitives: usize,
-    pub views: Vec<crate::metrics::ViewMetrics>,
-}
-
-/// Reads `RUN_DIR/config.json`.
-pub fn load_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
-    let path = run_dir.join(files::CONFIG);
-    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Run {
-        run_dir: run_dir.to_path_buf(),
-        reason: format!("{}: {e}", path.display()),
-    })
-}
-
-/// Evaluates the run's primitives (its PLY, or its checkpoint when there is no PLY yet) on the
-/// held-out views of its dataset.
-pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, TrainError> {
-    let cfg = load_config(run_dir)?;
-    let data = Dataset::load(&cfg.data, &cfg.load)?;
-    let ply = run_dir.join(files::PLY);
-    let prims = if ply.exists() {
-        crate::ply::read_ply(&ply)?
-    } else {
-        checkpoint::load(&run_dir.join(files::CHECKPOINT))?
-            .primitives
-            .into()
-    };
-    let mode = cfg.mode.to_string();
-    let mut t = Trainer::bare(cfg, data, backend, run_dir);
-    t.prims = prims;
-    let e = t.evaluate()?;
-    Ok(RunEval {
-        run_dir: run_dir.to_path_buf(),
-        mode,
-        psnr: e.psnr,
-        ssim: e.ssim,
-        kelvin_mae: e.kelvin_mae,
-        kelvin_rmse: e.kelvin_rmse,
-        primitives: t.prims.len(),
-        views: e.views,
     })
 }
 

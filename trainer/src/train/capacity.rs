@@ -1,0 +1,222 @@
+//! Capacity adaptation (dropping negligible bands, snapping Gaussian-like primitives to the
+//! cheap path) and its report.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::density::DensifyRound;
+use super::{Backend, TrainError, Trainer, params};
+use crate::primitive::{BETA_RAW_FROZEN, beta_of_raw, is_beta_frozen};
+use crate::render::GBuffers;
+
+impl<B: Backend> Trainer<B> {
+    pub(super) fn initial_capacity(&self) -> CapacityReport {
+        let pairs = self.pairs.iter().filter(|p| p.is_some()).count();
+        let has_rgb = self.data.has_rgb();
+        let mut notes = Vec::new();
+        if !self.data.undistorted_models.is_empty() {
+            notes.push(format!(
+                "undistorted at load: {}",
+                self.data.undistorted_models.join(", ")
+            ));
+        }
+        CapacityReport {
+            mode: self.cfg.mode.to_string(),
+            colour_allocated: has_rgb,
+            colour_reason: if has_rgb {
+                "the dataset has RGB views".into()
+            } else {
+                "no RGB views: no SH colour allocated".into()
+            },
+            consistency_pairs: pairs,
+            consistency_reason: if !self.cfg.consist {
+                "disabled (--no-consist)".into()
+            } else if !(self.cfg.mode.learns_beta() || self.cfg.mode.has_bands()) {
+                "not needed: Ψ_high and Ψ_β are constant in this mode".into()
+            } else if pairs == 0 {
+                "skipped: no view pair overlaps enough".into()
+            } else {
+                format!("{pairs} views have an overlap partner")
+            },
+            bands_initial: self.prims.bands,
+            bands_now: self.prims.bands,
+            notes,
+            ..CapacityReport::default()
+        }
+    }
+
+    /// Snaps primitives with β ≤ `gaussian_beta_max` and no live band to β = 2, frozen.
+    pub(super) fn freeze_gaussians(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
+        let max = self.cfg.capacity.gaussian_beta_max;
+        let mut frozen = 0;
+        for i in 0..self.prims.len() {
+            let raw = f64::from(self.prims.beta_raw[i]);
+            if !is_beta_frozen(raw) && beta_of_raw(raw).0 <= max && self.prims.live_bands(i) == 0 {
+                self.prims.beta_raw[i] = BETA_RAW_FROZEN as f32;
+                self.adam.m.beta_raw[i] = 0.0;
+                self.adam.v.beta_raw[i] = 0.0;
+                frozen += 1;
+            }
+        }
+        self.state.capacity.gaussian_frozen_last_check = frozen;
+        tracing::debug!(
+            iteration = self.iteration,
+            frozen,
+            "β snapped to 2 (Gaussian path)"
+        );
+    }
+
+    /// Drops negligible bands per primitive and compacts the band storage.
+    pub(super) fn drop_bands(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
+        let m = self.prims.bands;
+        let thr = self.cfg.capacity.band_amp_threshold as f32;
+        let mut keep: Vec<Vec<usize>> = Vec::with_capacity(self.prims.len());
+        let mut dropped = 0;
+        for i in 0..self.prims.len() {
+            let mut live: Vec<usize> = (0..self.prims.live_bands(i))
+                .filter(|&j| self.prims.band_amp[m * i + j].abs() >= thr)
+                .collect();
+            live.sort_by(|&a, &b| {
+                self.prims.band_amp[m * i + b]
+                    .abs()
+                    .total_cmp(&self.prims.band_amp[m * i + a].abs())
+            });
+            dropped += self.prims.live_bands(i) - live.len();
+            keep.push(live);
+        }
+        let new_m = keep.iter().map(Vec::len).max().unwrap_or(0);
+        let before = self.state.step_ms_sum / self.state.step_count.max(1) as f64;
+        self.prims = params::compact_bands(&self.prims, &keep, new_m);
+        self.adam.m = params::compact_bands(&self.adam.m, &keep, new_m);
+        self.adam.v = params::compact_bands(&self.adam.v, &keep, new_m);
+        let cap = &mut self.state.capacity;
+        cap.bands_dropped_total = dropped;
+        if new_m < m {
+            cap.step_ms_before_compaction = Some(before);
+            cap.step_ms_after_compaction = None;
+            self.state.step_ms_sum = 0.0;
+            self.state.step_count = 0;
+            tracing::info!(
+                iteration = self.iteration,
+                from = m,
+                to = new_m,
+                "band storage compacted"
+            );
+        }
+        cap.bands_now = new_m;
+    }
+
+    /// The capacity report as of now.
+    pub fn capacity_report(&self) -> CapacityReport {
+        let mut cap = self.state.capacity.clone();
+        let m = self.prims.bands;
+        cap.bands_now = m;
+        cap.primitives = self.prims.len();
+        cap.memory_bytes = self.memory_bytes();
+        // Each band is 5 floats; ×3 with the Adam moments.
+        cap.band_bytes_saved =
+            (cap.bands_initial - m.min(cap.bands_initial)) * 5 * 4 * 3 * self.prims.len();
+        cap.gaussian_path_primitives = (0..self.prims.len())
+            .filter(|&i| {
+                is_beta_frozen(f64::from(self.prims.beta_raw[i])) && self.prims.live_bands(i) == 0
+            })
+            .count();
+        cap.band_slots_dropped = (0..self.prims.len())
+            .map(|i| m - self.prims.live_bands(i))
+            .sum();
+        if cap.step_ms_before_compaction.is_some() && self.state.step_count > 0 {
+            cap.step_ms_after_compaction =
+                Some(self.state.step_ms_sum / self.state.step_count as f64);
+        }
+        cap
+    }
+
+    /// CPU reference forward + backward of the first training view, best of 3, with the
+    /// renderer's shortcuts and with every primitive forced through the general path (ms).
+    pub(super) fn cpu_shortcut_timing(&self) -> Result<Option<(f64, f64)>, TrainError> {
+        use crate::render::{RenderSettings, prepare, render_backward_prepared, render_prepared};
+        let Some(&vi) = self.data.train.first() else {
+            return Ok(None);
+        };
+        let cam = self.data.views[vi].camera;
+        let prep = prepare(&self.prims, &cam, &RenderSettings::default())?;
+        let general = prep.without_shortcuts(self.prims.bands);
+        let mut up = GBuffers::<f32>::zeros(prep.width, prep.height, !self.prims.sh.is_empty());
+        up.thermal.fill(1.0);
+        let time = |p: &crate::render::Prepared<f32>| {
+            (0..3)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    let gb = render_prepared(&self.prims, p);
+                    let g = render_backward_prepared(&self.prims, p, &up);
+                    std::hint::black_box((gb, g));
+                    t0.elapsed().as_secs_f64() * 1e3
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        Ok(Some((time(&prep), time(&general))))
+    }
+}
+
+/// What capacity adaptation left out and what it saved.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CapacityReport {
+    pub mode: String,
+    pub colour_allocated: bool,
+    pub colour_reason: String,
+    pub consistency_pairs: usize,
+    pub consistency_reason: String,
+    pub bands_initial: usize,
+    pub bands_now: usize,
+    /// Bands dropped at the last check (sum over primitives).
+    pub bands_dropped_total: usize,
+    /// Dropped band slots still in storage (below M, above a primitive's live count): the
+    /// renderer skips them and Adam never updates them.
+    #[serde(default)]
+    pub band_slots_dropped: usize,
+    /// Bytes freed by band compaction (parameters and both Adam moments).
+    pub band_bytes_saved: usize,
+    /// Primitives on the cheap Gaussian path (β exactly 2 and frozen, no live band).
+    pub gaussian_path_primitives: usize,
+    /// Primitives snapped to β = 2 and frozen by the last check.
+    #[serde(default)]
+    pub gaussian_frozen_last_check: usize,
+    /// CPU reference renderer, forward + backward of one training view at the end of the run:
+    /// with the shortcuts (cheap Gaussian path, dropped slots skipped) and with every primitive
+    /// forced through the general path (ms, best of 3).
+    #[serde(default)]
+    pub cpu_step_ms_with_shortcuts: Option<f64>,
+    #[serde(default)]
+    pub cpu_step_ms_general_path: Option<f64>,
+    pub primitives: usize,
+    pub memory_bytes: usize,
+    /// Mean step time before and after the last band compaction (ms).
+    pub step_ms_before_compaction: Option<f64>,
+    pub step_ms_after_compaction: Option<f64>,
+    /// Every density-control round so far: primitives before and after, cloned, split,
+    /// pruned, left out for the budget.
+    #[serde(default)]
+    pub densify_rounds: Vec<DensifyRound>,
+    /// Sums over the rounds.
+    #[serde(default)]
+    pub densify_cloned: usize,
+    #[serde(default)]
+    pub densify_split: usize,
+    #[serde(default)]
+    pub densify_pruned: usize,
+    pub notes: Vec<String>,
+}
+
+impl CapacityReport {
+    pub(super) fn record_densify(&mut self, round: DensifyRound) {
+        self.densify_cloned += round.cloned;
+        self.densify_split += round.split;
+        self.densify_pruned += round.pruned;
+        self.densify_rounds.push(round);
+    }
+}

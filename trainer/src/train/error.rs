@@ -1,0 +1,53 @@
+//! The training loop's error type.
+
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+use crate::checkpoint::CheckpointError;
+use crate::dataset::DatasetError;
+use crate::error::TrainerError;
+use crate::ply::PlyError;
+use crate::report::ReportError;
+
+#[derive(Debug, Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Render(#[from] TrainerError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Ply(#[from] PlyError),
+    #[error(transparent)]
+    Report(#[from] ReportError),
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("configuration: {reason}")]
+    Config { reason: String },
+    #[error("run {run_dir}: {reason}")]
+    Run { run_dir: PathBuf, reason: String },
+    /// A step's loss is NaN or infinite: the run stops before anything is saved from it.
+    #[error(
+        "run {run_dir}: iteration {iteration}: the loss is {loss} (the run diverged); stopped \
+         without saving this state: the last checkpoint is intact, `--resume` continues from it \
+         (lower the learning rates if it recurs)"
+    )]
+    NonFinite {
+        run_dir: PathBuf,
+        iteration: u64,
+        loss: f64,
+    },
+}
+
+pub(super) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}

@@ -1,0 +1,174 @@
+//! Evaluation rows, the run's outputs (PLY, renders, G-buffers, plots, eval and capacity
+//! JSON) and the evaluation of a finished run.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::{Backend, TrainConfig, TrainError, Trainer, files, io_err};
+use crate::checkpoint;
+use crate::dataset::Dataset;
+use crate::metrics::{EvalSummary, view_metrics};
+use crate::primitive::beta_of_raw;
+use crate::report::{self, MetricsRow};
+
+impl<B: Backend> Trainer<B> {
+    /// Renders the held-out views (all training views if there are none) and measures them.
+    pub fn evaluate(&mut self) -> Result<EvalSummary, TrainError> {
+        self.sync_host()?;
+        let ids = if self.data.test.is_empty() {
+            self.data.train.clone()
+        } else {
+            self.data.test.clone()
+        };
+        let mut out = Vec::new();
+        for i in ids {
+            let v = &self.data.views[i];
+            let Some(target) = &v.thermal else { continue };
+            let gb = self.backend.render(&self.prims, &v.camera)?;
+            out.push(view_metrics(
+                &v.name,
+                &gb.thermal,
+                target,
+                gb.width,
+                gb.height,
+                self.data.range.as_ref(),
+            ));
+        }
+        Ok(EvalSummary::from_views(out))
+    }
+
+    pub(super) fn eval_row(&mut self) -> Result<MetricsRow, TrainError> {
+        let e = self.evaluate()?;
+        let loss = if self.state.loss_count > 0 {
+            self.state.loss_sum / self.state.loss_count as f64
+        } else {
+            f64::NAN
+        };
+        self.state.loss_sum = 0.0;
+        self.state.loss_count = 0;
+        let row = MetricsRow {
+            iteration: self.iteration,
+            seconds: self.train_seconds,
+            loss,
+            psnr: e.psnr,
+            ssim: e.ssim,
+            kelvin_mae: e.kelvin_mae,
+            kelvin_rmse: e.kelvin_rmse,
+            primitives: self.prims.len(),
+            memory_bytes: self.memory_bytes(),
+        };
+        report::append_row(&self.run_dir.join(files::METRICS_CSV), &row)?;
+        self.state.last_eval_s = self.train_seconds;
+        Ok(row)
+    }
+
+    /// PLY, renders and G-buffers of the test views, β histogram, plots, eval and capacity JSON.
+    pub fn write_outputs(&mut self) -> Result<(), TrainError> {
+        self.sync_host()?;
+        let dir = self.run_dir.clone();
+        crate::ply::write_ply(&dir.join(files::PLY), &self.prims)?;
+        let renders = dir.join(files::RENDERS);
+        let gbuf = dir.join(files::GBUFFERS);
+        std::fs::create_dir_all(&renders).map_err(io_err(&renders))?;
+        std::fs::create_dir_all(&gbuf).map_err(io_err(&gbuf))?;
+        for &i in &self.data.test {
+            let v = &self.data.views[i];
+            let gb = self.backend.render(&self.prims, &v.camera)?;
+            let stem = Path::new(&v.name)
+                .file_stem()
+                .map_or_else(|| format!("view{i}"), |s| s.to_string_lossy().into_owned());
+            if let Some(range) = &self.data.range {
+                report::write_thermal_png16(
+                    &renders.join(format!("{stem}.png")),
+                    &gb.thermal,
+                    gb.width,
+                    gb.height,
+                    range,
+                )?;
+            }
+            report::write_gbuffers(&gbuf, &stem, &gb)?;
+        }
+        let betas: Vec<f64> = self
+            .prims
+            .beta_raw
+            .iter()
+            .map(|&r| beta_of_raw(f64::from(r)).0)
+            .collect();
+        report::plot_beta_histogram(&dir.join(files::BETA_HIST), &betas)?;
+        let rows = report::read_rows(&dir.join(files::METRICS_CSV))?;
+        report::plot_runs(
+            &dir.join(files::METRICS_PNG),
+            &[(self.cfg.mode.to_string(), rows)],
+        )?;
+        let eval = self.evaluate()?;
+        write_json(&dir.join(files::EVAL), &eval)?;
+        let mut cap = self.capacity_report();
+        if let Some((with, general)) = self.cpu_shortcut_timing()? {
+            cap.cpu_step_ms_with_shortcuts = Some(with);
+            cap.cpu_step_ms_general_path = Some(general);
+        }
+        write_json(&dir.join(files::CAPACITY), &cap)?;
+        Ok(())
+    }
+}
+
+pub(super) fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainError> {
+    let s = serde_json::to_string_pretty(v).map_err(|e| TrainError::Config {
+        reason: e.to_string(),
+    })?;
+    std::fs::write(path, s).map_err(io_err(path))
+}
+
+/// Held-out evaluation of a finished (or checkpointed) run, as `s3tir-train eval` prints it.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct RunEval {
+    pub run_dir: PathBuf,
+    pub mode: String,
+    pub psnr: f64,
+    pub ssim: f64,
+    /// `null` when the data are not radiometric.
+    pub kelvin_mae: Option<f64>,
+    pub kelvin_rmse: Option<f64>,
+    pub primitives: usize,
+    pub views: Vec<crate::metrics::ViewMetrics>,
+}
+
+/// Reads `RUN_DIR/config.json`.
+pub fn load_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
+    let path = run_dir.join(files::CONFIG);
+    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Run {
+        run_dir: run_dir.to_path_buf(),
+        reason: format!("{}: {e}", path.display()),
+    })
+}
+
+/// Evaluates the run's primitives (its PLY, or its checkpoint when there is no PLY yet) on the
+/// held-out views of its dataset.
+pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, TrainError> {
+    let cfg = load_config(run_dir)?;
+    let data = Dataset::load(&cfg.data, &cfg.load)?;
+    let ply = run_dir.join(files::PLY);
+    let prims = if ply.exists() {
+        crate::ply::read_ply(&ply)?
+    } else {
+        checkpoint::load(&run_dir.join(files::CHECKPOINT))?
+            .primitives
+            .into()
+    };
+    let mode = cfg.mode.to_string();
+    let mut t = Trainer::bare(cfg, data, backend, run_dir);
+    t.prims = prims;
+    let e = t.evaluate()?;
+    Ok(RunEval {
+        run_dir: run_dir.to_path_buf(),
+        mode,
+        psnr: e.psnr,
+        ssim: e.ssim,
+        kelvin_mae: e.kelvin_mae,
+        kelvin_rmse: e.kelvin_rmse,
+        primitives: t.prims.len(),
+        views: e.views,
+    })
+}

@@ -1,0 +1,218 @@
+//! What changes with the run's progress: the warm-up's end, learning rates, loss weights,
+//! when density control runs, and the consistency pairing of each step.
+//!
+//! # Iterations or a wall-clock budget
+//! The schedule is written in iterations of a nominal run of `iters` (the paper's 30 000:
+//! warm-up 3 000, densification from 500 to 15 000, the position learning rate decaying over
+//! the whole run). Without a time budget the run is that many iterations. With
+//! `time_budget_s` the run stops when its training time (step time, as the error-vs-time plots
+//! count it: held-out evaluations and checkpoints excluded) reaches the budget, and the
+//! schedule follows the fraction of the budget spent instead: at 10 % of the time the warm-up
+//! ends, densification stops at half the time, the learning rate decays to its final value
+//! at the end. Cadences (`densify.every`, `capacity.every`, `consist_every`) stay in real
+//! iterations: they are about how many views a statistic averages, not about the run's length.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::init::draw_band;
+
+use super::{Backend, ConsistPartner, GroupLrs, PairChoice, Trainer};
+use crate::loss::LossWeights;
+use crate::primitive::{BETA_RAW_GAUSSIAN, is_beta_frozen};
+
+impl<B: Backend> Trainer<B> {
+    /// How far the run is, 0…1: iterations done of `iters`, or with a time budget the
+    /// training seconds spent of it.
+    pub fn progress(&self) -> f64 {
+        let p = match self.cfg.time_budget_s {
+            Some(budget) => self.train_seconds / budget,
+            None => self.iteration as f64 / self.cfg.iters.max(1) as f64,
+        };
+        p.clamp(0.0, 1.0)
+    }
+
+    /// Where the schedule is, in iterations of the nominal `iters`-long run: the iteration
+    /// itself, or with a time budget the same fraction of `iters` as of the budget spent.
+    pub(super) fn schedule_iteration(&self) -> u64 {
+        match self.cfg.time_budget_s {
+            Some(_) => (self.progress() * self.cfg.iters as f64) as u64,
+            None => self.iteration,
+        }
+    }
+
+    /// The run is over: `iters` iterations done, or the time budget spent.
+    pub fn finished(&self) -> bool {
+        match self.cfg.time_budget_s {
+            Some(budget) => self.train_seconds >= budget,
+            None => self.iteration >= self.cfg.iters,
+        }
+    }
+
+    /// The iteration at which the warm-up ended (`None`: not yet).
+    pub fn warmup_ended_at(&self) -> Option<u64> {
+        self.state.warmup_ended_at
+    }
+
+    pub(super) fn after_warmup(&self) -> bool {
+        self.schedule_iteration() >= self.cfg.warmup
+    }
+
+    /// Density control runs after this step: every `densify.every` iterations while the
+    /// schedule is in `[from, min(until, iters/2))` (3DGS: 15 000 of 30 000, so the last
+    /// primitives added have the second half of the run to settle).
+    pub(super) fn densify_due(&self) -> bool {
+        let d = self.cfg.densify;
+        let at = self.schedule_iteration();
+        d.every > 0
+            && at >= d.from
+            && at < d.until.min(self.cfg.iters / 2)
+            && self.iteration.is_multiple_of(d.every)
+    }
+
+    /// Capacity adaptation runs after this step, in modes with bands or learnable β: every
+    /// `capacity.every` iterations counted from the warm-up's end, or with a time budget each
+    /// time the schedule passes another `capacity.every` of the nominal run (so a short
+    /// budgeted run still drops its negligible bands: ~27 checks whatever its speed).
+    pub(super) fn capacity_due(&self) -> bool {
+        let c = self.cfg.capacity;
+        let Some(w) = self.state.warmup_ended_at else {
+            return false;
+        };
+        if !(self.prims.bands > 0 || self.cfg.mode.learns_beta()) || c.every == 0 {
+            return false;
+        }
+        match self.cfg.time_budget_s {
+            Some(_) => {
+                let since = self.schedule_iteration().saturating_sub(self.cfg.warmup);
+                since / c.every > self.state.capacity_checks
+            }
+            None => self.iteration > w && (self.iteration - w).is_multiple_of(c.every),
+        }
+    }
+
+    pub(super) fn lrs(&self) -> GroupLrs {
+        let mut lr = self.cfg.lr;
+        let t = self.progress();
+        lr.means *= self.extent_m * self.cfg.means_lr_final_ratio.powf(t);
+        let warm = self.after_warmup();
+        if !(self.cfg.mode.learns_beta() && warm) {
+            lr.beta = 0.0;
+        }
+        if !(self.prims.bands > 0 && warm) {
+            lr.band_amp = 0.0;
+            lr.band_freq = 0.0;
+            lr.band_phase = 0.0;
+        }
+        lr
+    }
+
+    pub(super) fn loss_weights(&self) -> LossWeights {
+        let warm = self.after_warmup();
+        LossWeights {
+            lambda_dssim: self.cfg.weights.dssim,
+            lambda_consist: self.cfg.weights.consist,
+            lambda_sparse: if warm && self.cfg.sparse && self.prims.bands > 0 {
+                self.cfg.weights.sparse
+            } else {
+                0.0
+            },
+            lambda_smooth: if warm && self.cfg.smooth && self.cfg.mode.learns_beta() {
+                self.cfg.weights.smooth
+            } else {
+                0.0
+            },
+        }
+    }
+
+    pub(super) fn consist_active(&self) -> bool {
+        self.cfg.consist
+            && self.after_warmup()
+            && (self.cfg.mode.learns_beta() || self.prims.bands > 0)
+            && self.cfg.consist_every > 0
+            && self.iteration.is_multiple_of(self.cfg.consist_every)
+    }
+
+    /// The view of a step and its consistency partner, from the view `drawn` at random (see
+    /// [`ConsistPartner`]): with [`ConsistPartner::Previous`], a step that follows a step
+    /// without a term (on view i, whose G-buffers are kept) trains one of i's overlapping
+    /// views j, drawn from `rng`, against them instead of `drawn`.
+    pub(super) fn schedule(
+        &self,
+        drawn: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> (usize, Option<PairChoice>) {
+        if !self.consist_active() {
+            return (drawn, None);
+        }
+        match self.cfg.consist_partner {
+            ConsistPartner::Render => (drawn, self.pairs[drawn].map(PairChoice::Render)),
+            ConsistPartner::Previous => match &self.kept {
+                // One of i's overlapping views at random, not i's best partner: views that are
+                // nobody's best partner would otherwise train only on lead steps.
+                Some(k) if !k.followed && k.iteration + 1 == self.iteration => {
+                    match self.neighbours[k.view].as_slice() {
+                        [] => (drawn, None),
+                        near => (
+                            near[rng.random_range(0..near.len())],
+                            Some(PairChoice::Previous(k.view)),
+                        ),
+                    }
+                }
+                _ => (drawn, None),
+            },
+        }
+    }
+
+    /// End of the warm-up: every band slot goes live with amplitude 0 and a frequency and phase
+    /// drawn as at initialisation, from the primitive's mean scale now (primitives have grown,
+    /// shrunk and split since); the outputs do not change, and from now on the bands train.
+    pub(super) fn release_warmup_bands(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
+        let m = self.prims.bands;
+        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed ^ 0xba4d_5eed ^ self.iteration);
+        for i in 0..self.prims.len() {
+            let sc = self.prims.scales(i);
+            let s = f64::from(sc[0] + sc[1] + sc[2]) / 3.0;
+            for j in 0..m {
+                let k = m * i + j;
+                let (freq, phase) = draw_band(&mut rng, s.max(1e-9));
+                self.prims.band_amp[k] = 0.0;
+                for (dst, f) in self.prims.band_freq[3 * k..3 * k + 3].iter_mut().zip(freq) {
+                    *dst = f as f32;
+                }
+                self.prims.band_phase[k] = phase as f32;
+            }
+        }
+        for p in [&mut self.prims, &mut self.adam.m, &mut self.adam.v] {
+            p.band_count.fill(m as u32);
+        }
+        tracing::debug!(iteration = self.iteration, "warm-up over: bands live");
+    }
+
+    /// End of the warm-up: every frozen β becomes learnable (β = 2 + 4.5e-5).
+    pub(super) fn release_warmup_beta(&mut self) {
+        // The kept G-buffers show the primitives before this change.
+        self.kept = None;
+        let mut released = 0;
+        for (r, (m, v)) in self.prims.beta_raw.iter_mut().zip(
+            self.adam
+                .m
+                .beta_raw
+                .iter_mut()
+                .zip(&mut self.adam.v.beta_raw),
+        ) {
+            if is_beta_frozen(f64::from(*r)) {
+                *r = BETA_RAW_GAUSSIAN as f32;
+                (*m, *v) = (0.0, 0.0);
+                released += 1;
+            }
+        }
+        tracing::debug!(
+            iteration = self.iteration,
+            released,
+            "warm-up over: β learnable"
+        );
+    }
+}
