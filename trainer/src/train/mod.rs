@@ -447,7 +447,9 @@ impl<B: Backend> Trainer<B> {
             if self.cfg.mode.learns_beta() {
                 self.release_warmup_beta();
             }
-            if self.prims.bands > 0 {
+            // Only when the warm-up switched them off (not with `warmup` 0, nor in a run
+            // checkpointed before band slots were switched off during the warm-up).
+            if self.prims.bands > 0 && self.prims.band_count.iter().all(|&c| c == 0) {
                 self.release_warmup_bands();
             }
         }

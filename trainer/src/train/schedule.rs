@@ -9,7 +9,8 @@
 //! count it: held-out evaluations and checkpoints excluded) reaches the budget, and the
 //! schedule follows the fraction of the budget spent instead: at 10 % of the time the warm-up
 //! ends, densification stops at half the time, the learning rate decays to its final value
-//! at the end. Cadences (`densify.every`, `capacity.every`, `consist_every`) stay in real
+//! at the end, and a capacity check runs each time the schedule passes another
+//! `capacity.every`. The other cadences (`densify.every`, `consist_every`) stay in real
 //! iterations: they are about how many views a statistic averages, not about the run's length.
 
 use rand::{Rng, SeedableRng};
