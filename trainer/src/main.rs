@@ -474,12 +474,17 @@ fn train_vulkan(
 #[cfg(feature = "vulkan")]
 fn bench_cmd(a: BenchArgs) -> Result<()> {
     use s3tir_trainer::gpu::bench::{self, BenchOptions};
+    let (width, height, views, primitives, steps) = if a.real_size {
+        (320, 256, 24, 30_000, 10)
+    } else {
+        (a.width, a.height, a.views, a.primitives, a.steps)
+    };
     let opts = BenchOptions {
-        width: a.width,
-        height: a.height,
-        views: a.views,
-        primitives: a.primitives,
-        steps: a.steps,
+        width,
+        height,
+        views,
+        primitives,
+        steps,
         warmup_steps: a.warmup_steps,
         device: vulkan_options(a.device_index, a.no_float_atomics),
     };
@@ -591,6 +596,11 @@ struct BenchArgs {
     /// Force the compare-and-swap fallback instead of float atomics.
     #[arg(long)]
     no_float_atomics: bool,
+    /// The realistic configuration instead of the small default scene: 320×256, 24 views,
+    /// 30 000 primitives, 10 timed steps (a real thermal scene trained at half resolution;
+    /// overrides --width, --height, --views, --primitives and --steps).
+    #[arg(long)]
+    real_size: bool,
 }
 
 /// The training loop on any backend, with a progress bar and Ctrl-C handling.
