@@ -10,7 +10,8 @@ use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{Dataset, LoadOptions, ThermalUnits};
 use s3tir_trainer::report;
 use s3tir_trainer::train::{
-    self, Backend, ConsistPartner, CpuBackend, Event, Mode, Outcome, TrainConfig, Trainer, files,
+    self, Backend, ConsistPartner, CpuBackend, Densify, Event, Mode, Outcome, TrainConfig, Trainer,
+    files,
 };
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
@@ -196,19 +197,19 @@ struct TrainArgs {
     time_budget: Option<f64>,
     /// Density control: densify primitives whose mean view-space positional gradient (3DGS's
     /// statistic, in normalised device coordinates) exceeds this.
-    #[arg(long, default_value_t = 2e-4)]
+    #[arg(long, default_value_t = Densify::default().grad_threshold)]
     densify_grad: f64,
     /// Density control runs from this (schedule) iteration…
-    #[arg(long, default_value_t = 500)]
+    #[arg(long, default_value_t = Densify::default().from)]
     densify_from: u64,
     /// …until this one (and never in the second half of the run)…
-    #[arg(long, default_value_t = 15_000)]
+    #[arg(long, default_value_t = Densify::default().until)]
     densify_until: u64,
     /// …every this many iterations (0: no density control).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = Densify::default().every)]
     densify_every: u64,
     /// Density control removes primitives whose opacity is below this.
-    #[arg(long, default_value_t = 0.005)]
+    #[arg(long, default_value_t = Densify::default().prune_opacity)]
     prune_opacity: f64,
 }
 
@@ -637,11 +638,11 @@ fn run_training<B: Backend>(
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
-    let position = |t: &Trainer<B>| match budget {
-        Some(_) => t.train_seconds as u64,
-        None => t.iteration,
+    let position = |iteration: u64, seconds: f64| match budget {
+        Some(_) => seconds as u64,
+        None => iteration,
     };
-    bar.set_position(position(&trainer));
+    bar.set_position(position(trainer.iteration, trainer.train_seconds));
     let wall = std::time::Instant::now();
     let mut psnr = f64::NAN;
     let mut loss_ema = f64::NAN;
@@ -659,10 +660,7 @@ fn run_training<B: Backend>(
                 0.95 * loss_ema + 0.05 * loss
             };
             prims = *primitives;
-            bar.set_position(match budget {
-                Some(_) => *seconds as u64,
-                None => *iteration,
-            });
+            bar.set_position(position(*iteration, *seconds));
             if iteration % 10 == 0 {
                 bar.set_message(format!(
                     "it {iteration}  loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB  {prims} primitives"

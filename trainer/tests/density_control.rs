@@ -96,7 +96,7 @@ fn default_threshold_densifies_an_under_reconstructed_scene() {
     assert_eq!(
         grown,
         cap.densify_cloned + cap.densify_split,
-        "totals = sum of rounds"
+        "capacity.json's totals are the sums of its rounds"
     );
     for r in &cap.densify_rounds {
         assert_eq!(

@@ -118,6 +118,10 @@ impl<B: Backend> Trainer<B> {
         cap.bands_now = m;
         cap.primitives = self.prims.len();
         cap.memory_bytes = self.memory_bytes();
+        let rounds = &cap.densify_rounds;
+        cap.densify_cloned = rounds.iter().map(|r| r.cloned).sum();
+        cap.densify_split = rounds.iter().map(|r| r.split).sum();
+        cap.densify_pruned = rounds.iter().map(|r| r.pruned).sum();
         // Each band is 5 floats; ×3 with the Adam moments.
         cap.band_bytes_saved =
             (cap.bands_initial - m.min(cap.bands_initial)) * 5 * 4 * 3 * self.prims.len();
@@ -202,7 +206,7 @@ pub struct CapacityReport {
     /// pruned, left out for the budget.
     #[serde(default)]
     pub densify_rounds: Vec<DensifyRound>,
-    /// Sums over the rounds.
+    /// Sums over the rounds (filled by [`Trainer::capacity_report`]).
     #[serde(default)]
     pub densify_cloned: usize,
     #[serde(default)]
@@ -210,13 +214,4 @@ pub struct CapacityReport {
     #[serde(default)]
     pub densify_pruned: usize,
     pub notes: Vec<String>,
-}
-
-impl CapacityReport {
-    pub(super) fn record_densify(&mut self, round: DensifyRound) {
-        self.densify_cloned += round.cloned;
-        self.densify_split += round.split;
-        self.densify_pruned += round.pruned;
-        self.densify_rounds.push(round);
-    }
 }

@@ -42,25 +42,48 @@ pub struct DensifyRound {
 /// gradient with respect to the projected centre in NDC, from the centre's world-space gradient
 /// `grad_world` at `mean_world`. The GPU optimiser kernel computes the same (`adam.comp`).
 pub fn view_space_gradient(cam: &PinholeCamera, mean_world: [f64; 3], grad_world: [f64; 3]) -> f64 {
-    let r = cam.rotation_cam_from_world();
-    let g = grad_world;
-    let gx = r[0] * g[0] + r[1] * g[1] + r[2] * g[2];
-    let gy = r[3] * g[0] + r[4] * g[1] + r[5] * g[2];
-    let z = cam.to_cam(mean_world)[2].abs();
-    // dL/du = dL/dx_cam · z/fx (pixels); dL/dndc_x = dL/du · W/2.
-    let sx = z * cam.width as f64 / (2.0 * cam.fx_px);
-    let sy = z * cam.height as f64 / (2.0 * cam.fy_px);
-    ((gx * sx).powi(2) + (gy * sy).powi(2)).sqrt()
+    NdcGradient::new(cam).of(mean_world, grad_world)
+}
+
+/// [`view_space_gradient`] for one camera, its rotation and NDC scales computed once.
+struct NdcGradient {
+    /// `R_cam_from_world`, row-major.
+    r: [f64; 9],
+    tz: f64,
+    /// W / (2 fx), H / (2 fy).
+    sx: f64,
+    sy: f64,
+}
+
+impl NdcGradient {
+    fn new(cam: &PinholeCamera) -> Self {
+        Self {
+            r: cam.rotation_cam_from_world(),
+            tz: cam.cam_from_world.translation_m.z,
+            sx: cam.width as f64 / (2.0 * cam.fx_px),
+            sy: cam.height as f64 / (2.0 * cam.fy_px),
+        }
+    }
+
+    fn of(&self, mean: [f64; 3], g: [f64; 3]) -> f64 {
+        let r = &self.r;
+        let gx = r[0] * g[0] + r[1] * g[1] + r[2] * g[2];
+        let gy = r[3] * g[0] + r[4] * g[1] + r[5] * g[2];
+        let z = (r[6] * mean[0] + r[7] * mean[1] + r[8] * mean[2] + self.tz).abs();
+        // dL/du = dL/dx_cam · z/fx (pixels); dL/dndc_x = dL/du · W/2.
+        z * ((gx * self.sx).powi(2) + (gy * self.sy).powi(2)).sqrt()
+    }
 }
 
 impl<B: Backend> Trainer<B> {
     /// Adds one step's statistic (gradients of the means measured in `cam`) to the running
     /// sums; primitives the step did not reach (zero or non-finite gradient) are not counted.
     pub(super) fn accumulate_densify_stats(&mut self, cam: &PinholeCamera, grad_means: &[f32]) {
+        let ndc = NdcGradient::new(cam);
         for i in 0..self.prims.len() {
             let g = [0, 1, 2].map(|a| f64::from(grad_means[3 * i + a]));
             if g.iter().all(|x| x.is_finite()) && g.iter().any(|&x| x != 0.0) {
-                let s = view_space_gradient(cam, self.prims.mean(i).map(f64::from), g);
+                let s = ndc.of(self.prims.mean(i).map(f64::from), g);
                 if s.is_finite() {
                     self.grad_accum[i] += s;
                     self.grad_count[i] += 1;
@@ -173,7 +196,7 @@ impl<B: Backend> Trainer<B> {
             over_budget = round.over_budget,
             "density control"
         );
-        self.state.capacity.record_densify(round);
+        self.state.capacity.densify_rounds.push(round);
         self.prims = p;
         self.adam.m = m;
         self.adam.v = v;

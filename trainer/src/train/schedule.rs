@@ -17,7 +17,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::init::draw_band;
-
 use super::{Backend, ConsistPartner, GroupLrs, PairChoice, Trainer};
 use crate::loss::LossWeights;
 use crate::primitive::{BETA_RAW_GAUSSIAN, is_beta_frozen};
