@@ -10,7 +10,8 @@
 //! - [`sensor`]: thermal core and RGB camera sensor models and profiles.
 //! - [`rig`]: the thermal + RGB rig geometry and board trajectories.
 //! - [`dataset`]: the `board` calibration set writer.
-//! - [`scene`]: trainer datasets of simple thermal scenes with truth.
+//! - [`scene`]: trainer datasets of simple thermal scenes with truth; [`response`]: their
+//!   per-frame automatic gain control (8-bit) and drift between flat-field corrections.
 //! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
 //!   (`run --walk`), with the truth trajectory; [`fiducials`]: the AprilTags on its walls and
 //!   their map (`tags.toml`).
@@ -21,6 +22,7 @@ pub mod error;
 pub mod fiducials;
 pub mod physics;
 pub mod render;
+pub mod response;
 pub mod rig;
 pub mod scene;
 pub mod sensor;

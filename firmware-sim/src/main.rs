@@ -8,8 +8,9 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use s3tir_firmware_sim::board::BoardSpec;
 use s3tir_firmware_sim::dataset::{BoardSetConfig, Polarity, write_board_set};
+use s3tir_firmware_sim::response::ResponseEffects;
 use s3tir_firmware_sim::rig::Rig;
-use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with_layout};
+use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
 use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkSpec, serve_walk};
@@ -129,6 +130,19 @@ enum Command {
         /// Random seed (noise, surface points).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Export 8-bit grey images with per-frame automatic gain control (each frame stretched
+        /// from its own coldest to warmest pixel), as camera apps export them, instead of
+        /// 16-bit centikelvin. Truth in DIR/response.json.
+        #[arg(long)]
+        agc: bool,
+        /// Offset drift of the radiometric stream between flat-field corrections: 1σ
+        /// random-walk step per frame, kelvin (0: none). Truth in DIR/response.json.
+        #[arg(long, default_value_t = 0.0)]
+        drift_k: f64,
+        /// A flat-field correction (drift reset) every this many frames (0: only before the
+        /// first frame). The frames taken right after one are listed in DIR/ffc.txt.
+        #[arg(long, default_value_t = 6)]
+        ffc_every: usize,
     },
     /// Run the simulated rig in real time: frames over a Unix socket (simwire), the Boson FSLP
     /// firmware and the rig controller on pseudo-terminals. Prints `key: value` lines
@@ -250,7 +264,18 @@ fn main() -> Result<()> {
             width,
             height,
             seed,
+            agc,
+            drift_k,
+            ffc_every,
         } => {
+            if !(drift_k >= 0.0 && drift_k.is_finite()) {
+                anyhow::bail!("--drift-k must be a finite number ≥ 0, got {drift_k}");
+            }
+            let effects = ResponseEffects {
+                agc,
+                drift_step_k: drift_k,
+                ffc_every,
+            };
             let start = Instant::now();
             let cfg = SceneConfig {
                 out_dir: out.clone(),
@@ -264,8 +289,10 @@ fn main() -> Result<()> {
                 LayoutArg::Objects => SceneLayout::Objects,
                 LayoutArg::Wall => SceneLayout::Wall,
             };
-            write_scene_set_with_layout(&cfg, layout, &mut |done, _| bar.set_position(done as u64))
-                .with_context(|| format!("writing the scene set to {}", out.display()))?;
+            write_scene_set_with(&cfg, layout, effects, &mut |done, _| {
+                bar.set_position(done as u64)
+            })
+            .with_context(|| format!("writing the scene set to {}", out.display()))?;
             bar.finish();
             tracing::info!(
                 views,

@@ -70,6 +70,7 @@ use serde::Serialize;
 use crate::error::SimError;
 use crate::physics::Radiometry;
 use crate::render::{RayGrid, gaussian_blur};
+use crate::response::{ExportedFrame, ResponseEffects, ResponseSimulator};
 use crate::sensor::{
     RgbProfile, ThermalOutput, ThermalProfile, ThermalSensor, expose_rgb_channels,
 };
@@ -659,6 +660,18 @@ pub fn write_scene_set_with_layout(
     layout: SceneLayout,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(), SimError> {
+    write_scene_set_with(cfg, layout, ResponseEffects::default(), progress)
+}
+
+/// Writes the scene dataset of `layout` with per-frame response `effects` (automatic gain
+/// control on 8-bit exports, offset drift between flat-field corrections; truth in
+/// `response.json`, see [`crate::response`]).
+pub fn write_scene_set_with(
+    cfg: &SceneConfig,
+    layout: SceneLayout,
+    effects: ResponseEffects,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(), SimError> {
     if cfg.width_px < 2 || cfg.height_px < 2 || cfg.views == 0 {
         return Err(SimError::InvalidParameter {
             parameter: "width/height/views",
@@ -686,6 +699,7 @@ pub fn write_scene_set_with_layout(
         ..RgbProfile::hd720()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5C3E);
+    let mut response = ResponseSimulator::new(effects, cfg.seed);
     let poses = poses(layout, cfg.views);
     let (w, h) = (cfg.width_px, cfg.height_px);
     let mut images_txt = String::from(
@@ -711,7 +725,21 @@ pub fn write_scene_set_with_layout(
             }
         };
         let name = format!("{k:04}.png");
-        save_u16(&out.join("images").join(&name), w, h, words)?;
+        let image_path = out.join("images").join(&name);
+        match response.export(&name, &words) {
+            ExportedFrame::CentiKelvin(words) => save_u16(&image_path, w, h, words)?,
+            ExportedFrame::Grey8(grey) => image::GrayImage::from_raw(w, h, grey)
+                .ok_or(SimError::InvalidParameter {
+                    parameter: "grey buffer",
+                    value: name.clone(),
+                    why: "size does not match",
+                })?
+                .save(&image_path)
+                .map_err(|e| SimError::Encode {
+                    what: "8-bit PNG",
+                    reason: format!("{}: {e}", image_path.display()),
+                })?,
+        }
         let depth: Vec<u16> = r
             .depth_m
             .iter()
@@ -820,13 +848,46 @@ pub fn write_scene_set_with_layout(
         camera: cam,
         colmap_camera_model: "PINHOLE (cx, cy shifted by +0.5 px to COLMAP's pixel convention)",
         pixel_convention: "camera.intrinsics: OpenCV, centre of the top-left pixel at (0, 0)",
-        thermal_units: "images/: TLinear centikelvin (apparent black-body temperature x 100)",
+        thermal_units: match (effects.agc, effects.drift_step_k > 0.0) {
+            (true, _) => {
+                "images/: 8-bit grey, each frame stretched from its own min to max apparent \
+                 temperature (automatic gain control; windows in response.json)"
+            }
+            (false, true) => {
+                "images/: TLinear centikelvin (apparent black-body temperature x 100) plus a \
+                 per-frame drift offset (response.json)"
+            }
+            (false, false) => {
+                "images/: TLinear centikelvin (apparent black-body temperature x 100)"
+            }
+        },
         depth_units: "depth/: camera z along the pixel-centre ray, millimetres, 0 = no surface",
         temperature_units: "temperature/: true surface temperature along the pixel-centre ray, centikelvin, 0 = no surface",
         netd_k: profile.netd_k,
         seed: cfg.seed,
         views: cfg.views,
     };
+    if effects.drift_step_k > 0.0 && !effects.agc {
+        // What a capture session's FFC telemetry says: the frames right after a correction.
+        let fresh: String = response
+            .truth()
+            .frames
+            .iter()
+            .filter(|f| f.ffc_before)
+            .map(|f| f.image.clone() + "\n")
+            .collect();
+        let p = out.join("ffc.txt");
+        fs::write(&p, fresh).map_err(io(&p, "write"))?;
+    }
+    if effects.any() {
+        let p = out.join("response.json");
+        let text =
+            serde_json::to_string_pretty(&response.truth()).map_err(|e| SimError::Encode {
+                what: "response.json",
+                reason: e.to_string(),
+            })?;
+        fs::write(&p, text + "\n").map_err(io(&p, "write"))?;
+    }
     let p = out.join("scene.json");
     let text = serde_json::to_string_pretty(&meta).map_err(|e| SimError::Encode {
         what: "scene.json",

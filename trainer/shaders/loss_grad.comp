@@ -5,7 +5,11 @@
 //   psi_high: lambda_s/n sign(psi_high)
 //   psi_beta: lambda_g/n d/dpsi sum sqrt(dx^2 + dy^2 + eps) (forward differences, gathered)
 //   psi_low, depth, alpha: 0 (the consistency term adds to psi_high/psi_beta when it runs).
-// Terms planes: 0 |x - y|, 1 SSIM (written by loss_ssim_map), 2 |psi_high|, 3 TV norm.
+// x is the rendered thermal value seen through the view's response (loss/response.rs):
+// x = gain (r - pivot) + pivot + offset, so the thermal upstream is gain * dL/dx, and the
+// response's gradient is summed from two more terms planes.
+// Terms planes: 0 |x - y|, 1 SSIM (written by loss_ssim_map), 2 |psi_high|, 3 TV norm,
+// 4 dL/dx (r - pivot) (-> dL/dgain), 5 dL/dx (-> dL/doffset).
 #version 450
 #include "loss_common.glsl"
 
@@ -23,6 +27,9 @@ layout(push_constant) uniform Push {
     float lambda_dssim;
     float lambda_sparse;
     float lambda_smooth;
+    float gain;
+    float offset;
+    float pivot;
 } pc;
 
 float sign0(float v) {
@@ -51,7 +58,8 @@ void main() {
     uint npix = pc.width * pc.height;
     uint p = uy * pc.width + ux;
     float inv_n = 1.0 / float(npix);
-    float x = rendered[p];
+    float r = rendered[p];
+    float x = pc.gain * (r - pc.pivot) + pc.pivot + pc.offset;
     float y = target_px[p];
     float g_thermal = (1.0 - pc.lambda_dssim) * inv_n * sign0(x - y) -
                       pc.lambda_dssim * inv_n * (bm[p] + 2.0 * x * bm[npix + p] + y * bm[2u * npix + p]);
@@ -76,7 +84,7 @@ void main() {
         vec3 up = tv_at(npix, ix, iy - 1);
         g_tv += up.y / up.z;
     }
-    upstream[p] = g_thermal;
+    upstream[p] = pc.gain * g_thermal;
     upstream[npix + p] = 0.0;
     upstream[2u * npix + p] = g_high;
     upstream[3u * npix + p] = pc.lambda_smooth * inv_n * g_tv;
@@ -85,4 +93,6 @@ void main() {
     terms[p] = abs(x - y);
     terms[2u * npix + p] = abs(psi_high);
     terms[3u * npix + p] = own.z;
+    terms[4u * npix + p] = g_thermal * (r - pc.pivot);
+    terms[5u * npix + p] = g_thermal;
 }

@@ -10,8 +10,8 @@ use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{Dataset, LoadOptions, ThermalUnits};
 use s3tir_trainer::report;
 use s3tir_trainer::train::{
-    self, Backend, ConsistPartner, CpuBackend, Densify, Event, Mode, Outcome, TrainConfig, Trainer,
-    files,
+    self, Backend, ConsistPartner, CpuBackend, Densify, Event, Mode, Outcome, ResponseConfig,
+    ResponseKind, TrainConfig, Trainer, files,
 };
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
@@ -61,7 +61,8 @@ enum Command {
         /// Run folder written by training.
         run_dir: PathBuf,
         /// Print one JSON object (`psnr`, `ssim`, `kelvin_mae` (null when not radiometric),
-        /// `kelvin_rmse`, `primitives`, `views`).
+        /// `kelvin_rmse`, the aligned `psnr_aligned` and `kelvin_mae_aligned`, `primitives`,
+        /// `views`).
         #[arg(long)]
         json: bool,
     },
@@ -211,6 +212,24 @@ struct TrainArgs {
     /// Density control removes primitives whose opacity is below this.
     #[arg(long, default_value_t = Densify::default().prune_opacity)]
     prune_opacity: f64,
+    /// Per-view radiometric response learned with the scene, applied to each training view's
+    /// render: `affine` (gain and offset: 8-bit images tone-mapped per frame by automatic gain
+    /// control), `offset` (16-bit radiometric frames drifting between flat-field corrections),
+    /// `none`, or `auto`: affine for 8-bit input, offset for 16-bit, dropped by mid-run when
+    /// the views' learned responses agree (offsets within 0.1 K or half a grey level, gains
+    /// within 0.5 %). The responses are anchored to the cameras' mean (mean offset and
+    /// log-gain zero), or, when DATA/ffc.txt lists the views taken right after a flat-field
+    /// correction, their offsets are pinned at zero there. Held-out views are evaluated raw
+    /// and aligned (eval.json, metrics.csv, error_vs_time.png).
+    #[arg(long, default_value_t = ResponseKind::Auto)]
+    response: ResponseKind,
+    /// Weight of the L2 prior on each view's response (offset² + log-gain²).
+    #[arg(long, default_value_t = ResponseConfig::default().prior)]
+    response_prior: f64,
+    /// Adam learning rate of the responses' offsets (normalised units) at the start of the
+    /// run; the log-gains' is twice it. Both decay to a tenth over the run.
+    #[arg(long, default_value_t = ResponseConfig::default().lr_offset)]
+    response_lr: f64,
 }
 
 /// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
@@ -351,6 +370,10 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         cfg.densify.until = a.densify_until;
         cfg.densify.every = a.densify_every;
         cfg.densify.prune_opacity = a.prune_opacity;
+        cfg.response.kind = a.response;
+        cfg.response.prior = a.response_prior;
+        cfg.response.lr_offset = a.response_lr;
+        cfg.response.lr_log_gain = 2.0 * a.response_lr;
         cfg.warmup = a.warmup;
         cfg.budget = a.budget;
         cfg.seed = a.seed;
@@ -704,7 +727,7 @@ fn run_training<B: Backend>(
                 println!("  {}", out.join(f).display());
             }
             println!(
-                "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path",
+                "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path; view response: {}",
                 if cap.colour_allocated {
                     "kept"
                 } else {
@@ -714,8 +737,38 @@ fn run_training<B: Backend>(
                 cap.bands_initial,
                 cap.bands_now,
                 cap.band_bytes_saved,
-                cap.gaussian_path_primitives
+                cap.gaussian_path_primitives,
+                cap.response.as_ref().map_or("none", |r| r.kind.as_str())
             );
+            if let Some(r) = &cap.response {
+                let spread = |f: &dyn Fn(&train::response::ViewResponseRecord) -> f64| {
+                    let lo = r.views.iter().map(f).fold(f64::INFINITY, f64::min);
+                    let hi = r.views.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
+                    (lo, hi)
+                };
+                match r.kind.as_str() {
+                    "none" => println!("view response: none ({})", r.reason),
+                    _ => {
+                        let (g0, g1) = spread(&|v| v.gain);
+                        let (b0, b1) = spread(&|v| v.offset);
+                        println!(
+                            "view response: {} ({}): gains {g0:.3}…{g1:.3}, offsets {b0:+.4}…{b1:+.4}{}",
+                            r.kind,
+                            r.reason,
+                            r.views
+                                .iter()
+                                .map(|v| v.offset_kelvin)
+                                .collect::<Option<Vec<f64>>>()
+                                .map(|k| {
+                                    let lo = k.iter().copied().fold(f64::INFINITY, f64::min);
+                                    let hi = k.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                                    format!(" ({lo:+.2}…{hi:+.2} K)")
+                                })
+                                .unwrap_or_default()
+                        );
+                    }
+                }
+            }
             println!(
                 "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
                 cap.densify_rounds.len(),
@@ -750,22 +803,30 @@ fn eval_cmd(run_dir: &Path, json: bool) -> Result<()> {
         return Ok(());
     }
     let k = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:.3} K"));
+    let db = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:6.2} dB"));
+    println!(
+        "raw: the render as it is; aligned: under the view's fitted affine map (PSNR) or median offset (MAE)"
+    );
     for v in &e.views {
         println!(
-            "{:<24} PSNR {:6.2} dB  SSIM {:.4}  MAE {}  RMSE {}",
+            "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {} (aligned {})  RMSE {}",
             v.name,
             v.psnr,
+            db(v.psnr_aligned),
             v.ssim,
             k(v.kelvin_mae),
+            k(v.kelvin_mae_aligned),
             k(v.kelvin_rmse)
         );
     }
     println!(
-        "{:<24} PSNR {:6.2} dB  SSIM {:.4}  MAE {}  RMSE {}  ({} views, {} primitives, mode {})",
+        "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {} (aligned {})  RMSE {}  ({} views, {} primitives, mode {})",
         "mean",
         e.psnr,
+        db(e.psnr_aligned),
         e.ssim,
         k(e.kelvin_mae),
+        k(e.kelvin_mae_aligned),
         k(e.kelvin_rmse),
         e.views.len(),
         e.primitives,
@@ -786,10 +847,12 @@ fn compare_cmd(runs: &[PathBuf], out: &Path) -> Result<()> {
         );
         if let Some(last) = rows.last() {
             println!(
-                "{name:<20} {mode:<6} iter {:>6}  {:8.1} s  PSNR {:6.2} dB  SSIM {:.4}  MAE {}  {} primitives",
+                "{name:<20} {mode:<6} iter {:>6}  {:8.1} s  PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {}  {} primitives",
                 last.iteration,
                 last.seconds,
                 last.psnr,
+                last.psnr_aligned
+                    .map_or_else(|| "—".into(), |v| format!("{v:.2} dB")),
                 last.ssim,
                 last.kelvin_mae
                     .map_or_else(|| "—".into(), |v| format!("{v:.3} K")),

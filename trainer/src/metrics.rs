@@ -1,6 +1,14 @@
 //! Image-quality metrics on normalised planes (data range 1): PSNR, SSIM (the core's 11×11,
 //! σ = 1.5 Gaussian SSIM, [`crate::loss::photometric::ssim`]), and temperature errors in kelvin
 //! through the scene's [`ThermalRange`].
+//!
+//! Each view is measured **raw** (the render as it is) and **aligned**: for PSNR and SSIM the
+//! render under the affine map `a·x + c` fitted to the view's image in closed form (least
+//! squares), for the kelvin MAE under the offset that minimises it (the median difference).
+//! Held-out views have no learned response (`--response`), and a camera with automatic gain
+//! or drift records each of them with its own; the aligned figures measure the scene without
+//! that per-view response (NeRF-in-the-wild-style evaluations do the same), the raw ones
+//! measure it with the mean camera's response.
 
 use serde::{Deserialize, Serialize};
 
@@ -43,7 +51,45 @@ pub fn kelvin_errors(pred: &[f32], target: &[f32], range: &ThermalRange) -> Opti
     Some((abs / n, (sq / n).sqrt()))
 }
 
-/// Metrics of one view.
+/// The least-squares affine map `(a, c)` with `a·pred + c ≈ target` (`a = 1` when `pred` is
+/// flat).
+pub fn affine_fit(pred: &[f32], target: &[f32]) -> (f64, f64) {
+    let n = pred.len().min(target.len()).max(1) as f64;
+    let mp = pred.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    let mt = target.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    let (mut cov, mut var) = (0.0, 0.0);
+    for (a, b) in pred.iter().zip(target) {
+        let (dp, dt) = (f64::from(*a) - mp, f64::from(*b) - mt);
+        cov += dp * dt;
+        var += dp * dp;
+    }
+    let a = if var > 1e-12 * n { cov / var } else { 1.0 };
+    (a, mt - a * mp)
+}
+
+/// Kelvin MAE of `pred` against `target` after the offset that minimises it (the median of
+/// the differences), with that offset in kelvin; `None` when not radiometric.
+pub fn kelvin_mae_offset_aligned(
+    pred: &[f32],
+    target: &[f32],
+    range: &ThermalRange,
+) -> Option<(f64, f64)> {
+    let k = range.kelvin_per_unit()?;
+    let mut d: Vec<f64> = pred
+        .iter()
+        .zip(target)
+        .map(|(a, b)| (f64::from(*b) - f64::from(*a)) * k)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    let offset = d[d.len() / 2];
+    let mae = d.iter().map(|x| (x - offset).abs()).sum::<f64>() / d.len() as f64;
+    Some((mae, offset))
+}
+
+/// Metrics of one view: raw, and aligned (see the module docs).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct ViewMetrics {
     pub name: String,
@@ -51,6 +97,21 @@ pub struct ViewMetrics {
     pub ssim: f64,
     pub kelvin_mae: Option<f64>,
     pub kelvin_rmse: Option<f64>,
+    /// PSNR and SSIM of the render under the affine map fitted to this view (`align_gain`,
+    /// `align_offset`, normalised units). `None` in files written before they existed.
+    #[serde(default)]
+    pub psnr_aligned: Option<f64>,
+    #[serde(default)]
+    pub ssim_aligned: Option<f64>,
+    #[serde(default)]
+    pub align_gain: Option<f64>,
+    #[serde(default)]
+    pub align_offset: Option<f64>,
+    /// Kelvin MAE after the offset that minimises it (`align_offset_kelvin`).
+    #[serde(default)]
+    pub kelvin_mae_aligned: Option<f64>,
+    #[serde(default)]
+    pub align_offset_kelvin: Option<f64>,
 }
 
 /// Per-view metrics and their means.
@@ -60,6 +121,13 @@ pub struct EvalSummary {
     pub ssim: f64,
     pub kelvin_mae: Option<f64>,
     pub kelvin_rmse: Option<f64>,
+    /// Means of the views' aligned figures ([`ViewMetrics`]).
+    #[serde(default)]
+    pub psnr_aligned: Option<f64>,
+    #[serde(default)]
+    pub ssim_aligned: Option<f64>,
+    #[serde(default)]
+    pub kelvin_mae_aligned: Option<f64>,
     pub views: Vec<ViewMetrics>,
 }
 
@@ -78,6 +146,9 @@ impl EvalSummary {
             ssim: mean(&|v| v.ssim),
             kelvin_mae: opt_mean(&|v| v.kelvin_mae),
             kelvin_rmse: opt_mean(&|v| v.kelvin_rmse),
+            psnr_aligned: opt_mean(&|v| v.psnr_aligned),
+            ssim_aligned: opt_mean(&|v| v.ssim_aligned),
+            kelvin_mae_aligned: opt_mean(&|v| v.kelvin_mae_aligned),
             views,
         }
     }
@@ -93,11 +164,78 @@ pub fn view_metrics(
     range: Option<&ThermalRange>,
 ) -> ViewMetrics {
     let k = range.and_then(|r| kelvin_errors(pred, target, r));
+    let (a, c) = affine_fit(pred, target);
+    let aligned: Vec<f32> = pred
+        .iter()
+        .map(|&v| (a * f64::from(v) + c) as f32)
+        .collect();
+    let ka = range.and_then(|r| kelvin_mae_offset_aligned(pred, target, r));
     ViewMetrics {
         name: name.to_owned(),
         psnr: psnr(pred, target),
         ssim: ssim(pred, target, width, height),
         kelvin_mae: k.map(|x| x.0),
         kelvin_rmse: k.map(|x| x.1),
+        psnr_aligned: Some(psnr(&aligned, target)),
+        ssim_aligned: Some(ssim(&aligned, target, width, height)),
+        align_gain: Some(a),
+        align_offset: Some(c),
+        kelvin_mae_aligned: ka.map(|x| x.0),
+        align_offset_kelvin: ka.map(|x| x.1),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+    use crate::dataset::images::ImageKind;
+
+    /// A render that differs from its image by an affine map scores perfectly aligned, and
+    /// worse raw; the kelvin MAE aligned by the median offset is the spread about it.
+    #[test]
+    fn aligned_metrics_remove_a_per_view_affine_response() {
+        let (w, h) = (16, 12);
+        let pred: Vec<f32> = (0..w * h)
+            .map(|p| 0.3 + 0.4 * ((p % w) as f32 / w as f32))
+            .collect();
+        let target: Vec<f32> = pred.iter().map(|v| 0.6 * v + 0.25).collect();
+        let range = ThermalRange {
+            kind: ImageKind::Thermal16,
+            units: Some(crate::dataset::ThermalUnits::CentiKelvin),
+            min_raw: 27_000.0,
+            max_raw: 32_000.0,
+        };
+        let m = view_metrics("v", &pred, &target, w, h, Some(&range));
+        let (a, c) = (m.align_gain.unwrap(), m.align_offset.unwrap());
+        assert!(
+            (a - 0.6).abs() < 1e-5 && (c - 0.25).abs() < 1e-5,
+            "fit ({a}, {c}), expected (0.6, 0.25)"
+        );
+        assert!(
+            m.psnr_aligned.unwrap() > 90.0,
+            "aligned PSNR {:?}",
+            m.psnr_aligned
+        );
+        assert!(
+            m.psnr < 25.0,
+            "raw PSNR {} should show the response",
+            m.psnr
+        );
+        // An offset only: aligned MAE ~0, raw MAE = the offset (0.02 × 50 K = 1 K).
+        let shifted: Vec<f32> = pred.iter().map(|v| v + 0.02).collect();
+        let m = view_metrics("v", &pred, &shifted, w, h, Some(&range));
+        assert!(
+            (m.kelvin_mae.unwrap() - 1.0).abs() < 1e-3,
+            "raw MAE {:?}",
+            m.kelvin_mae
+        );
+        assert!(
+            m.kelvin_mae_aligned.unwrap() < 1e-3,
+            "aligned MAE {:?}",
+            m.kelvin_mae_aligned
+        );
+        assert!((m.align_offset_kelvin.unwrap() - 1.0).abs() < 1e-3);
     }
 }

@@ -6,6 +6,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
+use plotters::series::DashedLineSeries;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -26,8 +27,9 @@ pub enum ReportError {
 }
 
 /// Header of `metrics.csv`.
-pub const CSV_HEADER: &str =
-    "iteration,seconds,loss,psnr,ssim,kelvin_mae,kelvin_rmse,primitives,memory_bytes";
+/// `psnr_aligned` and `kelvin_mae_aligned` are the held-out figures under each view's fitted
+/// affine map / median offset ([`crate::metrics`]).
+pub const CSV_HEADER: &str = "iteration,seconds,loss,psnr,ssim,kelvin_mae,kelvin_rmse,primitives,memory_bytes,psnr_aligned,kelvin_mae_aligned";
 
 /// One row of `metrics.csv`: held-out metrics at a training wall time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -44,13 +46,19 @@ pub struct MetricsRow {
     pub primitives: usize,
     /// Parameters and optimiser moments, bytes.
     pub memory_bytes: usize,
+    /// Held-out PSNR under each view's fitted affine map (`None` in logs written before it).
+    #[serde(default)]
+    pub psnr_aligned: Option<f64>,
+    /// Held-out kelvin MAE under each view's median offset.
+    #[serde(default)]
+    pub kelvin_mae_aligned: Option<f64>,
 }
 
 impl MetricsRow {
     fn to_csv(&self) -> String {
         let o = |x: Option<f64>| x.map_or_else(String::new, |v| format!("{v:.6}"));
         format!(
-            "{},{:.3},{:.6},{:.4},{:.5},{},{},{},{}",
+            "{},{:.3},{:.6},{:.4},{:.5},{},{},{},{},{},{}",
             self.iteration,
             self.seconds,
             self.loss,
@@ -59,7 +67,9 @@ impl MetricsRow {
             o(self.kelvin_mae),
             o(self.kelvin_rmse),
             self.primitives,
-            self.memory_bytes
+            self.memory_bytes,
+            o(self.psnr_aligned),
+            o(self.kelvin_mae_aligned)
         )
     }
 }
@@ -110,6 +120,7 @@ pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, ReportError> {
         need("primitives")?,
         need("memory_bytes")?,
     );
+    let (cpa, cka) = (col("psnr_aligned"), col("kelvin_mae_aligned"));
     let mut rows = Vec::new();
     for (n, l) in lines.enumerate() {
         if l.trim().is_empty() {
@@ -133,6 +144,8 @@ pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, ReportError> {
             kelvin_rmse: fo(ckr),
             primitives: f(cn)? as usize,
             memory_bytes: f(cm)? as usize,
+            psnr_aligned: fo(cpa),
+            kelvin_mae_aligned: fo(cka),
         });
     }
     Ok(rows)
@@ -174,18 +187,36 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
         }
     };
     type Getter = Box<dyn Fn(&MetricsRow) -> Option<f64>>;
-    let panels: [(&str, Getter); 2] = [
-        ("held-out PSNR (dB)", Box::new(|r| Some(r.psnr))),
+    // Each panel: the raw figure (solid) and, when the log has it, the aligned one (dashed).
+    let panels: [(&str, Getter, Getter); 2] = [
+        (
+            "held-out PSNR (dB); dashed: affine-aligned",
+            Box::new(|r| Some(r.psnr)),
+            Box::new(|r| r.psnr_aligned),
+        ),
         if radiometric {
-            ("held-out MAE (K)", Box::new(|r| r.kelvin_mae))
+            (
+                "held-out MAE (K); dashed: offset-aligned",
+                Box::new(|r| r.kelvin_mae),
+                Box::new(|r| r.kelvin_mae_aligned),
+            )
         } else {
-            ("held-out SSIM", Box::new(|r| Some(r.ssim)))
+            (
+                "held-out SSIM",
+                Box::new(|r| Some(r.ssim)),
+                Box::new(|_| None),
+            )
         },
     ];
-    for (area, (label, get)) in [left, right].iter().zip(panels.iter()) {
-        let (lo, hi) = range(all.iter().filter_map(|r| get(r)).collect());
+    for (area, (label, get, get_aligned)) in [left, right].iter().zip(panels.iter()) {
+        let (lo, hi) = range(
+            all.iter()
+                .flat_map(|r| [get(r), get_aligned(r)])
+                .flatten()
+                .collect(),
+        );
         let mut chart = ChartBuilder::on(area)
-            .caption(*label, ("sans-serif", 20))
+            .caption(*label, ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(35)
             .y_label_area_size(55)
@@ -210,6 +241,15 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
             chart
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                 .map_err(|e| plot_err(path, e))?;
+            let aligned: Vec<(f64, f64)> = rows
+                .iter()
+                .filter_map(|r| get_aligned(r).map(|v| (r.seconds, v)))
+                .collect();
+            if !aligned.is_empty() {
+                chart
+                    .draw_series(DashedLineSeries::new(aligned, 6, 4, colour.stroke_width(1)))
+                    .map_err(|e| plot_err(path, e))?;
+            }
         }
         chart
             .configure_series_labels()

@@ -356,3 +356,110 @@ fn view_loss_through_renderer_matches_finite_differences() {
         );
     }
 }
+
+/// The per-view response (`loss::response`): the loss of the responded thermal plane w.r.t.
+/// the rendered plane, the gain and the offset, against central differences; cases: a typical
+/// AGC gain, a gain far below 1 (stiff: the rendered-plane gradient shrinks with it), and the
+/// identity, which must reproduce `view_loss` exactly. The L1 kink (render equal to target
+/// through the response: zero subgradient) is the stiff case of the offset: there the analytic
+/// gradient must be exactly the SSIM part, checked against a target shifted off the kink.
+#[test]
+fn response_gradients_match_finite_differences() {
+    use s3tir_trainer::loss::response::{ViewResponse, view_loss_with_response};
+    let (w, h) = (15, 11);
+    let n = w * h;
+    let weights = LossWeights::default();
+    let mut base = GBuffers::<f64>::zeros(w, h, false);
+    base.thermal = random_plane(11, n, 0.1, 0.9);
+    base.psi_high = random_plane(12, n, -0.2, 0.3);
+    base.psi_beta = random_plane(13, n, 2.0, 4.0);
+    let target = random_plane(14, n, 0.0, 1.0);
+    for (label, gain, offset) in [
+        ("agc", 0.8, 0.05),
+        ("low gain", 0.05, -0.1),
+        ("identity", 1.0, 0.0),
+    ] {
+        let resp = ViewResponse {
+            gain,
+            offset,
+            pivot: 0.45,
+        };
+        let mut up = GBuffers::<f64>::zeros(w, h, false);
+        let (l, g) = view_loss_with_response(&base, &target, &weights, &resp, &mut up).unwrap();
+        let loss_of = |thermal: &[f64], r: &ViewResponse| {
+            let mut gb = base.clone();
+            gb.thermal = thermal.to_vec();
+            let mut scratch = GBuffers::<f64>::zeros(w, h, false);
+            view_loss_with_response(&gb, &target, &weights, r, &mut scratch)
+                .unwrap()
+                .0
+                .total
+        };
+        assert_fd(
+            &format!("{label}: dL/d(rendered thermal)"),
+            &base.thermal,
+            &up.thermal,
+            |x| loss_of(x, &resp),
+            1e-8,
+            1e-5,
+        );
+        assert_fd(
+            &format!("{label}: dL/d(gain, offset)"),
+            &[gain, offset],
+            &[g.gain, g.offset],
+            |p| {
+                loss_of(
+                    &base.thermal,
+                    &ViewResponse {
+                        gain: p[0],
+                        offset: p[1],
+                        pivot: 0.45,
+                    },
+                )
+            },
+            1e-8,
+            1e-5,
+        );
+        // The planes the response does not see get the plain terms' gradients.
+        let mut plain_up = GBuffers::<f64>::zeros(w, h, false);
+        let mut seen = base.clone();
+        seen.thermal = base.thermal.iter().map(|&x| resp.apply(x)).collect();
+        let plain = view_loss(&seen, &target, &weights, &mut plain_up).unwrap();
+        assert!(
+            (plain.total - l.total).abs() < 1e-12,
+            "{label}: loss {} vs view_loss of the responded plane {}",
+            l.total,
+            plain.total
+        );
+        assert_eq!(
+            plain_up.psi_beta, up.psi_beta,
+            "{label}: Ψ_β gradient changed"
+        );
+        assert_eq!(
+            plain_up.psi_high, up.psi_high,
+            "{label}: Ψ_high gradient changed"
+        );
+    }
+    // On the L1 kink (target = the responded render): the L1 part contributes nothing, so
+    // dL/doffset is the SSIM part alone, which is 0 for identical images (SSIM at its maximum).
+    let resp = ViewResponse {
+        gain: 0.7,
+        offset: 0.02,
+        pivot: 0.5,
+    };
+    let on_kink: Vec<f64> = base.thermal.iter().map(|&x| resp.apply(x)).collect();
+    let mut up = GBuffers::<f64>::zeros(w, h, false);
+    let (l, g) = view_loss_with_response(&base, &on_kink, &weights, &resp, &mut up).unwrap();
+    assert!(
+        l.l1 == 0.0 && (l.ssim - 1.0).abs() < 1e-12,
+        "kink: L1 {} SSIM {}",
+        l.l1,
+        l.ssim
+    );
+    assert!(
+        g.offset.abs() < 1e-9 && g.gain.abs() < 1e-9,
+        "at the optimum the response's gradient must vanish, got ({}, {})",
+        g.gain,
+        g.offset
+    );
+}

@@ -3,7 +3,10 @@
 //! the upstream gradient planes (thermal from L1 + D-SSIM, Ψ_high, Ψ_β) within a relative L2
 //! error of 1e-4 each, with the planes the single-view loss does not touch exactly zero. Inputs
 //! include exact zeros (sign at 0), flat Ψ_β regions (the ε under the TV root) and odd image
-//! sizes (zero padding of the SSIM window at the borders). Does NOT cover the consistency term.
+//! sizes (zero padding of the SSIM window at the borders). With a view response
+//! (`loss::response`: an AGC-like gain and offset, and a stiff gain of 0.05) the same, plus
+//! `dL/dgain` and `dL/doffset` within 2e-5 of the sum of their per-pixel terms' magnitudes.
+//! Does NOT cover the consistency term.
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -11,6 +14,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use s3tir_trainer::gpu::loss::GpuViewLoss;
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext, MemoryLocation};
+use s3tir_trainer::loss::response::{ViewResponse, view_loss_with_response};
 use s3tir_trainer::loss::{LossWeights, view_loss};
 use s3tir_trainer::render::GBuffers;
 
@@ -76,14 +80,39 @@ fn planes_f32(g: &GBuffers<f64>) -> Vec<f32> {
 fn gpu_view_loss_matches_cpu_values_and_gradients() {
     let ctx = lavapipe();
     let weights = LossWeights::default();
-    for (seed, (w, h)) in [(64usize, 48usize), (61, 47), (23, 90)]
+    let responses = [
+        None,
+        Some(ViewResponse {
+            gain: 0.85,
+            offset: 0.04,
+            pivot: 0.48,
+        }),
+        Some(ViewResponse {
+            gain: 0.05,
+            offset: -0.1,
+            pivot: 0.5,
+        }),
+    ];
+    for (case, ((w, h), response)) in [(64usize, 48usize), (61, 47), (23, 90)]
         .into_iter()
+        .flat_map(|size| responses.iter().map(move |r| (size, *r)))
         .enumerate()
     {
+        let seed = case / responses.len();
         let (rendered, target) = scene(seed as u64, w, h);
         let npix = w * h;
         let mut want_up = GBuffers::zeros(w, h, false);
-        let want = view_loss(&rendered, &target, &weights, &mut want_up).unwrap();
+        let (want, want_resp) = match &response {
+            None => (
+                view_loss(&rendered, &target, &weights, &mut want_up).unwrap(),
+                None,
+            ),
+            Some(r) => {
+                let (l, g) =
+                    view_loss_with_response(&rendered, &target, &weights, r, &mut want_up).unwrap();
+                (l, Some(g))
+            }
+        };
 
         let loss = GpuViewLoss::new(&ctx, w, h).unwrap();
         let rbuf = ctx.upload("rendered", &planes_f32(&rendered)).unwrap();
@@ -96,12 +125,35 @@ fn gpu_view_loss_matches_cpu_values_and_gradients() {
         let ubuf = ctx
             .create_buffer("upstream", (6 * npix * 4) as u64, MemoryLocation::Readback)
             .unwrap();
-        ctx.submit(|rec| loss.record(rec, &rbuf, &tbuf, &ubuf, &weights))
+        ctx.submit(|rec| loss.record(rec, &rbuf, &tbuf, &ubuf, &weights, response.as_ref()))
             .unwrap();
-        let got = loss.values(&ctx).unwrap();
+        let got = loss.values(&ctx, response.is_some()).unwrap();
         let up: Vec<f32> = ctx.read(&ubuf, 6 * npix).unwrap();
 
-        let label = format!("{w}x{h}");
+        let label = format!("{w}x{h} response {response:?}");
+        match (got.response, want_resp, &response) {
+            (None, None, None) => {}
+            (Some(g), Some(c), Some(r)) => {
+                // Σ|u'|·|x − m| and Σ|u'|, u' = dL/d(responded value) = upstream / gain.
+                let scale_gain: f64 = want_up
+                    .thermal
+                    .iter()
+                    .zip(&rendered.thermal)
+                    .map(|(u, x)| (u / r.gain).abs() * (x - r.pivot).abs())
+                    .sum();
+                let scale_offset: f64 = want_up.thermal.iter().map(|u| (u / r.gain).abs()).sum();
+                for (name, a, b, scale) in [
+                    ("dL/dgain", g.gain, c.gain, scale_gain),
+                    ("dL/doffset", g.offset, c.offset, scale_offset),
+                ] {
+                    assert!(
+                        (a - b).abs() <= 2e-5 * scale,
+                        "{label}: {name} GPU {a}, CPU {b} (term magnitudes {scale})"
+                    );
+                }
+            }
+            other => panic!("{label}: response gradients present on one side only: {other:?}"),
+        }
         for (name, g, c) in [
             ("l1", got.l1, want.l1),
             ("ssim", got.ssim, want.ssim),

@@ -73,6 +73,8 @@ fn metrics_csv_round_trips_and_plots_are_written() {
             kelvin_rmse: Some(0.5),
             primitives: 100 + i as usize,
             memory_bytes: 1000,
+            psnr_aligned: Some(21.0 + i as f64),
+            kelvin_mae_aligned: if i == 0 { None } else { Some(0.5 / i as f64) },
         })
         .collect();
     for r in &rows {
@@ -88,6 +90,23 @@ fn metrics_csv_round_trips_and_plots_are_written() {
         "empty kelvin column reads as None"
     );
     assert!((back[2].kelvin_mae.unwrap() - 0.5).abs() < 1e-6);
+    assert_eq!(back[1].psnr_aligned, Some(22.0), "aligned PSNR round-trips");
+    assert_eq!(back[0].kelvin_mae_aligned, None);
+    assert!((back[2].kelvin_mae_aligned.unwrap() - 0.25).abs() < 1e-6);
+    // A log written before the aligned columns existed still reads (they are None).
+    let old = tmp.path().join("old.csv");
+    std::fs::write(
+        &old,
+        "iteration,seconds,loss,psnr,ssim,kelvin_mae,kelvin_rmse,primitives,memory_bytes\n\
+         5,1.0,0.1,20.0,0.8,,,10,100\n",
+    )
+    .unwrap();
+    let old_rows = report::read_rows(&old).unwrap();
+    assert_eq!(old_rows.len(), 1);
+    assert_eq!(
+        old_rows[0].psnr_aligned, None,
+        "old logs have no aligned PSNR"
+    );
     assert_eq!(back[3].iteration, 30);
     let png = tmp.path().join("p.png");
     report::plot_runs(&png, &[("a".into(), back.clone()), ("b".into(), back)]).unwrap();

@@ -728,7 +728,8 @@ pub fn session_to_dataset(
     }
 
     let t = std::time::Instant::now();
-    dataset::write(session, out, &rig.thermal, &views, &sfm_points)?;
+    let fresh = dataset::fresh_after_ffc(&scan.thermal, &views);
+    dataset::write(session, out, &rig.thermal, &views, &sfm_points, &fresh)?;
     times.write_s = t.elapsed().as_secs_f64();
     times.total_s = t_all.elapsed().as_secs_f64();
 

@@ -13,6 +13,9 @@
 //! - views are sorted by image name; the held-out test views are those `DATA/holdout.txt` names
 //!   (one image name per line, as the poses stage writes it), else every `holdout_every`-th one
 //!   (index 0, k, 2k, …; default 8, as 3DGS's LLFF hold-out; 0: no test views);
+//! - `DATA/ffc.txt` (optional, same format) names the views taken right after a flat-field
+//!   correction, whose radiometric drift is zero: the per-view response pins their offsets
+//!   there ([`Dataset::fresh_after_ffc`], `train::response`);
 //! - initial points come from `points3D` or, when there are none, uniformly from the scene
 //!   bounds ([`Dataset::bounds_m`]).
 
@@ -78,6 +81,41 @@ pub enum DatasetError {
 
 /// The file that names a dataset's held-out views (module docs).
 pub const HOLDOUT_FILE: &str = "holdout.txt";
+/// Views taken right after a flat-field correction, one image name per line.
+pub const FFC_FILE: &str = "ffc.txt";
+
+/// The image names a list file (`holdout.txt`, `ffc.txt`) gives, one per line (`#` comments),
+/// each checked against the registered `views`; `None` when the file does not exist.
+fn read_name_list(
+    root: &Path,
+    file: &str,
+    views: &[View],
+) -> Result<Option<std::collections::BTreeSet<String>>, DatasetError> {
+    let path = root.join(file);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|source| DatasetError::Io {
+        path: path.clone(),
+        source,
+    })?;
+    let names: std::collections::BTreeSet<String> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+        .map(str::to_owned)
+        .collect();
+    if let Some(unknown) = names.iter().find(|n| !views.iter().any(|v| &v.name == *n)) {
+        return Err(DatasetError::Empty {
+            root: root.to_path_buf(),
+            reason: format!(
+                "{} names {unknown}, which the model does not register",
+                path.display()
+            ),
+        });
+    }
+    Ok(Some(names))
+}
 
 /// Options of [`Dataset::load`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -166,6 +204,9 @@ pub struct Dataset {
     pub point_rgb: Vec<[u8; 3]>,
     /// COLMAP model names of the cameras that were undistorted at load.
     pub undistorted_models: Vec<String>,
+    /// Views taken right after a flat-field correction (`DATA/ffc.txt`; `None`: the dataset
+    /// does not say).
+    pub fresh_after_ffc: Option<Vec<usize>>,
 }
 
 fn find_model_dir(root: &Path) -> Option<PathBuf> {
@@ -328,31 +369,16 @@ impl Dataset {
             .collect();
 
         let k = opts.holdout_every;
-        let holdout_file = root.join(HOLDOUT_FILE);
-        let (test, train): (Vec<usize>, Vec<usize>) = if holdout_file.is_file() {
-            let text =
-                std::fs::read_to_string(&holdout_file).map_err(|source| DatasetError::Io {
-                    path: holdout_file.clone(),
-                    source,
-                })?;
-            let names: std::collections::BTreeSet<&str> = text
-                .lines()
-                .map(str::trim)
-                .filter(|l| !l.is_empty() && !l.starts_with('#'))
-                .collect();
-            if let Some(unknown) = names.iter().find(|n| !views.iter().any(|v| v.name == **n)) {
-                return Err(DatasetError::Empty {
-                    root: root.to_path_buf(),
-                    reason: format!(
-                        "{} names {unknown}, which the model does not register",
-                        holdout_file.display()
-                    ),
-                });
-            }
-            (0..views.len()).partition(|&i| names.contains(views[i].name.as_str()))
-        } else {
-            (0..views.len()).partition(|&i| k > 0 && i % k == 0)
-        };
+        let (test, train): (Vec<usize>, Vec<usize>) =
+            match read_name_list(root, HOLDOUT_FILE, &views)? {
+                Some(names) => (0..views.len()).partition(|&i| names.contains(&views[i].name)),
+                None => (0..views.len()).partition(|&i| k > 0 && i % k == 0),
+            };
+        let fresh_after_ffc = read_name_list(root, FFC_FILE, &views)?.map(|names| {
+            (0..views.len())
+                .filter(|&i| names.contains(&views[i].name))
+                .collect()
+        });
         if train.is_empty() {
             return Err(DatasetError::Empty {
                 root: root.to_path_buf(),
@@ -372,6 +398,7 @@ impl Dataset {
             points_m: model.points.iter().map(|p| p.position_m).collect(),
             point_rgb: model.points.iter().map(|p| p.rgb).collect(),
             undistorted_models,
+            fresh_after_ffc,
         })
     }
 

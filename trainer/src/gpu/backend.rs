@@ -25,15 +25,17 @@ use super::accumulate::AccumulateVariant;
 use super::consistency::{ConsistencyViews, GpuConsistency};
 use super::context::{ContextOptions, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;
-use super::loss::GpuViewLoss;
+use super::loss::{GpuViewLoss, LOSS_SLOTS};
 use super::optimiser::{AdamStep, GpuOptimiser, KeyGate};
 use super::raster::{GpuRasterizer, KeptView, KeySizing, Outputs, ParamSource};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
+use crate::loss::response::ResponseGrad;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
 use crate::train::backend::{
-    Backend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep, RunShape,
+    Backend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
+    ResidentStepResult, RunShape,
 };
 
 /// Bytes of a camera block ([`super::raster::camera_block`]).
@@ -44,6 +46,14 @@ const KEY_ROOM_MIN: usize = 1024;
 
 /// Leading u32 of `DeviceLosses::step_out`: the key totals of the step's (up to) two views.
 const STEP_OUT_TOTALS: u64 = 2;
+
+/// What a step's one read gives: its weighted loss, the response's gradient (when the step had
+/// a response) and the views' key totals.
+struct StepLosses {
+    loss: f64,
+    response: Option<ResponseGrad>,
+    key_totals: [u32; 2],
+}
 
 /// Work recorded after the losses, in the same submission, with the kept views.
 type RecordAfterLosses<'r> =
@@ -64,7 +74,7 @@ struct DeviceLosses {
     /// Zero planes standing in for a view no primitive covers (the rasteriser keeps none).
     zeros: GpuBuffer,
     /// What a step reads back, in one read: the key totals of its two views (u32; 0 for a
-    /// missing pair), then its loss sums (view loss 4, consistency 2).
+    /// missing pair), then its loss sums (view loss [`LOSS_SLOTS`], consistency 2).
     step_out: GpuBuffer,
     /// The planes (Ψ … alpha, 6) of the last step's training view, for a
     /// [`Partner::Previous`] in the next: a step reads `kept[kept_slot]` and writes the other,
@@ -98,7 +108,10 @@ impl DeviceLosses {
             ("device_step.up_i", bytes),
             ("device_step.up_j", bytes),
             ("device_step.zeros", (7 * width * height * 4) as u64),
-            ("device_step.loss_sums", (STEP_OUT_TOTALS + 6) * 4),
+            (
+                "device_step.loss_sums",
+                (STEP_OUT_TOTALS + LOSS_SLOTS as u64 + 2) * 4,
+            ),
             ("device_step.kept_a", bytes),
             ("device_step.kept_b", bytes),
             ("device_step.kept_camera_a", CAMERA_BLOCK_BYTES),
@@ -308,7 +321,7 @@ impl VulkanBackend {
         step: &DeviceStep<'_>,
         sizing: KeySizing,
         after: &RecordAfterLosses<'_>,
-    ) -> Result<(f64, [u32; 2]), GpuError> {
+    ) -> Result<StepLosses, GpuError> {
         let raster = self.raster.as_ref().ok_or_else(shut_down)?;
         let losses = self.losses.as_ref().ok_or_else(|| GpuError::InvalidInput {
             reason: "device losses unavailable".to_owned(),
@@ -366,6 +379,7 @@ impl VulkanBackend {
                 target,
                 &losses.up_i,
                 &step.weights,
+                step.response.as_ref(),
             )?;
             // The partner: rendered now (view 1, gets gradients) or kept (stop-gradient).
             let partner = match (views.get(1), previous) {
@@ -411,29 +425,36 @@ impl VulkanBackend {
             rec.copy_region(view_i.camera, 0, keep_camera_into, 0, CAMERA_BLOCK_BYTES)?;
             after(rec, views)?;
             let sums_at = 4 * STEP_OUT_TOTALS;
+            let view_bytes = 4 * LOSS_SLOTS as u64;
             rec.copy_region(
                 losses.view_loss.sums_buffer(),
                 0,
                 &losses.step_out,
                 sums_at,
-                16,
+                view_bytes,
             )?;
             if pair.is_some() {
-                let at = sums_at + 16;
+                let at = sums_at + view_bytes;
                 rec.copy_region(losses.consistency.sums_buffer(), 0, &losses.step_out, at, 8)?;
             }
             Ok(())
         })?;
-        let out: Vec<f32> = ctx.read(&losses.step_out, STEP_OUT_TOTALS as usize + 6)?;
+        let out: Vec<f32> =
+            ctx.read(&losses.step_out, STEP_OUT_TOTALS as usize + LOSS_SLOTS + 2)?;
         let (totals, sums) = out.split_at(STEP_OUT_TOTALS as usize);
-        let mut loss = losses
+        let values = losses
             .view_loss
-            .values_from(&sums[..4])
-            .total(&step.weights);
+            .values_from(&sums[..LOSS_SLOTS], step.response.is_some());
+        let mut loss = values.total(&step.weights);
         if pair.is_some() {
-            loss += step.weights.lambda_consist * losses.consistency.values_from(&sums[4..]).loss;
+            loss += step.weights.lambda_consist
+                * losses.consistency.values_from(&sums[LOSS_SLOTS..]).loss;
         }
-        Ok((loss, [totals[0].to_bits(), totals[1].to_bits()]))
+        Ok(StepLosses {
+            loss,
+            response: values.response,
+            key_totals: [totals[0].to_bits(), totals[1].to_bits()],
+        })
     }
 
     /// A step on `cam` completed: the planes it kept are the next step's [`Partner::Previous`].
@@ -451,7 +472,7 @@ impl VulkanBackend {
         step: &DeviceStep<'_>,
     ) -> Result<DeviceStepResult, GpuError> {
         self.prepare_losses(step)?;
-        let (loss, _) =
+        let step_losses =
             self.forward_losses(prims, ParamSource::Host, step, KeySizing::Exact, &|_, _| {
                 Ok(())
             })?;
@@ -484,7 +505,11 @@ impl VulkanBackend {
                 }
             }
         }
-        Ok(DeviceStepResult { loss, grads })
+        Ok(DeviceStepResult {
+            loss: step_losses.loss,
+            grads,
+            response: step_losses.response,
+        })
     }
 
     /// The path of [`Backend::resident_step`]: as [`Self::device_step_inner`] from the
@@ -500,7 +525,7 @@ impl VulkanBackend {
         &mut self,
         prims: &Primitives<f32>,
         step: &ResidentStep<'_>,
-    ) -> Result<f64, GpuError> {
+    ) -> Result<ResidentStepResult, GpuError> {
         let losses_step = &step.losses;
         self.prepare_losses(losses_step)?;
         let n = prims.len();
@@ -513,7 +538,8 @@ impl VulkanBackend {
             KeySizing::Capacity(room.max(scaled))
         };
         loop {
-            let (loss, totals) = self.resident_attempt(prims, step, sizing)?;
+            let attempt = self.resident_attempt(prims, step, sizing)?;
+            let totals = attempt.key_totals;
             // A new generation either way: the views just kept must not stand in for the next
             // run's (a repeated step renders the same parameters again).
             if let Some(opt) = self.optimiser.as_mut() {
@@ -532,7 +558,10 @@ impl VulkanBackend {
             if fits {
                 self.resident_steps += 1;
                 self.step_kept(losses_step.cam);
-                return Ok(loss);
+                return Ok(ResidentStepResult {
+                    loss: attempt.loss,
+                    response: attempt.response,
+                });
             }
             // Nothing changed on the GPU (the Adam step was gated): run it again.
             tracing::debug!(need, room, "key lists outgrew their room: step repeated");
@@ -541,14 +570,14 @@ impl VulkanBackend {
         }
     }
 
-    /// One run of a resident step with key lists sized by `sizing`; returns the loss and the
+    /// One run of a resident step with key lists sized by `sizing`; returns the losses and the
     /// views' key totals. With [`KeySizing::Capacity`] the Adam step is gated on the totals.
     fn resident_attempt(
         &self,
         prims: &Primitives<f32>,
         step: &ResidentStep<'_>,
         sizing: KeySizing,
-    ) -> Result<(f64, [u32; 2]), GpuError> {
+    ) -> Result<StepLosses, GpuError> {
         let losses_step = &step.losses;
         let opt = self.optimiser.as_ref().ok_or_else(no_resident_state)?;
         let (params, generation) = opt.params().ok_or_else(no_resident_state)?;
@@ -787,7 +816,7 @@ impl Backend for VulkanBackend {
         &mut self,
         prims: &Primitives<f32>,
         step: &ResidentStep<'_>,
-    ) -> Option<Result<f64, TrainerError>> {
+    ) -> Option<Result<ResidentStepResult, TrainerError>> {
         let l = &step.losses;
         let same_size = l
             .pair

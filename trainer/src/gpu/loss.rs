@@ -2,7 +2,8 @@
 //! `(1 − λ)·L1 + λ·(1 − SSIM)` on the thermal plane, `λs·L1(Ψ_high)` and `λg·TV(Ψ_β)`, and their
 //! gradients written straight into the backward rasteriser's upstream planes. The loss values are
 //! reduced on the GPU into four result slots (L1, SSIM, sparsity, TV means × pixel count) and
-//! read back only when asked for.
+//! read back only when asked for. With a view response (`crate::loss::response`) the thermal
+//! plane is seen through it and two more slots hold `dL/dgain` and `dL/doffset`.
 //!
 //! Kernels: `loss_ssim_prepare` (x, y, x², y², xy) → `loss_blur` ×2 (separable 11×11 Gaussian)
 //! → `loss_ssim_map` (SSIM and its three backward maps) → `loss_blur` ×2 (the blur is
@@ -15,6 +16,10 @@ use super::error::GpuError;
 use super::reduce::{GpuSum, ReduceVariant};
 use super::shaders::{self, push_u32s};
 use crate::loss::LossWeights;
+use crate::loss::response::{ResponseGrad, ViewResponse};
+
+/// Result slots: the four loss sums, then the response's two gradient sums.
+pub const LOSS_SLOTS: usize = 6;
 
 const WG_1D: usize = 256;
 const WG_2D: usize = 16;
@@ -26,6 +31,8 @@ pub struct GpuViewLossValues {
     pub ssim: f64,
     pub sparse: f64,
     pub smooth: f64,
+    /// `dL/dgain`, `dL/doffset` of the view's response (`None`: recorded without one).
+    pub response: Option<ResponseGrad>,
 }
 
 impl GpuViewLossValues {
@@ -49,7 +56,7 @@ pub struct GpuViewLoss {
     /// 5 statistics planes and their blur (ping-pong), 3 backward maps and their blur.
     stats: [GpuBuffer; 2],
     maps: [GpuBuffer; 2],
-    /// Per-pixel terms (4 planes) and the 4 sums.
+    /// Per-pixel terms (6 planes) and the [`LOSS_SLOTS`] sums.
     terms: GpuBuffer,
     sums: GpuBuffer,
     width: usize,
@@ -80,8 +87,8 @@ impl GpuViewLoss {
             ("loss.stats1", 5 * npix, MemoryLocation::DeviceOnly),
             ("loss.maps0", 3 * npix, MemoryLocation::DeviceOnly),
             ("loss.maps1", 3 * npix, MemoryLocation::DeviceOnly),
-            ("loss.terms", 4 * npix, MemoryLocation::DeviceOnly),
-            ("loss.sums", 4, MemoryLocation::Readback),
+            ("loss.terms", LOSS_SLOTS * npix, MemoryLocation::DeviceOnly),
+            ("loss.sums", LOSS_SLOTS, MemoryLocation::Readback),
         ];
         for (name, floats, loc) in specs {
             match ctx.create_buffer(name, (floats * 4) as u64, loc) {
@@ -132,8 +139,10 @@ impl GpuViewLoss {
         })
     }
 
-    /// Records the loss of `rendered` (the rasteriser's 6 planes) against `target` (one plane):
-    /// writes all 6 `upstream` planes and the four sums.
+    /// Records the loss of `rendered` (the rasteriser's 6 planes) against `target` (one plane),
+    /// the thermal plane seen through `response` when given: writes all 6 `upstream` planes
+    /// (w.r.t. the rendered values) and the four sums, and with a response its two gradient
+    /// sums.
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
@@ -141,16 +150,24 @@ impl GpuViewLoss {
         target: &GpuBuffer,
         upstream: &GpuBuffer,
         weights: &LossWeights,
+        response: Option<&ViewResponse>,
     ) -> Result<(), GpuError> {
         let (w, h) = (self.width, self.height);
         let npix = w * h;
         let groups_1d = [npix.div_ceil(WG_1D) as u32, 1, 1];
         let groups_2d = [w.div_ceil(WG_2D) as u32, h.div_ceil(WG_2D) as u32, 1];
         let n = push_u32s(&[npix as u32]);
+        let resp = response.copied().unwrap_or(ViewResponse::identity(0.0));
+        let mut resp_push = Vec::with_capacity(12);
+        for v in [resp.gain, resp.offset, resp.pivot] {
+            resp_push.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        let mut prepare_push = n.clone();
+        prepare_push.extend_from_slice(&resp_push);
         rec.dispatch(
             &self.prepare,
             &[rendered, target, &self.stats[0]],
-            &n,
+            &prepare_push,
             groups_1d,
         )?;
         rec.compute_barrier();
@@ -171,6 +188,7 @@ impl GpuViewLoss {
         ] {
             push.extend_from_slice(&(v as f32).to_le_bytes());
         }
+        push.extend_from_slice(&resp_push);
         rec.dispatch(
             &self.grad,
             &[rendered, target, &self.maps[0], upstream, &self.terms],
@@ -178,7 +196,8 @@ impl GpuViewLoss {
             groups_2d,
         )?;
         rec.compute_barrier();
-        for slot in 0..4 {
+        let slots = if response.is_some() { LOSS_SLOTS } else { 4 };
+        for slot in 0..slots {
             self.sum
                 .record(rec, &self.terms, slot * npix, npix, &self.sums, slot)?;
         }
@@ -211,26 +230,32 @@ impl GpuViewLoss {
         Ok(())
     }
 
-    /// Reads the loss values of the last recorded submission (4 floats: a small readback).
-    pub fn values(&self, ctx: &GpuContext) -> Result<GpuViewLossValues, GpuError> {
-        Ok(self.values_from(&ctx.read::<f32>(&self.sums, 4)?))
+    /// Reads the loss values of the last recorded submission ([`LOSS_SLOTS`] floats: a small
+    /// readback); `response`: whether it was recorded with one.
+    pub fn values(&self, ctx: &GpuContext, response: bool) -> Result<GpuViewLossValues, GpuError> {
+        Ok(self.values_from(&ctx.read::<f32>(&self.sums, LOSS_SLOTS)?, response))
     }
 
-    /// The 4 sums [`Self::values`] reads (host-visible), for a caller that copies them into a
-    /// buffer of its own to read several results at once.
+    /// The [`LOSS_SLOTS`] sums [`Self::values`] reads (host-visible), for a caller that copies
+    /// them into a buffer of its own to read several results at once.
     pub fn sums_buffer(&self) -> &GpuBuffer {
         &self.sums
     }
 
-    /// The values from the 4 floats of [`Self::sums_buffer`].
-    pub fn values_from(&self, s: &[f32]) -> GpuViewLossValues {
+    /// The values from the [`LOSS_SLOTS`] floats of [`Self::sums_buffer`].
+    pub fn values_from(&self, s: &[f32], response: bool) -> GpuViewLossValues {
         let n = (self.width * self.height) as f64;
-        let mean = |i: usize| f64::from(s.get(i).copied().unwrap_or(f32::NAN)) / n;
+        let at = |i: usize| f64::from(s.get(i).copied().unwrap_or(f32::NAN));
+        let mean = |i: usize| at(i) / n;
         GpuViewLossValues {
             l1: mean(0),
             ssim: mean(1),
             sparse: mean(2),
             smooth: mean(3),
+            response: response.then(|| ResponseGrad {
+                gain: at(4),
+                offset: at(5),
+            }),
         }
     }
 

@@ -5,11 +5,13 @@
 //! [`photometric`]; `L_consist` in [`consistency`]; `L_sparse` and `L_smooth` in [`regularizers`].
 //! Every function returns the value and adds `weight · dL/d(buffer)` into caller-provided
 //! gradient buffers, so the terms accumulate straight into the renderer's upstream
-//! [`GBuffers`](crate::render::GBuffers).
+//! [`GBuffers`](crate::render::GBuffers). A view's radiometric response (per-frame gain and
+//! offset) is applied to the rendered thermal plane before these terms: [`response`].
 
 pub mod consistency;
 pub mod photometric;
 pub mod regularizers;
+pub mod response;
 
 use crate::error::TrainerError;
 use crate::real::Real;

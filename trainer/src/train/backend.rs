@@ -7,13 +7,15 @@ use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::loss::LossWeights;
 use crate::loss::consistency::ConsistencyOptions;
+use crate::loss::response::{ResponseGrad, ViewResponse};
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings, render, render_backward, render_gbuffers};
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 /// One training step's thermal losses, for a backend that evaluates them on its own device
 /// ([`Backend::device_step`]): the view's `(1 − λ)·L1 + λ·(1 − SSIM)`, sparsity and TV against
-/// `target`, plus, with `pair`, the consistency term against the paired view.
+/// `target` (the thermal plane seen through `response` when the run learns one), plus, with
+/// `pair`, the consistency term against the paired view.
 #[derive(Debug, Clone, Copy)]
 pub struct DeviceStep<'a> {
     /// Index of the view in the dataset (a backend may keep its target on the device by index).
@@ -25,6 +27,9 @@ pub struct DeviceStep<'a> {
     pub pair: Option<Partner<'a>>,
     pub weights: LossWeights,
     pub consistency: ConsistencyOptions,
+    /// The view's radiometric response ([`crate::loss::response`]); `None`: the run learns
+    /// none (identity, no gradient sums).
+    pub response: Option<ViewResponse>,
 }
 
 /// The consistency partner of a step ([`DeviceStep::pair`]; see
@@ -54,6 +59,18 @@ pub struct DeviceStepResult {
     pub loss: f64,
     /// `dL/dprims`, both views' contributions summed.
     pub grads: Primitives<f32>,
+    /// `dL/dgain`, `dL/doffset` of the step's response (when it had one).
+    pub response: Option<ResponseGrad>,
+}
+
+/// What [`Backend::resident_step`] computed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResidentStepResult {
+    /// Weighted loss.
+    pub loss: f64,
+    /// `dL/dgain`, `dL/doffset` of the step's response (when it had one); the loop updates
+    /// the response on the host.
+    pub response: Option<ResponseGrad>,
 }
 
 /// One optimisation step with the optimiser state resident on the backend's device
@@ -146,13 +163,14 @@ pub trait Backend {
 
     /// One step on the resident state: renders, evaluates the losses, back-propagates,
     /// accumulates the densification statistics and steps Adam, all on the device; returns the
-    /// weighted loss. `prims` gives the structure only (its values may be stale). `None`: this
-    /// step cannot run resident; the loop then downloads the state and takes the host path.
+    /// weighted loss (and the response's gradient). `prims` gives the structure only (its
+    /// values may be stale). `None`: this step cannot run resident; the loop then downloads
+    /// the state and takes the host path.
     fn resident_step(
         &mut self,
         _prims: &Primitives<f32>,
         _step: &ResidentStep<'_>,
-    ) -> Option<Result<f64, TrainerError>> {
+    ) -> Option<Result<ResidentStepResult, TrainerError>> {
         None
     }
 

@@ -133,6 +133,7 @@ impl<B: Backend> Trainer<B> {
         cap.band_slots_dropped = (0..self.prims.len())
             .map(|i| m - self.prims.live_bands(i))
             .sum();
+        cap.response = Some(self.response_summary());
         if cap.step_ms_before_compaction.is_some() && self.state.step_count > 0 {
             cap.step_ms_after_compaction =
                 Some(self.state.step_ms_sum / self.state.step_count as f64);
@@ -213,5 +214,9 @@ pub struct CapacityReport {
     pub densify_split: usize,
     #[serde(default)]
     pub densify_pruned: usize,
+    /// The per-view radiometric responses the run learned, and why (filled by
+    /// [`Trainer::capacity_report`]).
+    #[serde(default)]
+    pub response: Option<super::ResponseSummary>,
     pub notes: Vec<String>,
 }

@@ -232,6 +232,10 @@ pub struct TrainConfig {
     pub sh_degree: usize,
     /// Backend name (`cpu`).
     pub backend: String,
+    /// Per-view radiometric response learned with the scene (configs written before this
+    /// option read as the default, `auto`).
+    #[serde(default)]
+    pub response: super::ResponseConfig,
 }
 
 impl TrainConfig {
@@ -277,6 +281,7 @@ impl TrainConfig {
             init_opacity: 0.1,
             sh_degree: 0,
             backend: "cpu".into(),
+            response: super::ResponseConfig::default(),
         }
     }
 }

@@ -43,7 +43,10 @@
 //!   renderer evaluates them on the cheap Gaussian path (no `pow`, no bands, no β gradient; see
 //!   [`crate::render`]). The report ([`CapacityReport`]) says all of this with the memory saved
 //!   and the CPU reference renderer's step time with and without the shortcuts, measured on a
-//!   training view when the outputs are written.
+//!   training view when the outputs are written;
+//! - a per-view radiometric response ([`response`]: automatic gain of 8-bit exports, drift of
+//!   16-bit frames) is learned with the scene and updated after every step from the step's
+//!   gradient sums; `--response auto` drops it by mid-run when the views agree.
 //!
 //! # Scales and aliasing
 //! The renderer point-samples pixel centres, so primitives smaller than a pixel footprint can
@@ -59,6 +62,7 @@ mod error;
 mod init;
 mod outputs;
 pub mod params;
+pub mod response;
 mod schedule;
 
 use std::path::{Path, PathBuf};
@@ -72,7 +76,7 @@ use serde::{Deserialize, Serialize};
 pub use adam::{AdamParams, AdamState, GroupLrs};
 pub use backend::{
     Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
-    RunShape,
+    ResidentStepResult, RunShape,
 };
 pub use capacity::CapacityReport;
 pub use config::{Capacity, ConsistPartner, Densify, Mode, TrainConfig, Weights};
@@ -81,12 +85,14 @@ pub use error::TrainError;
 use error::io_err;
 use init::choose_pairs;
 pub use outputs::{RunEval, evaluate_run, load_config};
+pub use response::{ResponseConfig, ResponseKind, ResponseModel, ResponseSummary};
 
 use crate::camera::PinholeCamera;
 use crate::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint};
 use crate::dataset::Dataset;
 use crate::loss::consistency::{ConsistencyOptions, consistency_loss};
 use crate::loss::photometric::l1_dssim;
+use crate::loss::response::{ResponseGrad, ViewResponse, view_loss_with_response};
 use crate::loss::{LossWeights, view_loss};
 use crate::primitive::Primitives;
 use crate::render::GBuffers;
@@ -148,6 +154,12 @@ struct LoopState {
     /// Capacity checks run so far.
     #[serde(default)]
     capacity_checks: u64,
+    /// The per-view responses learned with the scene (`None`: the run learns none).
+    #[serde(default)]
+    response: Option<ResponseModel>,
+    /// `--response auto` dropped the response by mid-run: the views agreed.
+    #[serde(default)]
+    response_dropped: bool,
 }
 
 /// A training run on a backend.
@@ -282,6 +294,7 @@ impl<B: Backend> Trainer<B> {
         t.prims = t.initial_primitives();
         t.adam = AdamState::new(&t.prims);
         t.state.capacity = t.initial_capacity();
+        t.state.response = t.initial_response();
         Ok(t)
     }
 
@@ -381,18 +394,27 @@ impl<B: Backend> Trainer<B> {
         });
     }
 
-    /// Loss and upstream gradient of one view's own terms.
+    /// Loss and upstream gradient of one view's own terms, and the gradient of its response
+    /// (when the run learns one).
     fn view_terms(
         &self,
         vi: usize,
         gb: &GBuffers<f32>,
         weights: &LossWeights,
         up: &mut GBuffers<f32>,
-    ) -> Result<f64, TrainError> {
+    ) -> Result<(f64, Option<ResponseGrad>), TrainError> {
         let view = &self.data.views[vi];
         let mut loss = 0.0;
+        let mut response = None;
         if let Some(target) = &view.thermal {
-            loss += view_loss(gb, target, weights, up)?.total;
+            match self.view_response(vi) {
+                Some(r) => {
+                    let (l, g) = view_loss_with_response(gb, target, weights, &r, up)?;
+                    loss += l.total;
+                    response = Some(g);
+                }
+                None => loss += view_loss(gb, target, weights, up)?.total,
+            }
         }
         if let (Some(target), false) = (&view.rgb, gb.rgb.is_empty()) {
             let n = gb.width * gb.height;
@@ -409,7 +431,17 @@ impl<B: Backend> Trainer<B> {
                 loss += r.loss / 3.0;
             }
         }
-        Ok(loss)
+        Ok((loss, response))
+    }
+
+    /// View `vi`'s learned response (`None`: the run learns none).
+    fn view_response(&self, vi: usize) -> Option<ViewResponse> {
+        self.state.response.as_ref().map(|m| m.of_view(vi))
+    }
+
+    /// The learned per-view responses (`None`: the run learns none).
+    pub fn response(&self) -> Option<&ResponseModel> {
+        self.state.response.as_ref()
     }
 
     /// Brings the optimiser state back from the backend's device when it is there (the
@@ -470,9 +502,10 @@ impl<B: Backend> Trainer<B> {
         }
         let lrs = self.lrs();
         let cam_i = self.data.views[vi].camera;
+        let response = self.view_response(vi);
         let mut resident_loss = None;
         if let (Some(losses), true) = (
-            thermal_step(&self.data, vi, pair, weights, &cam_i),
+            thermal_step(&self.data, vi, pair, weights, &cam_i, response),
             self.resident,
         ) {
             let step = ResidentStep {
@@ -484,17 +517,22 @@ impl<B: Backend> Trainer<B> {
             };
             resident_loss = self.backend.resident_step(&self.prims, &step).transpose()?;
         }
-        let loss = match resident_loss {
-            Some(loss) => {
+        let (loss, response_grad) = match resident_loss {
+            Some(r) => {
                 self.adam.step += 1;
                 self.keep(vi, pair.is_some(), None);
-                loss
+                (r.loss, r.response)
             }
             None => {
                 self.sync_host()?;
                 self.host_optimiser_step(vi, pair, &weights, &lrs, host_kept)?
             }
         };
+        let decay = self.cfg.response.lr_final_ratio.powf(self.progress());
+        if let (Some(model), Some(g)) = (self.state.response.as_mut(), response_grad) {
+            model.step(&self.cfg.response, vi, g, decay);
+        }
+        self.decide_response();
         self.iteration += 1;
 
         if self.densify_due() {
@@ -515,8 +553,8 @@ impl<B: Backend> Trainer<B> {
     }
 
     /// Gradients (the backend's device path, else render + host losses + backward),
-    /// densification statistics and Adam on the host; returns the loss. `host_kept`: the
-    /// partner is the host's kept copy (no device path).
+    /// densification statistics and Adam on the host; returns the loss and the gradient of
+    /// the view's response. `host_kept`: the partner is the host's kept copy (no device path).
     fn host_optimiser_step(
         &mut self,
         vi: usize,
@@ -524,28 +562,32 @@ impl<B: Backend> Trainer<B> {
         weights: &LossWeights,
         lrs: &GroupLrs,
         host_kept: bool,
-    ) -> Result<f64, TrainError> {
+    ) -> Result<(f64, Option<ResponseGrad>), TrainError> {
         let weights = *weights;
         let cam_i = self.data.views[vi].camera;
         let has_rgb = !self.prims.sh.is_empty();
         // The backend's device path when it has one (images stay on the device), else the
         // host path below: render, losses on the host, backward.
-        let device = match (thermal_step(&self.data, vi, pair, weights, &cam_i), has_rgb) {
+        let response = self.view_response(vi);
+        let device = match (
+            thermal_step(&self.data, vi, pair, weights, &cam_i, response),
+            has_rgb,
+        ) {
             (Some(step), false) if !host_kept => {
                 self.backend.device_step(&self.prims, &step).transpose()?
             }
             _ => None,
         };
         let kept = self.kept.take();
-        let (loss, grads) = match device {
+        let (loss, grads, response_grad) = match device {
             Some(r) => {
                 self.keep(vi, pair.is_some(), None);
-                (r.loss, r.grads)
+                (r.loss, r.grads, r.response)
             }
             None => {
                 let gb_i = self.backend.render(&self.prims, &cam_i)?;
                 let mut up_i = GBuffers::zeros(gb_i.width, gb_i.height, has_rgb);
-                let mut loss = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
+                let (mut loss, response_grad) = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
 
                 let mut grads = None;
                 if let Some(PairChoice::Previous(vj)) = pair {
@@ -604,7 +646,7 @@ impl<B: Backend> Trainer<B> {
                         g
                     }
                 };
-                (loss, grads)
+                (loss, grads, response_grad)
             }
         };
 
@@ -615,7 +657,7 @@ impl<B: Backend> Trainer<B> {
         for s in &mut self.prims.log_scales {
             *s = s.max(self.min_log_scale);
         }
-        Ok(loss)
+        Ok((loss, response_grad))
     }
 
     /// Writes `checkpoint.json` atomically.
@@ -714,6 +756,7 @@ fn thermal_step<'a>(
     pair: Option<PairChoice>,
     weights: LossWeights,
     cam: &'a PinholeCamera,
+    response: Option<ViewResponse>,
 ) -> Option<DeviceStep<'a>> {
     data.views[vi].thermal.as_ref().map(|target| DeviceStep {
         view: vi,
@@ -728,6 +771,7 @@ fn thermal_step<'a>(
         }),
         weights,
         consistency: ConsistencyOptions::default(),
+        response,
     })
 }
 

@@ -57,6 +57,8 @@ impl<B: Backend> Trainer<B> {
             kelvin_rmse: e.kelvin_rmse,
             primitives: self.prims.len(),
             memory_bytes: self.memory_bytes(),
+            psnr_aligned: e.psnr_aligned,
+            kelvin_mae_aligned: e.kelvin_mae_aligned,
         };
         report::append_row(&self.run_dir.join(files::METRICS_CSV), &row)?;
         self.state.last_eval_s = self.train_seconds;
@@ -130,6 +132,11 @@ pub struct RunEval {
     /// `null` when the data are not radiometric.
     pub kelvin_mae: Option<f64>,
     pub kelvin_rmse: Option<f64>,
+    /// Under each view's fitted affine map / median offset ([`crate::metrics`]).
+    #[serde(default)]
+    pub psnr_aligned: Option<f64>,
+    #[serde(default)]
+    pub kelvin_mae_aligned: Option<f64>,
     pub primitives: usize,
     pub views: Vec<crate::metrics::ViewMetrics>,
 }
@@ -168,6 +175,8 @@ pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, T
         ssim: e.ssim,
         kelvin_mae: e.kelvin_mae,
         kelvin_rmse: e.kelvin_rmse,
+        psnr_aligned: e.psnr_aligned,
+        kelvin_mae_aligned: e.kelvin_mae_aligned,
         primitives: t.prims.len(),
         views: e.views,
     })
