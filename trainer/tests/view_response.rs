@@ -283,3 +283,36 @@ fn auto_drops_the_response_when_views_agree() {
         "agreeing views: the response must be dropped, got {s:?}"
     );
 }
+
+/// `ffc.txt` is read by name like `holdout.txt`: the listed views come back as
+/// `fresh_after_ffc`, and a name the model does not register is refused naming the file.
+#[test]
+fn ffc_list_is_read_and_checked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("scene");
+    let (data, _) = scene(&dir, &|_, v| v);
+    assert_eq!(
+        data.fresh_after_ffc, None,
+        "no ffc.txt: the dataset does not say"
+    );
+    let (a, b) = (data.views[1].name.clone(), data.views[5].name.clone());
+    std::fs::write(
+        dir.join("ffc.txt"),
+        format!("# fresh after FFC\n{b}\n{a}\n"),
+    )
+    .unwrap();
+    let data = Dataset::load(&dir, &LoadOptions::default()).unwrap();
+    assert_eq!(
+        data.fresh_after_ffc,
+        Some(vec![1, 5]),
+        "views listed in ffc.txt"
+    );
+    std::fs::write(dir.join("ffc.txt"), "no_such_image.png\n").unwrap();
+    let err = Dataset::load(&dir, &LoadOptions::default())
+        .expect_err("an unknown name in ffc.txt must be refused")
+        .to_string();
+    assert!(
+        err.contains("ffc.txt") && err.contains("no_such_image.png"),
+        "the error must name the file and the image: {err}"
+    );
+}

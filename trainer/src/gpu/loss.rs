@@ -7,7 +7,8 @@
 //!
 //! Kernels: `loss_ssim_prepare` (x, y, x², y², xy) → `loss_blur` ×2 (separable 11×11 Gaussian)
 //! → `loss_ssim_map` (SSIM and its three backward maps) → `loss_blur` ×2 (the blur is
-//! self-adjoint) → `loss_grad` (every upstream plane and the per-pixel terms) → 4 sums.
+//! self-adjoint) → `loss_grad` (every upstream plane and the per-pixel terms) → 4 sums (6 with
+//! a response).
 //!
 //! The multi-view consistency term is [`super::consistency`].
 
