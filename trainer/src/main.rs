@@ -62,9 +62,16 @@ enum Command {
         run_dir: PathBuf,
         /// Print one JSON object (`psnr`, `ssim`, `kelvin_mae` (null when not radiometric),
         /// `kelvin_rmse`, the aligned `psnr_aligned` and `kelvin_mae_aligned`, `primitives`,
-        /// `views`).
+        /// `views`, `backend`).
         #[arg(long)]
         json: bool,
+        /// Backend that renders the held-out views: `cpu` (the reference renderer) or `vulkan`
+        /// (the backend runs train on; renders agree with the CPU's to float noise).
+        #[arg(long, value_parser = ["cpu", "vulkan"], default_value = "cpu")]
+        backend: String,
+        /// Vulkan device index (see `devices`; default: the best device).
+        #[arg(long)]
+        device_index: Option<usize>,
     },
     /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs).
     Compare {
@@ -230,6 +237,10 @@ struct TrainArgs {
     /// run; the log-gains' is twice it. Both decay to a tenth over the run.
     #[arg(long, default_value_t = ResponseConfig::default().lr_offset)]
     response_lr: f64,
+    /// At the end, time the CPU reference renderer's step on a training view with and without
+    /// its shortcuts (capacity.json: cpu_step_ms_*; six CPU passes, so off by default).
+    #[arg(long)]
+    cpu_timing: bool,
 }
 
 /// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
@@ -280,7 +291,15 @@ fn main() -> Result<()> {
         (Some(Command::Train(a)), _) => train_cmd(*a),
         (None, Some(a)) => train_cmd(a),
         (Some(Command::Bench(a)), _) => bench_cmd(a),
-        (Some(Command::Eval { run_dir, json }), _) => eval_cmd(&run_dir, json),
+        (
+            Some(Command::Eval {
+                run_dir,
+                json,
+                backend,
+                device_index,
+            }),
+            _,
+        ) => eval_cmd(&run_dir, json, &backend, device_index),
         (Some(Command::Compare { runs, out }), _) => compare_cmd(&runs, &out),
         (
             Some(Command::Synth {
@@ -374,6 +393,7 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         cfg.response.prior = a.response_prior;
         cfg.response.lr_offset = a.response_lr;
         cfg.response.lr_log_gain = 2.0 * a.response_lr;
+        cfg.cpu_timing = a.cpu_timing;
         cfg.warmup = a.warmup;
         cfg.budget = a.budget;
         cfg.seed = a.seed;
@@ -791,13 +811,39 @@ fn run_training<B: Backend>(
     }
 }
 
-fn eval_cmd(run_dir: &Path, json: bool) -> Result<()> {
-    let e = train::evaluate_run(run_dir, CpuBackend::default())
-        .with_context(|| format!("evaluating {}", run_dir.display()))?;
+/// The held-out evaluation of `run_dir` on `backend` (`cpu` or `vulkan`).
+fn evaluate_on(
+    run_dir: &Path,
+    backend: &str,
+    device_index: Option<usize>,
+) -> Result<train::RunEval> {
+    let what = || format!("evaluating {} on the {backend} backend", run_dir.display());
+    match backend {
+        #[cfg(feature = "vulkan")]
+        "vulkan" => {
+            let b = s3tir_trainer::gpu::backend::VulkanBackend::new(
+                &vulkan_options(device_index, false),
+                s3tir_trainer::render::RenderSettings::default(),
+            )
+            .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
+            train::evaluate_run(run_dir, b).with_context(what)
+        }
+        #[cfg(not(feature = "vulkan"))]
+        "vulkan" => {
+            let _ = device_index;
+            bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
+        }
+        _ => train::evaluate_run(run_dir, CpuBackend::default()).with_context(what),
+    }
+}
+
+fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usize>) -> Result<()> {
+    let e = evaluate_on(run_dir, backend, device_index)?;
     if json {
         let mut v = serde_json::to_value(&e)?;
         if let Some(o) = v.as_object_mut() {
             o.insert("view_count".into(), e.views.len().into());
+            o.insert("backend".into(), backend.into());
         }
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
@@ -832,6 +878,7 @@ fn eval_cmd(run_dir: &Path, json: bool) -> Result<()> {
         e.primitives,
         e.mode
     );
+    println!("rendered on the {backend} backend");
     Ok(())
 }
 

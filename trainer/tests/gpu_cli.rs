@@ -1,7 +1,7 @@
 //! Proves `s3tir-train devices` works as a user runs it: lists lavapipe with the properties the
 //! trainer needs (text and JSON), and exits non-zero with a clear message when the Vulkan
 //! loader finds no driver; `--resume` keeps a Vulkan run on Vulkan unless `--backend` says
-//! otherwise. Does NOT cover a machine with no loader library at all (the loader
+//! otherwise; `eval --backend vulkan` matches the CPU reference. Does NOT cover a machine with no loader library at all (the loader
 //! is installed system-wide here; that path is the `LoaderMissing` error of `VulkanInstance`).
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -186,5 +186,62 @@ fn resume_keeps_the_runs_backend_unless_told_otherwise() {
             && text.contains("training on the cpu backend"),
         "an explicit --backend switches and says so: {text}\n{}",
         String::from_utf8_lossy(&switched.stderr)
+    );
+}
+
+/// `eval --backend vulkan` renders the held-out views on the GPU: the same views and figures
+/// as the CPU reference to float noise (PSNR within 0.05 dB), and the JSON says which backend.
+#[test]
+fn eval_on_vulkan_matches_the_cpu_reference() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("scene");
+    let run = tmp.path().join("run");
+    let st = train()
+        .args(["synth", data.to_str().unwrap(), "--views", "9"])
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "synth failed");
+    let t = train()
+        .arg(&data)
+        .arg("--out")
+        .arg(&run)
+        .args(["--iters", "60", "--warmup", "20", "--budget", "200"])
+        .args(["--eval-every-s", "1000"])
+        .output()
+        .unwrap();
+    assert!(
+        t.status.success(),
+        "training failed: {}",
+        String::from_utf8_lossy(&t.stderr)
+    );
+    let eval = |backend: &str| -> serde_json::Value {
+        let out = train()
+            .args([
+                "eval",
+                run.to_str().unwrap(),
+                "--json",
+                "--backend",
+                backend,
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "eval --backend {backend}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&out.stdout).expect("eval --json prints JSON")
+    };
+    let (cpu, gpu) = (eval("cpu"), eval("vulkan"));
+    assert_eq!(cpu["backend"], "cpu");
+    assert_eq!(gpu["backend"], "vulkan");
+    assert_eq!(
+        cpu["view_count"], gpu["view_count"],
+        "the same held-out views"
+    );
+    let (a, b) = (cpu["psnr"].as_f64().unwrap(), gpu["psnr"].as_f64().unwrap());
+    assert!(
+        (a - b).abs() < 0.05 && a > 10.0,
+        "held-out PSNR on Vulkan {b:.3} dB vs CPU {a:.3} dB (expected within 0.05 dB)"
     );
 }

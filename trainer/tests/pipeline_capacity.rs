@@ -396,13 +396,10 @@ fn gaussian_mode_runs_every_primitive_on_the_frozen_gaussian_path() {
     let data_dir = tmp.path().join("scene");
     scene(&data_dir);
     let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
-    let mut t = Trainer::new(
-        quick(&data_dir, Mode::Gaussian),
-        data,
-        CpuBackend::default(),
-        &tmp.path().join("run"),
-    )
-    .unwrap();
+    // The CPU step timing is opt-in (six CPU passes at the end of every run otherwise).
+    let mut cfg = quick(&data_dir, Mode::Gaussian);
+    cfg.cpu_timing = true;
+    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &tmp.path().join("run")).unwrap();
     t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
     assert!(
         t.prims

@@ -193,7 +193,7 @@ pub struct CapacityReport {
     pub gaussian_frozen_last_check: usize,
     /// CPU reference renderer, forward + backward of one training view at the end of the run:
     /// with the shortcuts (cheap Gaussian path, dropped slots skipped) and with every primitive
-    /// forced through the general path (ms, best of 3).
+    /// forced through the general path (ms, best of 3); only with `cpu_timing` (else null).
     #[serde(default)]
     pub cpu_step_ms_with_shortcuts: Option<f64>,
     #[serde(default)]

@@ -236,6 +236,11 @@ pub struct TrainConfig {
     /// option read as the default, `auto`).
     #[serde(default)]
     pub response: super::ResponseConfig,
+    /// Time the CPU reference renderer's step with and without its shortcuts when the outputs
+    /// are written (`capacity.json`: `cpu_step_ms_*`): six CPU passes over a training view, so
+    /// off unless asked for (`--cpu-timing`).
+    #[serde(default)]
+    pub cpu_timing: bool,
 }
 
 impl TrainConfig {
@@ -282,6 +287,7 @@ impl TrainConfig {
             sh_degree: 0,
             backend: "cpu".into(),
             response: super::ResponseConfig::default(),
+            cpu_timing: false,
         }
     }
 }

@@ -42,8 +42,8 @@
 //!   live band are snapped to β = 2 exactly and frozen ([`BETA_RAW_FROZEN`]): from then on the
 //!   renderer evaluates them on the cheap Gaussian path (no `pow`, no bands, no β gradient; see
 //!   [`crate::render`]). The report ([`CapacityReport`]) says all of this with the memory saved
-//!   and the CPU reference renderer's step time with and without the shortcuts, measured on a
-//!   training view when the outputs are written;
+//!   and, with `cpu_timing` (`--cpu-timing`), the CPU reference renderer's step time with and
+//!   without the shortcuts, measured on a training view when the outputs are written;
 //! - a per-view radiometric response ([`response`]: automatic gain of 8-bit exports, drift of
 //!   16-bit frames) is learned with the scene and updated after every step from the step's
 //!   gradient sums; `--response auto` drops it by mid-run when the views agree.

@@ -106,7 +106,9 @@ impl<B: Backend> Trainer<B> {
         let eval = self.evaluate()?;
         write_json(&dir.join(files::EVAL), &eval)?;
         let mut cap = self.capacity_report();
-        if let Some((with, general)) = self.cpu_shortcut_timing()? {
+        if self.cfg.cpu_timing
+            && let Some((with, general)) = self.cpu_shortcut_timing()?
+        {
             cap.cpu_step_ms_with_shortcuts = Some(with);
             cap.cpu_step_ms_general_path = Some(general);
         }
