@@ -12,8 +12,9 @@
 //! The truth of both goes to `response.json`: per frame, the AGC window (kelvin) and the drift
 //! offset (kelvin).
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
 /// Which effects a scene's thermal images get.
@@ -98,10 +99,7 @@ impl ResponseSimulator {
         if ffc_before {
             self.drift_k = 0.0;
         } else if e.drift_step_k > 0.0 {
-            // Box–Muller: a standard normal step.
-            let u1: f64 = self.rng.random_range(f64::EPSILON..1.0);
-            let u2: f64 = self.rng.random_range(0.0..1.0);
-            let z = (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos();
+            let z: f64 = StandardNormal.sample(&mut self.rng);
             self.drift_k += e.drift_step_k * z;
         }
         self.frame += 1;

@@ -761,33 +761,7 @@ fn run_training<B: Backend>(
                 cap.response.as_ref().map_or("none", |r| r.kind.as_str())
             );
             if let Some(r) = &cap.response {
-                let spread = |f: &dyn Fn(&train::response::ViewResponseRecord) -> f64| {
-                    let lo = r.views.iter().map(f).fold(f64::INFINITY, f64::min);
-                    let hi = r.views.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
-                    (lo, hi)
-                };
-                match r.kind.as_str() {
-                    "none" => println!("view response: none ({})", r.reason),
-                    _ => {
-                        let (g0, g1) = spread(&|v| v.gain);
-                        let (b0, b1) = spread(&|v| v.offset);
-                        println!(
-                            "view response: {} ({}): gains {g0:.3}…{g1:.3}, offsets {b0:+.4}…{b1:+.4}{}",
-                            r.kind,
-                            r.reason,
-                            r.views
-                                .iter()
-                                .map(|v| v.offset_kelvin)
-                                .collect::<Option<Vec<f64>>>()
-                                .map(|k| {
-                                    let lo = k.iter().copied().fold(f64::INFINITY, f64::min);
-                                    let hi = k.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                                    format!(" ({lo:+.2}…{hi:+.2} K)")
-                                })
-                                .unwrap_or_default()
-                        );
-                    }
-                }
+                println!("view response: {}", r.describe());
             }
             println!(
                 "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
@@ -838,9 +812,10 @@ fn evaluate_on(
 }
 
 fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usize>) -> Result<()> {
-    let e = evaluate_on(run_dir, backend, device_index)?;
+    let run = evaluate_on(run_dir, backend, device_index)?;
+    let e = &run.eval;
     if json {
-        let mut v = serde_json::to_value(&e)?;
+        let mut v = serde_json::to_value(&run)?;
         if let Some(o) = v.as_object_mut() {
             o.insert("view_count".into(), e.views.len().into());
             o.insert("backend".into(), backend.into());
@@ -875,8 +850,8 @@ fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usiz
         k(e.kelvin_mae_aligned),
         k(e.kelvin_rmse),
         e.views.len(),
-        e.primitives,
-        e.mode
+        run.primitives,
+        run.mode
     );
     println!("rendered on the {backend} backend");
     Ok(())

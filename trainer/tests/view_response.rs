@@ -29,7 +29,7 @@ use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
 use s3tir_trainer::metrics::EvalSummary;
 use s3tir_trainer::train::{
-    CpuBackend, Mode, Outcome, ResponseKind, ResponseModel, TrainConfig, Trainer,
+    Backend, CpuBackend, Mode, Outcome, ResponseKind, ResponseModel, TrainConfig, Trainer,
 };
 
 fn config(data: &std::path::Path, response: ResponseKind) -> TrainConfig {
@@ -49,9 +49,12 @@ fn config(data: &std::path::Path, response: ResponseKind) -> TrainConfig {
     c
 }
 
-/// The scene, with `respond(view index in the training list, value)` applied to the training
-/// views' images; returns the dataset and the training view indices.
-fn scene(dir: &std::path::Path, respond: &dyn Fn(usize, f32) -> f32) -> (Dataset, Vec<usize>) {
+/// The scene, with `respond(k, n, value)` applied to the images of the training views (`k`:
+/// index in the training list of `n`); returns the dataset and the training view indices.
+fn scene(
+    dir: &std::path::Path,
+    respond: &dyn Fn(usize, usize, f32) -> f32,
+) -> (Dataset, Vec<usize>) {
     let scfg = SynthConfig {
         width: 40,
         height: 30,
@@ -65,7 +68,7 @@ fn scene(dir: &std::path::Path, respond: &dyn Fn(usize, f32) -> f32) -> (Dataset
     for (k, &vi) in train.iter().enumerate() {
         if let Some(t) = data.views[vi].thermal.as_mut() {
             for v in t.iter_mut() {
-                *v = respond(k, *v);
+                *v = respond(k, train.len(), *v);
             }
         }
     }
@@ -85,27 +88,15 @@ fn train(
     // Held-out bias: mean (render − image) over the held-out views, kelvin.
     let k = t.data.range.unwrap().kelvin_per_unit().unwrap();
     let (mut s, mut n) = (0.0, 0usize);
-    for &i in &t.data.test.clone() {
-        let v = t.data.views[i].clone();
-        let gb = t.backend_render(&v.camera);
-        for (a, b) in gb.iter().zip(v.thermal.as_ref().unwrap()) {
+    for &i in &t.data.test {
+        let v = &t.data.views[i];
+        let gb = t.backend.render(&t.prims, &v.camera).unwrap();
+        for (a, b) in gb.thermal.iter().zip(v.thermal.as_ref().unwrap()) {
             s += f64::from(a - b) * k;
             n += 1;
         }
     }
     (t.evaluate().unwrap(), t.response().cloned(), s / n as f64)
-}
-
-/// Render of `cam`'s thermal plane (a helper trait so the test reads as the loop does).
-trait RenderThermal {
-    fn backend_render(&mut self, cam: &s3tir_trainer::camera::PinholeCamera) -> Vec<f32>;
-}
-
-impl RenderThermal for Trainer<CpuBackend> {
-    fn backend_render(&mut self, cam: &s3tir_trainer::camera::PinholeCamera) -> Vec<f32> {
-        use s3tir_trainer::train::Backend;
-        self.backend.render(&self.prims, cam).unwrap().thermal
-    }
 }
 
 /// Zero-mean per-view values with spread ±`amp`, deterministic.
@@ -118,16 +109,12 @@ fn wave(k: usize, n: usize, amp: f64) -> f64 {
 #[test]
 fn offset_response_recovers_drift_and_keeps_the_scene_unbiased() {
     let tmp = tempfile::tempdir().unwrap();
-    let n_train = {
-        let (_, t) = scene(&tmp.path().join("probe"), &|_, v| v);
-        t.len()
-    };
     // A drift that grows from zero after each flat-field correction (every 4 training views):
     // its mean over the views is not zero, as a random walk's is not.
     let step = 0.012;
     let drift = |k: usize| step * (k % 4) as f64;
-    let mean_drift = (0..n_train).map(drift).sum::<f64>() / n_train as f64;
-    let (data, train_ids) = scene(&tmp.path().join("scene"), &|k, v| v + drift(k) as f32);
+    let (data, train_ids) = scene(&tmp.path().join("scene"), &|k, _, v| v + drift(k) as f32);
+    let mean_drift = (0..train_ids.len()).map(drift).sum::<f64>() / train_ids.len() as f64;
     let kpu = data.range.unwrap().kelvin_per_unit().unwrap();
     let cfg = |kind| config(&tmp.path().join("scene"), kind);
     let (none, _, bias_none) = train(
@@ -218,16 +205,13 @@ fn offset_response_recovers_drift_and_keeps_the_scene_unbiased() {
 #[test]
 fn affine_response_recovers_automatic_gain() {
     let tmp = tempfile::tempdir().unwrap();
-    let n_train = {
-        let (_, t) = scene(&tmp.path().join("probe"), &|_, v| v);
-        t.len()
-    };
-    let log_gain = |k: usize| wave(k, n_train, 0.25);
-    let offset = |k: usize| wave((k + 3) % n_train, n_train, 0.03);
-    let (data, train_ids) = scene(&tmp.path().join("scene"), &|k, v| {
-        // About the model's pivot, the training images' mean level (before the response).
-        (log_gain(k).exp() as f32) * (v - 0.5) + 0.5 + offset(k) as f32
+    let log_gain = |k: usize, n: usize| wave(k, n, 0.25);
+    let offset = |k: usize, n: usize| wave((k + 3) % n, n, 0.03);
+    let (data, train_ids) = scene(&tmp.path().join("scene"), &|k, n, v| {
+        // About 0.5 (the log-gain does not depend on the pivot; the offsets are the gauge's).
+        (log_gain(k, n).exp() as f32) * (v - 0.5) + 0.5 + offset(k, n) as f32
     });
+    let n_train = train_ids.len();
     let (none, _, _) = train(
         data.clone(),
         config(&tmp.path().join("scene"), ResponseKind::None),
@@ -242,7 +226,7 @@ fn affine_response_recovers_automatic_gain() {
     let worst = train_ids
         .iter()
         .enumerate()
-        .map(|(k, &vi)| (model.log_gain[vi] - log_gain(k)).abs())
+        .map(|(k, &vi)| (model.log_gain[vi] - log_gain(k, n_train)).abs())
         .fold(0.0, f64::max);
     assert!(
         worst < 0.04,
@@ -268,7 +252,7 @@ fn affine_response_recovers_automatic_gain() {
 #[test]
 fn auto_drops_the_response_when_views_agree() {
     let tmp = tempfile::tempdir().unwrap();
-    let (data, _) = scene(&tmp.path().join("scene"), &|_, v| v);
+    let (data, _) = scene(&tmp.path().join("scene"), &|_, _, v| v);
     let mut cfg = config(&tmp.path().join("scene"), ResponseKind::Auto);
     cfg.iters = 400;
     let mut t = Trainer::new(cfg, data, CpuBackend::default(), &tmp.path().join("run")).unwrap();
@@ -290,7 +274,7 @@ fn auto_drops_the_response_when_views_agree() {
 fn ffc_list_is_read_and_checked() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("scene");
-    let (data, _) = scene(&dir, &|_, v| v);
+    let (data, _) = scene(&dir, &|_, _, v| v);
     assert_eq!(
         data.fresh_after_ffc, None,
         "no ffc.txt: the dataset does not say"

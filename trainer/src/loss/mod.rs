@@ -61,13 +61,26 @@ pub fn view_loss<T: Real>(
     weights: &LossWeights,
     upstream: &mut GBuffers<T>,
 ) -> Result<ViewLoss, TrainerError> {
+    view_loss_of(&rendered.thermal, rendered, target, weights, upstream)
+}
+
+/// [`view_loss`] with `thermal` standing in for `rendered.thermal` (the plane seen through a
+/// view's response, [`response`]); the other planes come from `rendered`.
+pub(crate) fn view_loss_of<T: Real>(
+    thermal: &[T],
+    rendered: &GBuffers<T>,
+    target: &[T],
+    weights: &LossWeights,
+    upstream: &mut GBuffers<T>,
+) -> Result<ViewLoss, TrainerError> {
     let (w, h) = (rendered.width, rendered.height);
+    check_len("thermal", thermal.len(), w, h)?;
     check_len("target", target.len(), w, h)?;
     check_len("upstream.thermal", upstream.thermal.len(), w, h)?;
     check_len("upstream.psi_high", upstream.psi_high.len(), w, h)?;
     check_len("upstream.psi_beta", upstream.psi_beta.len(), w, h)?;
     let r = photometric::l1_dssim(
-        &rendered.thermal,
+        thermal,
         target,
         w,
         h,

@@ -13,7 +13,7 @@
 //! this module is the transform and its exact gradient, the reference the GPU loss kernels
 //! (`loss_ssim_prepare`, `loss_grad`) are held to.
 
-use super::{LossWeights, ViewLoss, check_len, view_loss};
+use super::{LossWeights, ViewLoss, check_len, view_loss_of};
 use crate::error::TrainerError;
 use crate::real::Real;
 use crate::render::GBuffers;
@@ -55,8 +55,8 @@ pub struct ResponseGrad {
     pub offset: f64,
 }
 
-/// [`view_loss`] of `rendered` seen through `response`: the loss of the responded thermal
-/// plane against `target`. Adds the gradient w.r.t. the *rendered* (scene) buffers into
+/// [`super::view_loss`] of `rendered` seen through `response`: the loss of the responded
+/// thermal plane against `target`. Adds the gradient w.r.t. the *rendered* (scene) buffers into
 /// `upstream` and returns the loss terms with `dL/dgain`, `dL/doffset`.
 ///
 /// With `x' = g·(x − m) + m + b` and `u' = dL/dx'`: `dL/dx = g·u'`, `dL/dg = Σ u'·(x − m)`,
@@ -71,14 +71,15 @@ pub fn view_loss_with_response<T: Real>(
     let (w, h) = (rendered.width, rendered.height);
     check_len("rendered.thermal", rendered.thermal.len(), w, h)?;
     check_len("upstream.thermal", upstream.thermal.len(), w, h)?;
-    let mut seen = rendered.clone();
-    for x in &mut seen.thermal {
-        *x = response.apply(*x);
-    }
+    let seen: Vec<T> = rendered
+        .thermal
+        .iter()
+        .map(|&x| response.apply(x))
+        .collect();
     // The thermal plane's gradient is gathered apart (the other planes' terms do not see the
     // response), then chained through it.
     let own = std::mem::replace(&mut upstream.thermal, vec![T::ZERO; w * h]);
-    let loss = view_loss(&seen, target, weights, upstream);
+    let loss = view_loss_of(&seen, rendered, target, weights, upstream);
     let through = std::mem::replace(&mut upstream.thermal, own);
     let loss = loss?;
     let m = T::from_f64(response.pivot);

@@ -129,18 +129,11 @@ pub(super) fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainEr
 pub struct RunEval {
     pub run_dir: PathBuf,
     pub mode: String,
-    pub psnr: f64,
-    pub ssim: f64,
-    /// `null` when the data are not radiometric.
-    pub kelvin_mae: Option<f64>,
-    pub kelvin_rmse: Option<f64>,
-    /// Under each view's fitted affine map / median offset ([`crate::metrics`]).
-    #[serde(default)]
-    pub psnr_aligned: Option<f64>,
-    #[serde(default)]
-    pub kelvin_mae_aligned: Option<f64>,
     pub primitives: usize,
-    pub views: Vec<crate::metrics::ViewMetrics>,
+    /// The metrics, raw and aligned, per view and mean (flattened into the JSON: `psnr`,
+    /// `kelvin_mae` (`null` when the data are not radiometric), `psnr_aligned`, `views`, …).
+    #[serde(flatten)]
+    pub eval: EvalSummary,
 }
 
 /// Reads `RUN_DIR/config.json`.
@@ -173,13 +166,7 @@ pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, T
     Ok(RunEval {
         run_dir: run_dir.to_path_buf(),
         mode,
-        psnr: e.psnr,
-        ssim: e.ssim,
-        kelvin_mae: e.kelvin_mae,
-        kelvin_rmse: e.kelvin_rmse,
-        psnr_aligned: e.psnr_aligned,
-        kelvin_mae_aligned: e.kelvin_mae_aligned,
         primitives: t.prims.len(),
-        views: e.views,
+        eval: e,
     })
 }

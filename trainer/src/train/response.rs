@@ -176,6 +176,31 @@ pub struct ResponseSummary {
     pub views: Vec<ViewResponseRecord>,
 }
 
+impl ResponseSummary {
+    /// One line for the log: kind, reason, and the ranges of the learned gains and offsets
+    /// (kelvin too when radiometric).
+    pub fn describe(&self) -> String {
+        let range = |v: &mut dyn Iterator<Item = f64>| {
+            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            })
+        };
+        if self.views.is_empty() {
+            return format!("{} ({})", self.kind, self.reason);
+        }
+        let (g0, g1) = range(&mut self.views.iter().map(|v| v.gain));
+        let (b0, b1) = range(&mut self.views.iter().map(|v| v.offset));
+        let kelvin = match range(&mut self.views.iter().filter_map(|v| v.offset_kelvin)) {
+            (k0, k1) if k0 <= k1 => format!(" ({k0:+.2}…{k1:+.2} K)"),
+            _ => String::new(),
+        };
+        format!(
+            "{} ({}): gains {g0:.3}…{g1:.3}, offsets {b0:+.4}…{b1:+.4}{kelvin}",
+            self.kind, self.reason
+        )
+    }
+}
+
 /// One view's learned response.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ViewResponseRecord {
@@ -367,12 +392,6 @@ impl<B: Backend> Trainer<B> {
     /// dropped (the run continues without response parameters), otherwise it stays.
     pub(super) fn decide_response(&mut self) {
         let progress = self.progress();
-        let tolerance = self
-            .data
-            .range
-            .as_ref()
-            .and_then(ThermalRange::kelvin_per_unit)
-            .map_or(AGREE_OFFSET, |k| AGREE_OFFSET_K / k);
         let Some(m) = &mut self.state.response else {
             return;
         };
@@ -381,6 +400,12 @@ impl<B: Backend> Trainer<B> {
             return;
         }
         m.decided = true;
+        let tolerance = self
+            .data
+            .range
+            .as_ref()
+            .and_then(ThermalRange::kelvin_per_unit)
+            .map_or(AGREE_OFFSET, |k| AGREE_OFFSET_K / k);
         if m.views_agree(tolerance) {
             tracing::info!(
                 kind = %m.kind,
