@@ -4,7 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use s3tir_calib::board::BoardSpec;
 use s3tir_calib::calfile::CalibrationFile;
+use s3tir_calib::frontend::{detect_board, load_scalar};
+use s3tir_calib::poses::board::BoardFiducial;
+use s3tir_calib::poses::frames::Stream;
 use s3tir_calib::poses::{self, Matcher, PosesOptions};
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -20,8 +24,8 @@ pub enum MatcherArg {
 /// Structure from motion (COLMAP, CPU) runs on the RGB keyframes with the calibrated RGB
 /// camera fixed; each usable thermal frame gets the RGB pose interpolated to its capture time,
 /// composed with the calibrated rgb_from_thermal. A session without RGB runs COLMAP on the
-/// thermal frames. With an AprilTag map (--tags) the scale is metric, and keyframes that see
-/// mapped tags are posed without COLMAP. FFC-frozen and motion-blurred frames are skipped, near-duplicates thinned,
+/// thermal frames. With an AprilTag map (--tags) or the calibration board standing in the
+/// scene (--board) the scale is metric, and keyframes that see them are posed without COLMAP. FFC-frozen and motion-blurred frames are skipped, near-duplicates thinned,
 /// every --holdout-every-th view held out (holdout.txt). The dataset: sparse/0/ (the thermal
 /// camera with its calibrated distortion; the trainer undistorts at load), images/ (16-bit
 /// words untouched), holdout.txt, poses.json (what was kept and why), colmap/ (COLMAP's
@@ -92,12 +96,56 @@ pub struct PosesArgs {
     /// s3tir-firmware-sim writes one beside a walk's truth (tags.toml).
     #[arg(long)]
     tags: Option<PathBuf>,
-    /// With a tag layout, run COLMAP anyway (the tags then give the scale and the check).
+    /// The calibration board (its board.toml) standing still in the scene: keyframes that see
+    /// it, RGB or thermal (an emissivity board shows in both), are posed by PnP on its corners
+    /// in the board's frame (metres), and COLMAP does not run when enough are; otherwise it
+    /// gives COLMAP's world its metric scale and checks its rotations, as --tags does. Not
+    /// with --tags.
+    #[arg(long, conflicts_with = "tags")]
+    board: Option<PathBuf>,
+    /// With a tag layout or --board, run COLMAP anyway (the fiducials then give the scale and
+    /// the check).
     #[arg(long)]
     no_tag_poses: bool,
+    /// At least this fraction of the keyframes (and at least 5) must be posed. Lower it when
+    /// the board or the tags are in view for only part of the walk: views between posed
+    /// keyframes are still posed, the rest skipped with their reason.
+    #[arg(long, default_value_t = 0.5, value_parser = fraction)]
+    min_registered: f64,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
+}
+
+fn fraction(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= 1.0 => Ok(v),
+        _ => Err(format!("{s}: a fraction in (0, 1] is expected")),
+    }
+}
+
+/// `--board`: the board file, and the calibration front end as its finder.
+fn board_fiducial(path: &std::path::Path) -> Result<BoardFiducial> {
+    let spec = BoardSpec::load(path)?;
+    let (cols, rows, square_m) = (spec.cols(), spec.rows(), spec.square_m());
+    let find = std::sync::Arc::new(move |image: &std::path::Path, stream: Stream| {
+        let thermal = stream == Stream::Thermal;
+        let scalar =
+            load_scalar(image, thermal, spec.thermal_palette).map_err(|e| e.to_string())?;
+        Ok(
+            match detect_board(&scalar, &spec).map_err(|e| e.to_string())? {
+                Ok(found) => found.corner_ids.into_iter().zip(found.corners_px).collect(),
+                Err(_) => Vec::new(),
+            },
+        )
+    });
+    Ok(BoardFiducial {
+        path: path.to_path_buf(),
+        cols,
+        rows,
+        square_m,
+        find,
+    })
 }
 
 pub fn run(a: &PosesArgs) -> Result<()> {
@@ -105,6 +153,7 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         Some(p) => Some(CalibrationFile::read(p)?),
         None => None,
     };
+    let board = a.board.as_deref().map(board_fiducial).transpose()?;
     let opts = PosesOptions {
         colmap: a.colmap.clone(),
         user_model: a.poses.clone(),
@@ -124,7 +173,9 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         max_gap_s: a.max_gap_s,
         metres_per_unit: a.metres_per_unit,
         tags: a.tags.clone(),
+        board,
         tag_poses: !a.no_tag_poses,
+        min_registered: a.min_registered,
         progress: !a.json,
         ..PosesOptions::default()
     };

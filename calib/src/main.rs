@@ -90,7 +90,7 @@ struct CalibrateArgs {
 enum Command {
     /// Turn a recorded session into a posed thermal dataset for s3tir-train (COLMAP on the RGB
     /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic).
-    Poses(cli_poses::PosesArgs),
+    Poses(Box<cli_poses::PosesArgs>),
     /// Detect a chessboard in each image and print its corners (pixels, origin at the centre
     /// of the top-left pixel). Exits non-zero if any image has no board.
     Detect {

@@ -93,6 +93,17 @@ struct RecordArgs {
     /// beside the session. No serial control in a walk.
     #[arg(long, value_parser = ["orbit", "handheld", "board"])]
     walk: Option<String>,
+    /// Simulated walks only: how the room's AprilTags are made. `printed` (paper: the RGB
+    /// camera sees them) or `heated` (aluminium foil over a heated panel: the thermal camera
+    /// sees them too, inverted; the fiducials of a rig without RGB, for the poses stage's
+    /// --tags).
+    #[arg(long, value_parser = ["printed", "heated"], default_value = "printed", requires = "walk")]
+    walk_tags: String,
+    /// Simulated walks only: the emissivity board (9 × 6 squares of 60 mm, warmer than the
+    /// room) stands in the room, in view over about half a lap; its board.toml goes beside the
+    /// truth (the poses stage's --board).
+    #[arg(long, requires = "walk")]
+    walk_board: bool,
     /// Calibration file (s3tir-calib's calibration.yaml) attached to the session, so the poses
     /// stage (`export --dataset`, `s3tir-train SESSION.mcap`) finds it without --calibration.
     #[arg(long)]
@@ -153,9 +164,13 @@ enum Command {
         /// without COLMAP where mapped tags are in view.
         #[arg(long, requires = "dataset")]
         tags: Option<PathBuf>,
-        /// With --tags: run COLMAP anyway (the tags then give the metric scale and check
-        /// COLMAP's model; s3tir-calib poses --no-tag-poses).
-        #[arg(long, requires = "tags")]
+        /// The calibration board standing in the scene, for --dataset (s3tir-calib poses
+        /// --board): metric scale, and poses without COLMAP where it is in view.
+        #[arg(long, requires = "dataset", conflicts_with = "tags")]
+        board: Option<PathBuf>,
+        /// With --tags or --board: run COLMAP anyway (the fiducials then give the metric scale
+        /// and check COLMAP's model; s3tir-calib poses --no-tag-poses).
+        #[arg(long)]
         no_tag_poses: bool,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
@@ -197,6 +212,7 @@ fn main() -> Result<()> {
             dataset,
             calibration,
             tags,
+            board,
             no_tag_poses,
         }) => {
             if let Some(out) = out {
@@ -209,6 +225,7 @@ fn main() -> Result<()> {
                     &dataset,
                     calibration.as_deref(),
                     tags.as_deref(),
+                    board.as_deref(),
                     no_tag_poses,
                 )?;
             }
@@ -267,6 +284,7 @@ fn export_dataset(
     dataset: &std::path::Path,
     calibration: Option<&std::path::Path>,
     tags: Option<&std::path::Path>,
+    board: Option<&std::path::Path>,
     no_tag_poses: bool,
 ) -> Result<()> {
     let exe_dir = std::env::current_exe()
@@ -287,6 +305,9 @@ fn export_dataset(
     }
     if let Some(t) = tags {
         cmd.arg("--tags").arg(t);
+    }
+    if let Some(b) = board {
+        cmd.arg("--board").arg(b);
     }
     if no_tag_poses {
         cmd.arg("--no-tag-poses");
@@ -526,6 +547,8 @@ fn record(a: RecordArgs) -> Result<()> {
                 kind: kind.clone(),
                 duration_s: a.duration.unwrap_or(20.0),
                 truth_dir: out.with_file_name(format!("{stem}-truth")),
+                tags: a.walk_tags.clone(),
+                board: a.walk_board,
             });
         }
         let socket = a

@@ -41,6 +41,10 @@ pub struct SimWalk {
     pub kind: String,
     pub duration_s: f64,
     pub truth_dir: PathBuf,
+    /// How the walk room's AprilTags are made: `printed` (RGB only) or `heated` (thermal too).
+    pub tags: String,
+    /// The emissivity board stands in the walk room.
+    pub board: bool,
 }
 
 impl SimSpec {
@@ -329,7 +333,12 @@ pub fn ensure_sim_rig(
             .arg("--duration")
             .arg(w.duration_s.to_string())
             .arg("--truth-dir")
-            .arg(&w.truth_dir);
+            .arg(&w.truth_dir)
+            .arg("--walk-tags")
+            .arg(&w.tags);
+        if w.board {
+            cmd.arg("--walk-board");
+        }
     }
     cmd.arg("--socket")
         .arg(socket)

@@ -14,8 +14,10 @@
 //! Why both: tags in one row on one wall are nearly coplanar and only 0.4 m tall, so a
 //! camera's pitch trades against its height (the PnP pose moved 2° per pixel of corner noise
 //! in the unit test of `s3tir_calib::poses::fiducials`); tags on the floor in the same view
-//! fix it. The thermal camera does not see the tags (printed paper at the surface's
-//! temperature and emissivity); the RGB camera does.
+//! fix it. The thermal camera does not see printed tags (paper at the surface's temperature
+//! and emissivity); the RGB camera does. For a rig without RGB the tags can be made thermal
+//! fiducials ([`TagInk::Heated`], `run --walk-tags heated`): aluminium foil cut over a heated
+//! black panel, the emissivity board's principle; the thermal camera sees them inverted.
 //!
 //! **Map** ([`tags_toml`], `tags.toml` beside the walk's truth): family, size, and each tag's
 //! four corners in the world (metres), in the AprilTag library's corner order (the tag's
@@ -88,6 +90,46 @@ impl PrintedTag {
 /// Albedo of the tags' white paper and black ink.
 const WHITE: f64 = 0.85;
 const BLACK: f64 = 0.06;
+
+/// How the room's tags are made, which decides whether the thermal camera sees them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TagInk {
+    /// Printed paper at the surface's temperature and emissivity: RGB only.
+    #[default]
+    Printed,
+    /// Thermal fiducials for a rig without RGB: each tag is cut in polished aluminium (the
+    /// white cells and quiet zone, emissivity [`FOIL_EMISSIVITY`]) over a matte black heated
+    /// panel at [`HEATED_TAG_K`] (the black cells, [`PANEL_EMISSIVITY`]). RGB sees the same
+    /// black-on-light tag; the thermal camera sees it inverted: the black cells emit as the warm
+    /// panel, the foil reflects the room.
+    Heated,
+}
+
+impl TagInk {
+    pub fn name(self) -> &'static str {
+        match self {
+            TagInk::Printed => "printed",
+            TagInk::Heated => "heated",
+        }
+    }
+
+    /// The tag's surface where `albedo` (from [`tag_albedo`]) says ink or paper: temperature
+    /// and emissivity in thermal, `None` for printed tags (the surface's own).
+    pub fn thermal(self, albedo: f64) -> Option<(f64, f64)> {
+        match self {
+            TagInk::Printed => None,
+            TagInk::Heated if albedo < 0.5 => Some((HEATED_TAG_K, PANEL_EMISSIVITY)),
+            TagInk::Heated => Some((HEATED_TAG_K, FOIL_EMISSIVITY)),
+        }
+    }
+}
+
+/// Temperature of a heated tag's panel, kelvin (a low-voltage heating foil behind it).
+pub const HEATED_TAG_K: f64 = 310.0;
+/// Emissivity of the heated tag's matte black panel (its black cells) …
+pub const PANEL_EMISSIVITY: f64 = 0.95;
+/// … and of the polished aluminium cut over it (its white cells and quiet zone).
+pub const FOIL_EMISSIVITY: f64 = 0.08;
 
 /// Every tag of the walk room (module docs), in id order.
 pub fn room_tags() -> Vec<PrintedTag> {

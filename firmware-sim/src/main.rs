@@ -8,12 +8,13 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use s3tir_firmware_sim::board::BoardSpec;
 use s3tir_firmware_sim::dataset::{BoardSetConfig, Polarity, write_board_set};
+use s3tir_firmware_sim::fiducials::TagInk;
 use s3tir_firmware_sim::response::ResponseEffects;
 use s3tir_firmware_sim::rig::Rig;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
-use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkSpec, serve_walk};
+use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkRoom, WalkSpec, serve_walk};
 
 /// The simulated s3tir rig: a thermal core, an RGB camera and the rig controller firmware,
 /// producing physically plausible frames and ground truth when no hardware is attached.
@@ -190,7 +191,23 @@ enum Command {
         /// DIR/truth.json when the walk ends.
         #[arg(long, requires = "walk")]
         truth_dir: Option<PathBuf>,
+        /// With --walk: how the room's AprilTags are made. `printed`: paper, the RGB camera
+        /// sees them; `heated`: aluminium foil over a heated black panel (310 K), which the
+        /// thermal camera sees too (inverted) — fiducials for a rig without RGB.
+        #[arg(long, value_enum, default_value = "printed", requires = "walk")]
+        walk_tags: WalkTagsArg,
+        /// With --walk orbit|handheld: the emissivity board (9 × 6 squares of 60 mm, warmed to
+        /// 305 K) stands in the room, seen over about half a lap; its board.toml and pose go
+        /// beside the truth (the poses stage's --board).
+        #[arg(long, requires = "walk")]
+        walk_board: bool,
     },
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum WalkTagsArg {
+    Printed,
+    Heated,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -314,6 +331,8 @@ fn main() -> Result<()> {
             seed,
             walk,
             truth_dir,
+            walk_tags,
+            walk_board,
         } => {
             let mut thermal = profile.profile();
             if telemetry {
@@ -363,6 +382,13 @@ fn main() -> Result<()> {
                     },
                     duration_s: cfg.duration_s.unwrap_or(20.0),
                     truth_dir,
+                    room: WalkRoom {
+                        tags: match walk_tags {
+                            WalkTagsArg::Printed => TagInk::Printed,
+                            WalkTagsArg::Heated => TagInk::Heated,
+                        },
+                        board: walk_board,
+                    },
                 };
                 serve_walk(&cfg.socket, &rig, &spec, stop, &mut announce)
                     .context("running the simulated walk")?;

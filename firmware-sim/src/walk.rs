@@ -6,7 +6,9 @@
 //! [`ROOM_HEIGHT_M`] high at 290 K (ε 0.9, thermally bland). Every surface carries a seeded,
 //! non-repeating, multi-scale albedo texture ([`texture`]: value noise at 3–40 cycles per metre
 //! times the surface's colour) that feature matchers can use; the thermal images do not see it.
-//! AprilTags are printed low on the walls and on the floor ([`crate::fiducials`]; RGB only).
+//! AprilTags are printed low on the walls and on the floor ([`crate::fiducials`]; RGB only, or
+//! thermal too when made as heated tags: [`TagInk`]). With `--walk-board` the emissivity board
+//! stands in the room ([`walk_board_pose`]): the poses stage's `--board`.
 //!
 //! **Trajectories** ([`world_from_thermal`], the rig frame is the thermal camera):
 //! - `orbit`: a circle of radius 1.7 m at 1.0 m height around (0, 0, 0.2), looking at it,
@@ -31,7 +33,8 @@
 //! atomically when the walk ends): both camera models, `rgb_from_thermal`, the scene's centre
 //! and extent, and every frame sent with its stream, sequence, `monotonic_ns` (exactly the
 //! stamp on the wire) and `world_from_cam` at that instant; `DIR/tags.toml` maps the room's
-//! AprilTags (the poses stage's `--tags FILE`).
+//! AprilTags (the poses stage's `--tags FILE`); with the board, `DIR/board.toml` and its
+//! `world_from_board` in `truth.json` (`board`).
 
 use std::io::Write as _;
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -52,6 +55,7 @@ use serde::Serialize;
 
 use crate::dataset::PoseJson;
 use crate::error::SimError;
+use crate::fiducials::TagInk;
 use crate::physics::Radiometry;
 use crate::render::{RayGrid, gaussian_blur};
 use crate::rig::Rig;
@@ -105,6 +109,8 @@ pub struct WalkSpec {
     pub kind: WalkKind,
     pub duration_s: f64,
     pub truth_dir: Option<PathBuf>,
+    /// What the room holds besides the scene: its tags' make, the board ([`WalkRoom`]).
+    pub room: WalkRoom,
 }
 
 /// Seeded phases of the hand-held path's sines.
@@ -233,9 +239,100 @@ pub fn texture(p: DVec3, base: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-/// Nearest surface of the walk scene along `o + t d` (module docs), with its texture.
-pub fn trace_walk(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+/// What the walk room holds besides the scene (module docs): how its tags are made, and
+/// whether the calibration board stands in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WalkRoom {
+    pub tags: TagInk,
+    pub board: bool,
+}
+
+/// The calibration board standing in the walk room (`run --walk-board`): the simulator's
+/// emissivity board ([`crate::board::BoardSpec::default`], 9 × 6 squares of 60 mm), its
+/// bottom edge on the floor, leaning back [`WALK_BOARD_LEAN_DEG`], its centre
+/// [`WALK_BOARD_RADIUS_M`] from the scene's axis at azimuth [`WALK_BOARD_AZIMUTH_DEG`] and
+/// facing out, so that the walk sees it over about half a lap; warmed to [`WALK_BOARD_K`] (the
+/// room is 290 K), so its coated squares look darker than its paper in thermal, as on a
+/// sunlit board.
+pub const WALK_BOARD_AZIMUTH_DEG: f64 = -120.0;
+pub const WALK_BOARD_RADIUS_M: f64 = 0.85;
+pub const WALK_BOARD_LEAN_DEG: f64 = 15.0;
+pub const WALK_BOARD_K: f64 = 305.0;
+
+/// `world_from_board` of the walk room's board: board x along the floor (to the right as
+/// seen from outside), board y down its face, board z into it (the board frame of
+/// `board.toml`, corner (0, 0) at the origin).
+pub fn walk_board_pose() -> Rigid3 {
+    let b = crate::board::BoardSpec::default();
+    let (x0, y0, x1, y1) = b.extent_m();
+    let az = WALK_BOARD_AZIMUTH_DEG.to_radians();
+    let out = DVec3::new(az.cos(), az.sin(), 0.0);
+    let right = DVec3::Z.cross(out); // along the floor, to the right seen from outside
+    let lean = WALK_BOARD_LEAN_DEG.to_radians();
+    // Up the face (leaning back, away from the viewer outside) and the face's normal.
+    let up = DVec3::Z * lean.cos() - out * lean.sin();
+    let normal_out = right.cross(up);
+    // Board axes in the world: x = right, y = −up (down the face), z = −normal_out.
+    let rot = DMat3::from_cols(right, -up, -normal_out);
+    let height = y1 - y0;
+    let bottom_centre = out * WALK_BOARD_RADIUS_M;
+    let top_left = bottom_centre + up * height - right * (0.5 * (x1 - x0));
+    // World position of the board origin: the top-left extent corner is at (x0, y0).
+    let origin = top_left - rot * DVec3::new(x0, y0, 0.0);
+    Rigid3::new(DQuat::from_mat3(&rot), origin)
+}
+
+/// The board along `o + t d`: `(t, board point, normal facing the ray, front)` when the ray
+/// meets it; `front` when it meets the printed face (board z points into the face).
+fn hit_walk_board(o: DVec3, d: DVec3) -> Option<(f64, DVec3, DVec3, bool)> {
+    static POSE: std::sync::OnceLock<(Rigid3, Rigid3)> = std::sync::OnceLock::new();
+    let (world_from_board, board_from_world) = POSE.get_or_init(|| {
+        let p = walk_board_pose();
+        (p, p.inverse())
+    });
+    let (ob, db) = (
+        board_from_world.transform_point(o),
+        board_from_world.transform_vector(d),
+    );
+    if db.z.abs() <= 1e-12 {
+        return None;
+    }
+    let t = -ob.z / db.z;
+    let p = ob + db * t;
+    let (x0, y0, x1, y1) = crate::board::BoardSpec::default().extent_m();
+    (t > 1e-9 && p.x >= x0 && p.x < x1 && p.y >= y0 && p.y < y1).then(|| {
+        let n = world_from_board.transform_vector(DVec3::NEG_Z);
+        (t, p, if n.dot(d) < 0.0 { n } else { -n }, db.z > 0.0)
+    })
+}
+
+/// Nearest surface of the walk scene along `o + t d` (module docs), with its texture, in the
+/// room `room` (its tags' make, its board).
+pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
+    let ink = room.tags;
     let mut best = scene::trace(SceneLayout::Objects, o, d);
+    if room.board
+        && let Some((t, p, normal, front)) = hit_walk_board(o, d)
+        && best.is_none_or(|b| t < b.t)
+    {
+        let b = crate::board::BoardSpec::default();
+        if let Some(m) = b.material_at(p.x, p.y) {
+            // The back is plain: grey paint (ε 0.95) at the board's temperature.
+            let (emissivity, albedo) = if front {
+                (b.emissivity(m), b.reflectance(m))
+            } else {
+                (0.95, 0.5)
+            };
+            return Some(SurfaceHit {
+                t,
+                temp_k: WALK_BOARD_K,
+                emissivity,
+                albedo: [albedo; 3],
+                normal,
+                object: scene::SceneObject::Wall,
+            });
+        }
+    }
     let mut consider = |h: SurfaceHit| {
         if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
             best = Some(h);
@@ -289,8 +386,16 @@ pub fn trace_walk(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
         let p = o + d * h.t;
         h.albedo = match h.object {
             scene::SceneObject::Wall | scene::SceneObject::Ground => {
-                crate::fiducials::tag_albedo(walk_tags(), p)
-                    .map_or_else(|| texture(p, h.albedo), |a| [a; 3])
+                match crate::fiducials::tag_albedo(walk_tags(), p) {
+                    Some(a) => {
+                        if let Some((temp_k, emissivity)) = ink.thermal(a) {
+                            h.temp_k = temp_k;
+                            h.emissivity = emissivity;
+                        }
+                        [a; 3]
+                    }
+                    None => texture(p, h.albedo),
+                }
             }
             _ => texture(p, h.albedo),
         };
@@ -313,7 +418,12 @@ pub fn scene_extent() -> (DVec3, f64) {
 }
 
 /// Renders the thermal radiance of one frame: 2 instants over the exposure, 2×2 sub-pixels.
-fn render_thermal(grid: &RayGrid, poses: &[Rigid3], radiometry: &Radiometry) -> Vec<f64> {
+fn render_thermal(
+    grid: &RayGrid,
+    poses: &[Rigid3],
+    radiometry: &Radiometry,
+    room: WalkRoom,
+) -> Vec<f64> {
     let (w, h) = (grid.width(), grid.height());
     let l_env = radiometry.radiance(ENV_K);
     let l_bg = radiometry.radiance(BACKGROUND_K);
@@ -328,7 +438,7 @@ fn render_thermal(grid: &RayGrid, poses: &[Rigid3], radiometry: &Radiometry) -> 
                         let (a, b) = (0.25 + 0.5 * i as f64, 0.25 + 0.5 * j as f64);
                         let a = (a + 0.125 * k as f64).fract();
                         let d = pose.transform_vector(grid.sub_ray(u, v, a, b));
-                        acc += match trace_walk(pose.translation_m, d) {
+                        acc += match trace_walk(pose.translation_m, d, room) {
                             Some(s) => {
                                 s.emissivity * radiometry.radiance(s.temp_k)
                                     + (1.0 - s.emissivity) * l_env
@@ -346,7 +456,7 @@ fn render_thermal(grid: &RayGrid, poses: &[Rigid3], radiometry: &Radiometry) -> 
 }
 
 /// Renders the linear RGB of one frame: one jittered ray per pixel and instant.
-fn render_rgb(grid: &RayGrid, poses: &[Rigid3]) -> [Vec<f64>; 3] {
+fn render_rgb(grid: &RayGrid, poses: &[Rigid3], room: WalkRoom) -> [Vec<f64>; 3] {
     let (w, h) = (grid.width(), grid.height());
     let light = DVec3::new(0.3, -0.4, 1.0).normalize();
     let jitter = [(0.3, 0.4), (0.7, 0.6), (0.5, 0.2), (0.2, 0.8)];
@@ -357,7 +467,7 @@ fn render_rgb(grid: &RayGrid, poses: &[Rigid3]) -> [Vec<f64>; 3] {
             for (k, pose) in poses.iter().enumerate() {
                 let (a, b) = jitter[k % jitter.len()];
                 let d = pose.transform_vector(grid.sub_ray(u, v, a, b));
-                match trace_walk(pose.translation_m, d) {
+                match trace_walk(pose.translation_m, d, room) {
                     Some(s) => {
                         let shade = 0.35 + 0.65 * s.normal.dot(light).max(0.0);
                         for (ch, a) in c.iter_mut().zip(s.albedo) {
@@ -429,6 +539,11 @@ struct SceneJson {
 struct TruthJson<'a> {
     format: &'static str,
     trajectory: &'static str,
+    /// How the room's tags are made (`printed`: RGB only; `heated`: thermal too).
+    tags: &'static str,
+    /// `world_from_board` of the board standing in the room (`--walk-board`; its
+    /// `board.toml` beside the truth), or null.
+    board: Option<PoseJson>,
     seed: u64,
     duration_s: f64,
     thermal_profile: &'static str,
@@ -500,7 +615,7 @@ pub fn run_walk(
                     ffc_requested = true;
                 }
                 let poses = instants(&THERMAL_INSTANTS_S, None);
-                let radiance = render_thermal(&tgrid, &poses, &radiometry);
+                let radiance = render_thermal(&tgrid, &poses, &radiometry, spec.room);
                 let (w, h) = (
                     thermal.camera.width_px as usize,
                     thermal.camera.height_px as usize,
@@ -520,7 +635,7 @@ pub fn run_walk(
                     continue;
                 };
                 let poses = instants(&RGB_INSTANTS_S, Some(&thermal_from_rgb));
-                let lin = render_rgb(grid, &poses);
+                let lin = render_rgb(grid, &poses, spec.room);
                 let (w, h) = (p.camera.width_px as usize, p.camera.height_px as usize);
                 let blurred = lin.map(|c| gaussian_blur(&c, w, h, p.psf_sigma_px));
                 let srgb = crate::sensor::expose_rgb_channels(
@@ -722,6 +837,15 @@ pub fn write_truth(
             ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt(),
         )
     } else {
+        if spec.room.board {
+            // The board in the room: the poses stage's --board file.
+            let toml = crate::dataset::board_toml(
+                &crate::board::BoardSpec::default(),
+                // Warmer than its surroundings: coated squares look colder (`Cooled`'s look).
+                crate::dataset::Polarity::Cooled,
+            );
+            std::fs::write(dir.join("board.toml"), toml).map_err(io("write board.toml"))?;
+        }
         // The room's AprilTags: the poses stage's --tags map.
         std::fs::write(
             dir.join("tags.toml"),
@@ -733,6 +857,8 @@ pub fn write_truth(
     let doc = TruthJson {
         format: "s3tir-walk-truth/1",
         trajectory: spec.kind.name(),
+        tags: spec.room.tags.name(),
+        board: spec.room.board.then(|| PoseJson::from(&walk_board_pose())),
         seed: rig.seed,
         duration_s: spec.duration_s,
         thermal_profile: rig.thermal.name,

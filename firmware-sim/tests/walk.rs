@@ -29,6 +29,7 @@ fn walk(duration_s: f64) -> (Vec<(WireFrame, f64)>, Vec<TruthFrame>) {
         kind: WalkKind::Handheld,
         duration_s,
         truth_dir: None,
+        room: Default::default(),
     };
     let truth = run_walk(&rig(), &spec, &AtomicBool::new(false), |f, t| {
         frames.push((f, t));
@@ -158,5 +159,105 @@ fn same_seed_same_frames_and_the_walks_ffc_is_flagged() {
     assert!(
         truth.iter().filter(|t| t.ffc_frozen).count() == frozen.len(),
         "the truth flags the same frames"
+    );
+}
+
+/// The walk room's board (`--walk-board`): `walk_board_pose` places board points where the
+/// tracer finds the board's pattern, coated squares where `material_at` says, seen from the
+/// front; the back is plain. Heated tags are warm where their ink is and foil elsewhere;
+/// printed tags keep the wall's thermal field.
+#[test]
+fn the_walk_board_and_heated_tags_are_where_their_files_say() {
+    use s3tir_firmware_sim::board::{BoardMaterial, BoardSpec};
+    use s3tir_firmware_sim::fiducials::{FOIL_EMISSIVITY, HEATED_TAG_K, TagInk, room_tags};
+    use s3tir_firmware_sim::walk::{WALK_BOARD_K, WalkRoom, trace_walk, walk_board_pose};
+
+    let board = BoardSpec::default();
+    let pose = walk_board_pose();
+    let room = WalkRoom {
+        board: true,
+        ..WalkRoom::default()
+    };
+    // Board z points into the printed face: a viewer in front sits at negative board z.
+    let mut checked = 0;
+    for (x, y) in [
+        (0.03, 0.03),
+        (0.09, 0.03),
+        (0.21, 0.15),
+        (0.39, 0.21),
+        (-0.03, -0.03),
+    ] {
+        let target = pose.transform_point(DVec3::new(x, y, 0.0));
+        for (side, front) in [(-1.0, true), (1.0, false)] {
+            let eye = pose.transform_point(DVec3::new(x, y, side * 0.1));
+            let d = (target - eye).normalize();
+            let hit = trace_walk(eye, d, room).expect("the board is hit");
+            assert!(
+                (eye + d * hit.t - target).length() < 1e-9,
+                "({x}, {y}) seen from the {}: hit {:.4} m away from the board point",
+                if front { "front" } else { "back" },
+                (eye + d * hit.t - target).length()
+            );
+            assert_eq!(hit.temp_k, WALK_BOARD_K);
+            let m = board.material_at(x, y).expect("on the board");
+            let want = if front { board.emissivity(m) } else { 0.95 };
+            assert_eq!(hit.emissivity, want, "({x}, {y}) front {front}: {m:?}");
+            if front {
+                assert_eq!(
+                    hit.albedo[0] < 0.5,
+                    m == BoardMaterial::Coated,
+                    "coated squares are black in RGB"
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 10);
+    // Without the board the same ray goes through to the scene behind it.
+    let eye = pose.transform_point(DVec3::new(0.21, 0.15, -0.8));
+    let d = (pose.transform_point(DVec3::new(0.21, 0.15, 0.0)) - eye).normalize();
+    let through = trace_walk(eye, d, WalkRoom::default()).expect("the room");
+    assert!(
+        through.temp_k != WALK_BOARD_K,
+        "no board without --walk-board"
+    );
+
+    // A floor tag's centre cell region: heated ink or foil, printed: the floor's own field.
+    let tag = room_tags()[20];
+    let above = tag.centre + DVec3::Z * 1.0;
+    let mut inks = (0, 0);
+    for (dx, dy) in [
+        (0.0, 0.0),
+        (0.17, 0.17),
+        (-0.17, 0.17),
+        (0.22, 0.0),
+        (0.19, -0.19),
+    ] {
+        let p = tag.centre + tag.right * dx + tag.up * dy;
+        let d = (p - above).normalize();
+        let heated = trace_walk(
+            above,
+            d,
+            WalkRoom {
+                tags: TagInk::Heated,
+                board: false,
+            },
+        )
+        .expect("floor");
+        let printed = trace_walk(above, d, WalkRoom::default()).expect("floor");
+        assert_eq!(heated.temp_k, HEATED_TAG_K, "heated tag at ({dx}, {dy})");
+        assert!(
+            printed.temp_k < HEATED_TAG_K - 5.0,
+            "printed tags are at the floor's temperature"
+        );
+        if heated.emissivity == FOIL_EMISSIVITY {
+            inks.1 += 1;
+        } else {
+            inks.0 += 1;
+        }
+    }
+    assert!(
+        inks.0 >= 1 && inks.1 >= 1,
+        "the border is ink, the quiet zone foil: {inks:?}"
     );
 }

@@ -134,6 +134,8 @@ pub struct WalkTruth {
     pub extent_m: f64,
     /// Thermal frames: sequence → world_from_cam.
     pub thermal: std::collections::BTreeMap<u32, s3tir_calib::Rigid3>,
+    /// `world_from_board` of the board standing in the room (a walk with `--walk-board`).
+    pub board: Option<s3tir_calib::Rigid3>,
 }
 
 /// Reads a walk's `truth.json`; panics naming the file when it does not read.
@@ -156,15 +158,18 @@ pub fn read_walk_truth(path: &Path) -> WalkTruth {
             thermal.insert(seq as u32, rigid_from_json(&f["world_from_cam"]));
         }
     }
+    // A walk recorded without RGB has `"rgb": null`: a thermal-only calibration.
+    let has_rgb = !v["rgb"].is_null();
     WalkTruth {
         cal: s3tir_calib::calfile::CalibrationFile {
             thermal: Some(model("thermal")),
-            rgb: Some(model("rgb")),
-            rgb_from_thermal: Some(rigid_from_json(&v["rgb_from_thermal"])),
+            rgb: has_rgb.then(|| model("rgb")),
+            rgb_from_thermal: has_rgb.then(|| rigid_from_json(&v["rgb_from_thermal"])),
         },
         extent_m: v["scene"]["extent_m"]
             .as_f64()
             .unwrap_or_else(|| panic!("truth has no scene extent")),
         thermal,
+        board: (!v["board"].is_null()).then(|| rigid_from_json(&v["board"])),
     }
 }

@@ -29,7 +29,9 @@
 //! 3. **Poses of the keyframes.** *Fast path* ([`fiducials`]): with a tag map that places
 //!    AprilTags in the world (`--tags FILE`), every keyframe that sees two mapped tags is posed
 //!    by PnP on their corners; when enough keyframes are posed so (`min_registered`), COLMAP
-//!    does not run and the world is the map's, in metres. Otherwise, **structure from
+//!    does not run and the world is the map's, in metres. The calibration board standing in
+//!    the scene (`--board`, [`board`]) is such a map too, in the board's frame, and is found in
+//!    thermal keyframes as well (a rig without RGB). Otherwise, **structure from
 //!    motion** ([`sfm`]): Debian's `colmap` (3.8) runs as an external process
 //!    on the keyframes, CPU SIFT, with the calibrated intrinsics and distortion **fixed** (the
 //!    calibration's model, written in COLMAP's words by the workspace's one COLMAP codec), or a
@@ -68,6 +70,7 @@
 //! renames it to `OUT` when everything is written, and the session is only read.
 
 pub mod agreement;
+pub mod board;
 pub mod dataset;
 pub mod fiducials;
 pub mod frames;
@@ -115,7 +118,7 @@ pub enum PosesError {
         log: PathBuf,
     },
     #[error(
-        "structure from motion registered {registered} of {keyframes} keyframes (at least {needed} needed): the walk may be too fast or blurred, the scene too bland, or the frames too few; record slower, with more texture in view, or lower --blur-ratio. COLMAP's workspace: {workspace}"
+        "structure from motion registered {registered} of {keyframes} keyframes (at least {needed} needed): the walk may be too fast or blurred, the scene too bland, or the frames too few; record slower, with more texture in view, or lower --blur-ratio; a rig without RGB in a scene of little thermal texture needs thermal fiducials (heated AprilTags with --tags, or the emissivity board with --board). COLMAP's workspace: {workspace}"
     )]
     TooFewRegistered {
         registered: usize,
@@ -191,8 +194,13 @@ pub struct PosesOptions {
     /// An AprilTag map (`fiducials` module docs): metric scale for COLMAP's world, and with a
     /// layout, poses without COLMAP.
     pub tags: Option<PathBuf>,
-    /// With a tag layout: pose keyframes by PnP and skip COLMAP when enough are posed
-    /// (`false`: COLMAP always runs; the tags still give the scale).
+    /// The calibration board standing in the scene ([`board`]): its frame is the world of the
+    /// fast path, its squares give COLMAP's world its scale; used like a tag map (not with
+    /// `tags`).
+    #[serde(skip)]
+    pub board: Option<board::BoardFiducial>,
+    /// With a tag layout or a board: pose keyframes by PnP and skip COLMAP when enough are
+    /// posed (`false`: COLMAP always runs; the fiducials still give the scale).
     pub tag_poses: bool,
     /// CPU threads COLMAP may use.
     pub threads: usize,
@@ -220,6 +228,7 @@ impl Default for PosesOptions {
             min_registered: 0.5,
             metres_per_unit: None,
             tags: None,
+            board: None,
             tag_poses: true,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
             progress: false,
@@ -250,7 +259,7 @@ pub struct PosesReport {
     pub dataset: PathBuf,
     /// "rgb" or "thermal": the stream the keyframes come from.
     pub sfm_stream: &'static str,
-    /// What posed the keyframes: "colmap", "apriltags" (fast path) or "user model".
+    /// What posed the keyframes: "colmap", "apriltags" or "board" (fast paths) or "user model".
     pub pose_source: &'static str,
     pub session_truncated: bool,
     pub session_note: Option<String>,
@@ -267,7 +276,10 @@ pub struct PosesReport {
     /// Metres per world unit, when known.
     pub metres_per_unit: Option<f64>,
     pub scale_source: String,
-    /// Keyframes in which at least one tag of the map was decoded (with `--tags`).
+    /// The fiducials are the calibration board (`--board`), not AprilTags.
+    pub board: bool,
+    /// Keyframes in which at least one tag of the map was decoded (with `--tags`), or one
+    /// square of the board found (with `--board`).
     pub tag_keyframes: Option<usize>,
     /// The scale measured from the tags on COLMAP's world (with `--tags`, COLMAP path).
     pub tag_scale: Option<fiducials::TagScale>,
@@ -451,11 +463,26 @@ pub fn session_to_dataset(
         }
     };
     let rig = rig_models(cal, &scan)?;
-    let tag_map = opts
-        .tags
-        .as_deref()
-        .map(fiducials::TagMap::read)
-        .transpose()?;
+    // One fiducial map: the tags' (world = the map's) or the board's (world = the board's).
+    let tag_map = match (&opts.tags, &opts.board) {
+        (Some(tags), Some(board)) => {
+            return Err(PosesError::Tags {
+                path: tags.clone(),
+                reason: format!(
+                    "give either an AprilTag map or the board ({}), not both: their worlds differ",
+                    board.path.display()
+                ),
+            });
+        }
+        (Some(tags), None) => Some(fiducials::TagMap::read(tags)?),
+        (None, Some(board)) => Some(board.as_tag_map()),
+        (None, None) => None,
+    };
+    // What the fiducials are called in the report.
+    let (fiducial, fiducial_source) = match &opts.board {
+        Some(_) => ("the board", "board"),
+        None => ("AprilTags", "apriltags"),
+    };
     // With a tag layout COLMAP may not be needed: checked when it is.
     let may_skip_colmap = tag_map
         .as_ref()
@@ -510,14 +537,17 @@ pub fn session_to_dataset(
 
     // AprilTags in the keyframes: PnP poses (fast path) and, for COLMAP's world, the scale.
     let t = std::time::Instant::now();
-    let seen = match &tag_map {
-        Some(m) => fiducials::detect_in_keyframes(
+    let seen = match (&tag_map, &opts.board) {
+        (Some(_), Some(board)) => {
+            board.detect_in_keyframes(&workspace.join("images"), sfm_stream, &keyframes)?
+        }
+        (Some(m), None) => fiducials::detect_in_keyframes(
             &workspace.join("images"),
             sfm_stream,
             &keyframes,
             m.has_layout().then(|| m.corners.keys().copied().collect()),
         )?,
-        None => Vec::new(),
+        (None, _) => Vec::new(),
     };
     let mut tag_posed: BTreeMap<u64, fiducials::TagPose> = match &tag_map {
         Some(m) if may_skip_colmap && opts.user_model.is_none() => seen
@@ -535,7 +565,7 @@ pub fn session_to_dataset(
             posed = tag_posed.len(),
             keyframes = keyframes.len(),
             needed,
-            "too few keyframes see two mapped AprilTags: structure from motion runs"
+            "too few keyframes are posed by {fiducial}: structure from motion runs"
         );
     }
 
@@ -544,7 +574,7 @@ pub fn session_to_dataset(
             .iter()
             .map(|(t, p)| (*t, p.world_from_cam))
             .collect();
-        ("apriltags", registered, Vec::new(), Vec::new())
+        (fiducial_source, registered, Vec::new(), Vec::new())
     } else {
         let model = match &opts.user_model {
             Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
@@ -621,7 +651,7 @@ pub fn session_to_dataset(
             median_deg = a.median_deg,
             disagreeing = a.disagreeing,
             keyframes = a.keyframes,
-            "the structure-from-motion model disagrees with the AprilTag poses"
+            "the structure-from-motion model disagrees with the poses from {fiducial}"
         );
     }
     let tag_scale = match &tag_map {
@@ -636,7 +666,7 @@ pub fn session_to_dataset(
         (true, _, _) => (
             Some(1.0),
             format!(
-                "metric: the keyframes were posed in the AprilTag map {} (metres)",
+                "metric: the keyframes were posed by {fiducial} ({}; metres)",
                 tag_map.as_ref().map_or(Path::new(""), |m| &m.path).display()
             ),
         ),
@@ -644,7 +674,7 @@ pub fn session_to_dataset(
         (false, None, Some(ts)) => (
             Some(ts.metres_per_unit),
             format!(
-                "measured from AprilTags ({}): {:.5} m per world unit ({} tags, {} lengths, spread {:.2} %)",
+                "measured from {fiducial} ({}): {:.5} m per world unit ({} tags, {} lengths, spread {:.2} %)",
                 ts.method,
                 ts.metres_per_unit,
                 ts.tags,
@@ -691,17 +721,20 @@ pub fn session_to_dataset(
         monotonic_ns: k.monotonic_ns,
         decision: match (fast_path, tag_posed.get(&k.monotonic_ns)) {
             (true, Some(p)) => format!(
-                "keyframe: posed by AprilTags ({} tags, corner rms {:.2} px)",
-                p.tags, p.rms_px
+                "keyframe: posed by {fiducial} ({} {}, corner rms {:.2} px)",
+                p.tags,
+                if opts.board.is_some() { "squares" } else { "tags" },
+                p.rms_px
             ),
             (true, None) if jumps.contains(&k.monotonic_ns) => format!(
-                "keyframe: not posed (its AprilTag pose is more than {}° or {} m off its neighbours' in time)",
+                "keyframe: not posed (its pose from {fiducial} is more than {}° or {} m off its neighbours' in time)",
                 fiducials::OUTLIER_DEG,
                 fiducials::OUTLIER_M
             ),
             (true, None) => format!(
-                "keyframe: not posed (fewer than {} mapped AprilTags decoded, or their corners fit no pose within {} px)",
+                "keyframe: not posed (fewer than {} mapped {} found, or their corners fit no pose within {} px)",
                 fiducials::MIN_PNP_TAGS,
+                if opts.board.is_some() { "board squares" } else { "AprilTags" },
                 fiducials::MAX_PNP_RMS_PX
             ),
             (false, _) if registered_at.contains(&k.monotonic_ns) => {
@@ -753,6 +786,7 @@ pub fn session_to_dataset(
         sfm_points: sfm_points.len(),
         metres_per_unit,
         scale_source,
+        board: opts.board.is_some(),
         tag_keyframes: tag_map
             .as_ref()
             .map(|_| seen.iter().filter(|s| !s.tags.is_empty()).count()),
@@ -785,11 +819,18 @@ pub fn summary(r: &PosesReport) -> String {
         r.dropped_frames
     );
     match r.pose_source {
-        "apriltags" => {
+        "apriltags" | "board" => {
             let _ = writeln!(
                 s,
-                "AprilTag poses on {}: {} of {} keyframes posed by PnP (COLMAP not run)",
-                r.sfm_stream, r.registered, r.keyframes
+                "{} poses on {}: {} of {} keyframes posed by PnP (COLMAP not run)",
+                if r.pose_source == "board" {
+                    "board"
+                } else {
+                    "AprilTag"
+                },
+                r.sfm_stream,
+                r.registered,
+                r.keyframes
             );
         }
         source => {
@@ -808,14 +849,24 @@ pub fn summary(r: &PosesReport) -> String {
         );
     }
     if let Some(n) = r.tag_keyframes {
-        let _ = writeln!(s, "AprilTags decoded in {n} of {} keyframes", r.keyframes);
+        let _ = writeln!(
+            s,
+            "{} in {n} of {} keyframes",
+            if r.board {
+                "the board found"
+            } else {
+                "AprilTags decoded"
+            },
+            r.keyframes
+        );
     }
     if let Some(a) = &r.tag_agreement {
         let _ = writeln!(
             s,
-            "{}{} model vs AprilTag poses on {} keyframes: median {:.2}°, max {:.2}°, {} over {:.0}°{}",
+            "{}{} model vs {} poses on {} keyframes: median {:.2}°, max {:.2}°, {} over {:.0}°{}",
             if a.agrees { "" } else { "warning: " },
             r.pose_source,
+            if r.board { "board" } else { "AprilTag" },
             a.keyframes,
             a.median_deg,
             a.max_deg,
@@ -824,7 +875,7 @@ pub fn summary(r: &PosesReport) -> String {
             if a.agrees {
                 ""
             } else {
-                " — the model disagrees with the tags (hinged in parts?); check poses.json, or run again"
+                " — the model disagrees with the fiducials (hinged in parts?); check poses.json, or run again"
             }
         );
     }
