@@ -5,7 +5,8 @@
 //! Criterion's throughput is set to `width × height × primitives` elements, so its
 //! "elem/s" figure converts to time per megapixel-primitive as `1e6 / (elem/s)` seconds.
 //! The scene: 2 000 random primitives (β ∈ [2, 20], M = 4 bands, no colour) filling a
-//! 256 × 192 view, so tile culling is exercised as in a real frame. Single-threaded.
+//! 256 × 192 view, so tile culling is exercised as in a real frame. On rayon's pool (every
+//! core; `RAYON_NUM_THREADS=1` for one thread).
 //!
 //! Group `cpu_render_shortcuts` (f32, forward + backward of one view, what a training step costs
 //! the renderer): the same scene after capacity adaptation has put half of the primitives on the

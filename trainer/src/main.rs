@@ -542,8 +542,8 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         r.device, r.width, r.height, r.primitives, r.steps
     );
     println!(
-        "  CPU backend, s3tir mode     {:8.2} steps/s",
-        r.cpu_steps_per_s
+        "  CPU backend, s3tir mode     {:8.2} steps/s on {} threads, {:.2} on one ({:.2}x)",
+        r.cpu_steps_per_s, r.cpu_threads, r.cpu_one_thread_steps_per_s, r.cpu_parallel_speedup
     );
     println!(
         "  Vulkan backend, s3tir mode  {:8.2} steps/s",

@@ -1,7 +1,8 @@
 //! `s3tir-train bench`: training steps per second of the Vulkan backend against the CPU
 //! backend on the same scene, budget and loop, the cost of the full S³-TIR primitive against the
-//! 3DGS mode, and where the GPU time goes (timestamp queries per kernel). Every figure is a
-//! ratio between runs made in the same invocation, on this machine.
+//! 3DGS mode, the CPU backend on every core against one thread, and where the GPU time goes
+//! (timestamp queries per kernel). Every figure is a ratio between runs made in the same
+//! invocation, on this machine.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -70,8 +71,14 @@ pub struct BenchReport {
     pub height: usize,
     pub primitives: usize,
     pub steps: usize,
-    /// CPU backend, s3tir mode.
+    /// CPU backend, s3tir mode, on every core (rayon's pool: `cpu_threads`).
     pub cpu_steps_per_s: f64,
+    /// Threads of the CPU backend's pool.
+    pub cpu_threads: usize,
+    /// CPU backend, s3tir mode, on one thread (the same steps: the results are the same bits).
+    pub cpu_one_thread_steps_per_s: f64,
+    /// `cpu_steps_per_s / cpu_one_thread_steps_per_s`: what the extra cores buy the CPU backend.
+    pub cpu_parallel_speedup: f64,
     /// Vulkan backend, s3tir mode (= `s3tir_steps_per_s`).
     pub vulkan_steps_per_s: f64,
     /// Vulkan backend, s3tir mode (learnable β, M bands, every term of eq. 6; the consistency
@@ -127,6 +134,8 @@ pub enum BenchError {
     },
     #[error("benchmark: {what} needs at least 1, got 0")]
     Zero { what: &'static str },
+    #[error("benchmark: a one-thread pool for the CPU backend: {reason}")]
+    ThreadPool { reason: String },
 }
 
 fn config(data: &Path, mode: Mode, partner: ConsistPartner, opts: &BenchOptions) -> TrainConfig {
@@ -292,7 +301,7 @@ fn run_in(
     let settings = RenderSettings::default();
     let gpu = |source| BenchError::Gpu { source };
 
-    // The three configurations run side by side and are timed in interleaved rounds, so a
+    // The configurations run side by side and are timed in interleaved rounds, so a
     // slow spell of the machine (other tenants, frequency changes) falls on all of them alike
     // and the ratios stay fair.
     let vulkan_traffic = |b: &VulkanBackend| b.context().traffic();
@@ -307,6 +316,25 @@ fn run_in(
         &mut |_| {},
         &no_traffic,
     )?;
+    // The CPU backend once more, its rayon work on one thread: the parallel speed-up.
+    progress("CPU backend, s3tir mode, one thread: warm-up");
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .map_err(|e| BenchError::ThreadPool {
+            reason: e.to_string(),
+        })?;
+    let mut cpu1 = one_thread.install(|| {
+        Timed::start(
+            &data_dir,
+            &root.join("cpu-1"),
+            (Mode::S3tir, ConsistPartner::default()),
+            opts,
+            CpuBackend { settings },
+            &mut |_| {},
+            &no_traffic,
+        )
+    })?;
     progress("Vulkan backend, 3dgs mode: warm-up");
     let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
     let mut gaussian = Timed::start(
@@ -351,11 +379,13 @@ fn run_in(
             r + 1
         ));
         cpu.round(n)?;
+        one_thread.install(|| cpu1.round(n))?;
         gaussian.round(n)?;
         s3tir.round(n)?;
         rendered.round(n)?;
     }
     let cpu = cpu.finish(&no_traffic)?;
+    let cpu1 = cpu1.finish(&no_traffic)?;
     let gaussian = gaussian.finish(&vulkan_traffic)?;
     let s3tir = s3tir.finish(&vulkan_traffic)?;
     let rendered = rendered.finish(&vulkan_traffic)?;
@@ -405,6 +435,9 @@ fn run_in(
         primitives: opts.primitives,
         steps: opts.steps,
         cpu_steps_per_s: cpu.steps_per_s,
+        cpu_threads: rayon::current_num_threads(),
+        cpu_one_thread_steps_per_s: cpu1.steps_per_s,
+        cpu_parallel_speedup: cpu.steps_per_s / cpu1.steps_per_s,
         vulkan_steps_per_s: s3tir.steps_per_s,
         s3tir_steps_per_s: s3tir.steps_per_s,
         gaussian_steps_per_s: gaussian.steps_per_s,

@@ -14,12 +14,13 @@
 
 use super::forward::{blended_values, pixel, sample};
 use super::prepare::{Prepared, prepare};
-use super::{GBuffers, RenderSettings, T_MIN};
+use super::{GBuffers, RenderSettings, T_MIN, TILE_SIZE};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::{Primitives, quat_backward};
 use crate::real::{Real, v3};
 use crate::sh;
+use rayon::prelude::*;
 
 #[derive(Debug, Clone, Copy, Default)]
 struct Acc<T> {
@@ -31,6 +32,26 @@ struct Acc<T> {
     g_beta: T,
     g_colour: [T; 3],
     touched: bool,
+}
+
+impl<T: Real> Acc<T> {
+    fn add(&mut self, o: &Self) {
+        for (a, b) in self.g_a.iter_mut().zip(o.g_a) {
+            *a += b;
+        }
+        for (a, b) in self.g_bp.iter_mut().zip(o.g_bp) {
+            *a += b;
+        }
+        for (a, b) in self.g_mu.iter_mut().zip(o.g_mu) {
+            *a += b;
+        }
+        self.g_o += o.g_o;
+        self.g_beta += o.g_beta;
+        for (a, b) in self.g_colour.iter_mut().zip(o.g_colour) {
+            *a += b;
+        }
+        self.touched |= o.touched;
+    }
 }
 
 /// Gradient w.r.t. every parameter of `prims` (same layout as `prims`) given `dL/d(buffer)` for
@@ -66,7 +87,24 @@ fn check_upstream<T: Real>(prep: &Prepared<T>, g: &GBuffers<T>) -> Result<(), Tr
     Ok(())
 }
 
+/// Tiles whose partial sums are held at once (bounds the memory of the parallel backward pass:
+/// one [`Acc`] and the band slots per primitive per tile of a batch).
+const BACKWARD_BATCH_TILES: usize = 64;
+
+/// One tile's gradient sums, indexed like the tile's primitive list: [`Acc`] and `ω_low`, then
+/// per primitive the band slots' `[amp; m] [phase; m] [freq; 3m]`.
+struct TileSums<T> {
+    acc: Vec<Acc<T>>,
+    omega_low: Vec<T>,
+    bands: Vec<T>,
+}
+
 /// Backward pass on prepared per-view data (upstream sizes must match the view).
+///
+/// Tiles run in parallel, each summing its own pixels' contributions per primitive of its list;
+/// the tiles' sums are then added in tile order. The partition into tiles and the order of
+/// every addition are fixed, so the gradients are the same bit for bit on any number of
+/// threads (`tests/cpu_threads.rs`).
 pub fn render_backward_prepared<T: Real>(
     prims: &Primitives<T>,
     prep: &Prepared<T>,
@@ -76,15 +114,64 @@ pub fn render_backward_prepared<T: Real>(
         tracing::trace_span!("cpu_render_backward", primitives = prep.order.len()).entered();
     let mut grads = prims.zeros_like();
     let mut acc = vec![Acc::<T>::default(); prims.len()];
+    let m = prims.bands;
+    let tiles: Vec<usize> = (0..prep.tile_lists.len()).collect();
+    for batch in tiles.chunks(BACKWARD_BATCH_TILES) {
+        let sums: Vec<TileSums<T>> = batch
+            .par_iter()
+            .map(|&t| backward_tile(prims, prep, upstream, t))
+            .collect();
+        for (&t, sums) in batch.iter().zip(sums) {
+            for (k, &i) in prep.tile_lists[t].iter().enumerate() {
+                let local = &sums.acc[k];
+                if !local.touched {
+                    continue;
+                }
+                let i = i as usize;
+                acc[i].add(local);
+                grads.omega_low[i] += sums.omega_low[k];
+                let live = prep.prims[i].live_bands;
+                let at = 5 * m * k;
+                for j in 0..live {
+                    let g = m * i + j;
+                    grads.band_amp[g] += sums.bands[at + j];
+                    grads.band_phase[g] += sums.bands[at + m + j];
+                    for a in 0..3 {
+                        grads.band_freq[3 * g + a] += sums.bands[at + 2 * m + 3 * j + a];
+                    }
+                }
+            }
+        }
+    }
+    finish_backward(prims, prep, &acc, grads)
+}
+
+/// One tile's pixels, back to front per pixel (module docs), summed per primitive of the tile.
+fn backward_tile<T: Real>(
+    prims: &Primitives<T>,
+    prep: &Prepared<T>,
+    upstream: &GBuffers<T>,
+    tile: usize,
+) -> TileSums<T> {
+    let list = &prep.tile_lists[tile];
+    let m = prims.bands;
+    let mut out = TileSums {
+        acc: vec![Acc::<T>::default(); list.len()],
+        omega_low: vec![T::ZERO; list.len()],
+        bands: vec![T::ZERO; 5 * m * list.len()],
+    };
+    if list.is_empty() {
+        return out;
+    }
     let npix = prep.width * prep.height;
     let t_min = T::from_f64(T_MIN);
     let two_pi = T::from_f64(std::f64::consts::TAU);
-    let m = prims.bands;
     let up = |v: &Vec<T>, idx: usize| v.get(idx).copied().unwrap_or(T::ZERO);
     let mut samples = Vec::new();
-
-    for y in 0..prep.height {
-        for x in 0..prep.width {
+    let (tx, ty) = (tile % prep.tiles_x, tile / prep.tiles_x);
+    let (x0, y0) = (tx * TILE_SIZE, ty * TILE_SIZE);
+    for y in y0..(y0 + TILE_SIZE).min(prep.height) {
+        for x in x0..(x0 + TILE_SIZE).min(prep.width) {
             let pidx = y * prep.width + x;
             let g = [
                 up(&upstream.thermal, pidx),
@@ -104,7 +191,7 @@ pub fn render_backward_prepared<T: Real>(
             // Recompute the front-to-back samples with their transmittance.
             samples.clear();
             let mut trans = T::ONE;
-            for &i in &prep.tile_lists[prep.tile_of(x, y)] {
+            for (k, &i) in list.iter().enumerate() {
                 let i = i as usize;
                 let pv = &prep.prims[i];
                 let Some(s) = sample(prims, prep, pv, i, p) else {
@@ -114,45 +201,46 @@ pub fn render_backward_prepared<T: Real>(
                 if next < t_min {
                     break;
                 }
-                samples.push((i, trans, s));
+                samples.push((k, i, trans, s));
                 trans = next;
             }
             let mut s_after = T::ZERO;
-            for &(i, trans_i, s) in samples.iter().rev() {
+            for &(k, i, trans_i, s) in samples.iter().rev() {
                 let pv = &prep.prims[i];
                 let vals = blended_values(prims, pv, i, &s);
                 let w_i = g.iter().zip(vals).fold(T::ZERO, |a, (gk, vk)| a + *gk * vk);
                 let d_alpha = trans_i * (w_i - s_after);
                 s_after = s.alpha * w_i + (T::ONE - s.alpha) * s_after;
                 let wt = trans_i * s.alpha;
-                let dv: [T; 9] = std::array::from_fn(|k| wt * g[k]);
+                let dv: [T; 9] = std::array::from_fn(|c| wt * g[c]);
 
-                let ac = &mut acc[i];
+                let ac = &mut out.acc[k];
                 ac.touched = true;
                 for c in 0..3 {
                     ac.g_colour[c] += dv[6 + c];
                 }
                 // Spectrum.
                 let g_f = if s.f_active { dv[0] } else { T::ZERO };
-                grads.omega_low[i] += dv[1] + g_f;
+                out.omega_low[k] += dv[1] + g_f;
                 let mut g_delta = [T::ZERO; 3];
+                let at = 5 * m * k;
                 // Dropped slots (j ≥ live) are not part of the model: zero gradient.
                 for j in 0..pv.live_bands {
-                    let k = m * i + j;
-                    let amp = prims.band_amp[k];
-                    grads.band_amp[k] += dv[2] * amp.sign0();
+                    let kb = m * i + j;
+                    let amp = prims.band_amp[kb];
+                    out.bands[at + j] += dv[2] * amp.sign0();
                     if g_f != T::ZERO {
                         let fr = [
-                            prims.band_freq[3 * k],
-                            prims.band_freq[3 * k + 1],
-                            prims.band_freq[3 * k + 2],
+                            prims.band_freq[3 * kb],
+                            prims.band_freq[3 * kb + 1],
+                            prims.band_freq[3 * kb + 2],
                         ];
-                        let theta = two_pi * v3::dot(fr, s.delta) + prims.band_phase[k];
-                        grads.band_amp[k] += g_f * theta.cos();
+                        let theta = two_pi * v3::dot(fr, s.delta) + prims.band_phase[kb];
+                        out.bands[at + j] += g_f * theta.cos();
                         let g_theta = -g_f * amp * theta.sin();
-                        grads.band_phase[k] += g_theta;
+                        out.bands[at + m + j] += g_theta;
                         for a in 0..3 {
-                            grads.band_freq[3 * k + a] += g_theta * two_pi * s.delta[a];
+                            out.bands[at + 2 * m + 3 * j + a] += g_theta * two_pi * s.delta[a];
                             g_delta[a] += g_theta * two_pi * fr[a];
                         }
                     }
@@ -194,7 +282,17 @@ pub fn render_backward_prepared<T: Real>(
             }
         }
     }
+    out
+}
 
+/// The per-primitive sums → gradients of the parameters (through `N`, the SH colour, the
+/// opacity and β parameterisations).
+fn finish_backward<T: Real>(
+    prims: &Primitives<T>,
+    prep: &Prepared<T>,
+    acc: &[Acc<T>],
+    mut grads: Primitives<T>,
+) -> Primitives<T> {
     let k_sh = prims.sh_k();
     let w = &prep.pix_to_dir;
     for (i, ac) in acc.iter().enumerate() {

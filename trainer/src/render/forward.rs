@@ -7,6 +7,7 @@ use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::Primitives;
 use crate::real::{Real, v3};
+use rayon::prelude::*;
 
 /// One primitive evaluated at one pixel's peak point.
 #[derive(Debug, Clone, Copy)]
@@ -171,46 +172,53 @@ pub fn render_gbuffers<T: Real>(
     Ok(render_prepared(prims, &prep))
 }
 
-/// Forward pass on prepared per-view data.
+/// Forward pass on prepared per-view data. Rows are rendered in parallel; each pixel is
+/// independent, so the result is the same bit for bit on any number of threads.
 pub fn render_prepared<T: Real>(prims: &Primitives<T>, prep: &Prepared<T>) -> GBuffers<T> {
     let _span = tracing::trace_span!("cpu_render_forward", primitives = prep.order.len()).entered();
     let has_rgb = prims.sh_k() > 0;
     let mut out = GBuffers::zeros(prep.width, prep.height, has_rgb);
     let npix = prep.width * prep.height;
+    if npix == 0 {
+        return out;
+    }
     let t_min = T::from_f64(T_MIN);
-    for y in 0..prep.height {
-        for x in 0..prep.width {
-            let pidx = y * prep.width + x;
-            let p = pixel::<T>(x, y);
-            let mut trans = T::ONE;
-            let mut acc = [T::ZERO; 9];
-            for &i in &prep.tile_lists[prep.tile_of(x, y)] {
-                let i = i as usize;
-                let pv = &prep.prims[i];
-                let Some(s) = sample(prims, prep, pv, i, p) else {
-                    continue;
-                };
-                let next = trans * (T::ONE - s.alpha);
-                if next < t_min {
-                    break;
+    let mut accs = vec![[T::ZERO; 9]; npix];
+    accs.par_chunks_mut(prep.width)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, acc) in row.iter_mut().enumerate() {
+                let p = pixel::<T>(x, y);
+                let mut trans = T::ONE;
+                for &i in &prep.tile_lists[prep.tile_of(x, y)] {
+                    let i = i as usize;
+                    let pv = &prep.prims[i];
+                    let Some(s) = sample(prims, prep, pv, i, p) else {
+                        continue;
+                    };
+                    let next = trans * (T::ONE - s.alpha);
+                    if next < t_min {
+                        break;
+                    }
+                    let w = trans * s.alpha;
+                    let vals = blended_values(prims, pv, i, &s);
+                    for (a, v) in acc.iter_mut().zip(vals) {
+                        *a += w * v;
+                    }
+                    trans = next;
                 }
-                let w = trans * s.alpha;
-                let vals = blended_values(prims, pv, i, &s);
-                for (a, v) in acc.iter_mut().zip(vals) {
-                    *a += w * v;
-                }
-                trans = next;
             }
-            out.thermal[pidx] = acc[0];
-            out.psi_low[pidx] = acc[1];
-            out.psi_high[pidx] = acc[2];
-            out.psi_beta[pidx] = acc[3];
-            out.depth[pidx] = acc[4];
-            out.alpha[pidx] = acc[5];
-            if has_rgb {
-                for c in 0..3 {
-                    out.rgb[c * npix + pidx] = acc[6 + c];
-                }
+        });
+    for (pidx, acc) in accs.iter().enumerate() {
+        out.thermal[pidx] = acc[0];
+        out.psi_low[pidx] = acc[1];
+        out.psi_high[pidx] = acc[2];
+        out.psi_beta[pidx] = acc[3];
+        out.depth[pidx] = acc[4];
+        out.alpha[pidx] = acc[5];
+        if has_rgb {
+            for c in 0..3 {
+                out.rgb[c * npix + pidx] = acc[6 + c];
             }
         }
     }

@@ -53,6 +53,15 @@
 //! (likewise for `v`). The box is padded by [`CULL_PAD_PX`] against rounding, computed in f64, and
 //! every tile whose pixel centres meet it is listed. `tests/culling.rs` checks it against brute force.
 //!
+//! # Threads
+//! Prepare runs per primitive, the forward pass per row of pixels, the backward pass per tile,
+//! all on rayon's pool. Per-primitive and per-pixel work is independent; the backward pass sums
+//! each tile's contributions per primitive, then adds the tiles' sums in tile order, in
+//! batches of tiles that bound the memory held. Partitions and summation order never depend on
+//! the thread count, so every output is the same bit for bit on 1 thread or 64
+//! (`tests/cpu_threads.rs`), though the backward pass's sums are in a different order than a
+//! plain row-major loop would take (a few ulp apart from the single-threaded code this replaced).
+//!
 //! # Anti-aliasing
 //! None: each pixel is **one point sample** of the pixel-centre ray — no EWA low-pass, no 0.3 px
 //! dilation (which would change the kernel and break the β-coupling). Primitives smaller than a

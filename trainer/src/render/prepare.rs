@@ -7,6 +7,7 @@ use crate::error::TrainerError;
 use crate::primitive::{Primitives, rotation_from_quat};
 use crate::real::{Real, v3};
 use crate::sh;
+use rayon::prelude::*;
 
 /// One primitive as seen from one view.
 #[derive(Debug, Clone, Copy, Default)]
@@ -111,74 +112,77 @@ pub fn prepare<T: Real>(
     let pix_to_dir = w64.map(f);
     let k = prims.sh_k();
 
-    let mut views = Vec::with_capacity(prims.len());
-    for i in 0..prims.len() {
-        let mut pv = PrimView::<T>::default();
-        let mu = prims.mean(i);
-        let (rot, unit_quat, quat_norm) = rotation_from_quat(prims.quat(i));
-        let scales = prims.scales(i);
-        let inv_s = scales.map(|s| T::ONE / s);
-        // N = diag(1/s) Rᵀ: row i of N is column i of R divided by s_i.
-        let mut n_mat = [T::ZERO; 9];
-        for r in 0..3 {
-            for c in 0..3 {
-                n_mat[3 * r + c] = rot[3 * c + r] * inv_s[r];
+    // Each primitive's view data alone: in parallel, the same on any number of threads.
+    let views: Vec<PrimView<T>> = (0..prims.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut pv = PrimView::<T>::default();
+            let mu = prims.mean(i);
+            let (rot, unit_quat, quat_norm) = rotation_from_quat(prims.quat(i));
+            let scales = prims.scales(i);
+            let inv_s = scales.map(|s| T::ONE / s);
+            // N = diag(1/s) Rᵀ: row i of N is column i of R divided by s_i.
+            let mut n_mat = [T::ZERO; 9];
+            for r in 0..3 {
+                for c in 0..3 {
+                    n_mat[3 * r + c] = rot[3 * c + r] * inv_s[r];
+                }
             }
-        }
-        let c_minus_mu = v3::sub(centre, mu);
-        let a = v3::mat_vec(&n_mat, c_minus_mu);
-        let b_mat = v3::mat_mul(&n_mat, &pix_to_dir);
-        let (opacity, d_opacity) = prims.opacity(i);
-        let (beta, d_beta) = prims.beta(i);
-        let m = prims.bands;
-        let live_bands = prims.live_bands(i);
-        let psi_high =
-            (0..live_bands).fold(T::ZERO, |acc, j| acc + prims.band_amp[m * i + j].abs());
-        let (sh_dir, sh_norm) = sh::normalize(v3::sub(mu, centre));
-        let colour = if k > 0 {
-            sh::eval(&prims.sh[3 * k * i..3 * k * (i + 1)], k, sh_dir).0
-        } else {
-            [T::ZERO; 3]
-        };
+            let c_minus_mu = v3::sub(centre, mu);
+            let a = v3::mat_vec(&n_mat, c_minus_mu);
+            let b_mat = v3::mat_mul(&n_mat, &pix_to_dir);
+            let (opacity, d_opacity) = prims.opacity(i);
+            let (beta, d_beta) = prims.beta(i);
+            let m = prims.bands;
+            let live_bands = prims.live_bands(i);
+            let psi_high =
+                (0..live_bands).fold(T::ZERO, |acc, j| acc + prims.band_amp[m * i + j].abs());
+            let (sh_dir, sh_norm) = sh::normalize(v3::sub(mu, centre));
+            let colour = if k > 0 {
+                sh::eval(&prims.sh[3 * k * i..3 * k * (i + 1)], k, sh_dir).0
+            } else {
+                [T::ZERO; 3]
+            };
 
-        let mu64 = mu.map(|x| x.to_f64());
-        let mu_cam = cam.to_cam(mu64);
-        let finite = n_mat
-            .iter()
-            .chain(a.iter())
-            .chain(b_mat.iter())
-            .all(|x| x.is_finite())
-            && opacity.is_finite()
-            && beta.is_finite();
-        let o64 = opacity.to_f64();
-        pv.visible = finite && mu_cam[2] > settings.near_m && o64 >= ALPHA_MIN;
-        pv.depth_z_m = mu_cam[2];
-        if pv.visible {
-            let s64 = scales.map(|s| s.to_f64());
-            let rot64 = rot.map(|x| x.to_f64());
-            pv.bbox_px = cull_box(cam, settings, mu_cam, &rot64, s64, o64);
-            pv.tile_rect = tile_rect(pv.bbox_px, width, height, settings.cull);
-        }
-        pv.n_mat = n_mat;
-        pv.a = a;
-        pv.b_mat = b_mat;
-        pv.c_minus_mu = c_minus_mu;
-        pv.rot = rot;
-        pv.unit_quat = unit_quat;
-        pv.quat_norm = quat_norm;
-        pv.scales = scales;
-        pv.opacity = opacity;
-        pv.d_opacity = d_opacity;
-        pv.beta = beta;
-        pv.d_beta = d_beta;
-        pv.gaussian = beta == T::TWO;
-        pv.live_bands = live_bands;
-        pv.psi_high = psi_high;
-        pv.colour = colour;
-        pv.sh_dir = sh_dir;
-        pv.sh_norm = sh_norm;
-        views.push(pv);
-    }
+            let mu64 = mu.map(|x| x.to_f64());
+            let mu_cam = cam.to_cam(mu64);
+            let finite = n_mat
+                .iter()
+                .chain(a.iter())
+                .chain(b_mat.iter())
+                .all(|x| x.is_finite())
+                && opacity.is_finite()
+                && beta.is_finite();
+            let o64 = opacity.to_f64();
+            pv.visible = finite && mu_cam[2] > settings.near_m && o64 >= ALPHA_MIN;
+            pv.depth_z_m = mu_cam[2];
+            if pv.visible {
+                let s64 = scales.map(|s| s.to_f64());
+                let rot64 = rot.map(|x| x.to_f64());
+                pv.bbox_px = cull_box(cam, settings, mu_cam, &rot64, s64, o64);
+                pv.tile_rect = tile_rect(pv.bbox_px, width, height, settings.cull);
+            }
+            pv.n_mat = n_mat;
+            pv.a = a;
+            pv.b_mat = b_mat;
+            pv.c_minus_mu = c_minus_mu;
+            pv.rot = rot;
+            pv.unit_quat = unit_quat;
+            pv.quat_norm = quat_norm;
+            pv.scales = scales;
+            pv.opacity = opacity;
+            pv.d_opacity = d_opacity;
+            pv.beta = beta;
+            pv.d_beta = d_beta;
+            pv.gaussian = beta == T::TWO;
+            pv.live_bands = live_bands;
+            pv.psi_high = psi_high;
+            pv.colour = colour;
+            pv.sh_dir = sh_dir;
+            pv.sh_norm = sh_norm;
+            pv
+        })
+        .collect();
 
     let mut order: Vec<u32> = (0..views.len())
         .filter(|&i| views[i].visible)
