@@ -13,6 +13,7 @@
 //! Pixels whose four corners fall in one cell take the cell's value at the pixel centre.
 
 use glam::{DVec2, DVec3};
+use rayon::prelude::*;
 use s3tir_calib::{CameraModel, Rigid3};
 
 /// A texture on the plane z = 0 of its own frame, piecewise smooth on a square grid.
@@ -142,39 +143,21 @@ pub fn render_plane(
     let cell = texture.cell_m();
     let sub = sub.max(1) as usize;
     let mut out = vec![background; w * h];
-    // Rows are independent: split them into bands over the available cores (the result does
-    // not depend on the split).
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .clamp(1, 8);
-    let band_rows = h.div_ceil(threads).max(1);
-    let render_band = |v0: usize, band: &mut [f64]| {
-        let mut sub_hits: Vec<Option<DVec2>> = vec![None; (sub + 1) * (sub + 1)];
-        for (dv, row) in band.chunks_mut(w).enumerate() {
-            let v = v0 + dv;
+    if w == 0 {
+        return out;
+    }
+    // Rows are independent: rendered in parallel, each pixel as alone (the result does not
+    // depend on the thread count).
+    out.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![None; (sub + 1) * (sub + 1)],
+        |sub_hits, (v, row)| {
             for (u, px) in row.iter_mut().enumerate() {
                 *px = render_pixel(
-                    grid,
-                    &hitter,
-                    &hits,
-                    stride,
-                    u,
-                    v,
-                    sub,
-                    cell,
-                    texture,
-                    background,
-                    &mut sub_hits,
+                    grid, &hitter, &hits, stride, u, v, sub, cell, texture, background, sub_hits,
                 );
             }
-        }
-    };
-    std::thread::scope(|scope| {
-        for (b, band) in out.chunks_mut(band_rows * w).enumerate() {
-            let render_band = &render_band;
-            scope.spawn(move || render_band(b * band_rows, band));
-        }
-    });
+        },
+    );
     out
 }
 

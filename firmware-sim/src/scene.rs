@@ -57,6 +57,7 @@
 //! heights 0.95 m + (−0.15, 0, +0.15 m) in turn, all looking at that point: every view sees
 //! both sides of the edge and the pipe's band, and every pair of views overlaps.
 
+use rayon::prelude::*;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -466,57 +467,61 @@ pub fn render_scene(
     let l_env = radiometry.radiance(ENV_K);
     let l_bg = radiometry.radiance(BACKGROUND_K);
     let n = SCENE_SUBPIXELS;
-    let mut out = SceneRender {
-        radiance: vec![0.0; w * h],
-        rgb_linear: [vec![0.0; w * h], vec![0.0; w * h], vec![0.0; w * h]],
-        depth_m: vec![0.0; w * h],
-        temp_k: vec![0.0; w * h],
-    };
-    for v in 0..h {
-        for u in 0..w {
-            let k = v * w + u;
-            let (mut l_acc, mut c_acc) = (0.0, [0.0; 3]);
-            for j in 0..n {
-                for i in 0..n {
-                    let ray = grid.sub_ray(
-                        u,
-                        v,
-                        (i as f64 + 0.5) / n as f64,
-                        (j as f64 + 0.5) / n as f64,
-                    );
-                    let d = world_from_cam.transform_vector(ray);
-                    match trace(layout, eye, d) {
-                        Some(s) => {
-                            l_acc += s.emissivity * radiometry.radiance(s.temp_k)
-                                + (1.0 - s.emissivity) * l_env;
-                            let shade = 0.35 + 0.65 * s.normal.dot(light).max(0.0);
-                            for (c, a) in c_acc.iter_mut().zip(s.albedo) {
-                                *c += a * shade;
+    // Per pixel: radiance, linear RGB, depth, temperature. Rows in parallel; each pixel is
+    // computed as alone, so the render does not depend on the thread count.
+    let mut px = vec![[0.0f64; 6]; w * h];
+    if w > 0 {
+        px.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            for (u, out) in row.iter_mut().enumerate() {
+                let (mut l_acc, mut c_acc) = (0.0, [0.0; 3]);
+                for j in 0..n {
+                    for i in 0..n {
+                        let ray = grid.sub_ray(
+                            u,
+                            v,
+                            (i as f64 + 0.5) / n as f64,
+                            (j as f64 + 0.5) / n as f64,
+                        );
+                        let d = world_from_cam.transform_vector(ray);
+                        match trace(layout, eye, d) {
+                            Some(s) => {
+                                l_acc += s.emissivity * radiometry.radiance(s.temp_k)
+                                    + (1.0 - s.emissivity) * l_env;
+                                let shade = 0.35 + 0.65 * s.normal.dot(light).max(0.0);
+                                for (c, a) in c_acc.iter_mut().zip(s.albedo) {
+                                    *c += a * shade;
+                                }
                             }
-                        }
-                        None => {
-                            l_acc += l_bg;
-                            for (c, a) in c_acc.iter_mut().zip(BACKGROUND_RGB) {
-                                *c += a;
+                            None => {
+                                l_acc += l_bg;
+                                for (c, a) in c_acc.iter_mut().zip(BACKGROUND_RGB) {
+                                    *c += a;
+                                }
                             }
                         }
                     }
                 }
+                let nn = (n * n) as f64;
+                out[0] = l_acc / nn;
+                for (o, c) in out[1..4].iter_mut().zip(c_acc) {
+                    *o = c / nn;
+                }
+                let centre = grid.centre_ray(u, v);
+                if let Some(s) = trace(layout, eye, world_from_cam.transform_vector(centre)) {
+                    // The ray has camera z = 1, so t is the depth.
+                    out[4] = s.t;
+                    out[5] = s.temp_k;
+                }
             }
-            let nn = (n * n) as f64;
-            out.radiance[k] = l_acc / nn;
-            for (ch, c) in out.rgb_linear.iter_mut().zip(c_acc) {
-                ch[k] = c / nn;
-            }
-            let centre = grid.centre_ray(u, v);
-            if let Some(s) = trace(layout, eye, world_from_cam.transform_vector(centre)) {
-                // The ray has camera z = 1, so t is the depth.
-                out.depth_m[k] = s.t;
-                out.temp_k[k] = s.temp_k;
-            }
-        }
+        });
     }
-    out
+    let plane = |k: usize| px.iter().map(|p| p[k]).collect::<Vec<f64>>();
+    SceneRender {
+        radiance: plane(0),
+        rgb_linear: [plane(1), plane(2), plane(3)],
+        depth_m: plane(4),
+        temp_k: plane(5),
+    }
 }
 
 fn albedo_to_srgb8(a: [f64; 3]) -> [u8; 3] {
