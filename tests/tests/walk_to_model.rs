@@ -146,6 +146,32 @@ fn score(dataset: &Path, truth: &Truth) -> Score {
     }
 }
 
+/// A fiducial path's dataset scored in the truth's world without alignment: each view's pose
+/// mapped through `world_from_dataset` (identity when the dataset's world is the map's, the
+/// board's pose when it is the board's); median rotation error (degrees) and centre error
+/// (metres), and the number of views.
+fn direct_errors(dataset: &Path, truth: &Truth, world_from_dataset: Rigid3) -> (f64, f64, usize) {
+    let model = read_model(&dataset.join("sparse/0")).expect("the dataset's model");
+    let errors: Vec<(f64, f64)> = model
+        .images
+        .iter()
+        .map(|im| {
+            let seq = thermal_sequence(&im.name);
+            let e = world_from_dataset.compose(&im.cam_from_world.inverse());
+            let t = truth.thermal[&seq];
+            (
+                e.rotation.angle_between(t.rotation).to_degrees(),
+                (e.translation_m - t.translation_m).length(),
+            )
+        })
+        .collect();
+    (
+        median(errors.iter().map(|d| d.0).collect()),
+        median(errors.iter().map(|d| d.1).collect()),
+        errors.len(),
+    )
+}
+
 fn poses(session: &Path, cal: &Path, out: &Path, extra: &[&str]) -> Value {
     let text = run_ok(
         Command::new(bin("s3tir-calib"))
@@ -360,21 +386,7 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
         "the fast path must pose the walk: {report3}"
     );
     let fast = score(&ds3, &truth);
-    let model = read_model(&ds3.join("sparse/0")).expect("fast path model");
-    let direct: Vec<(f64, f64)> = model
-        .images
-        .iter()
-        .map(|im| {
-            let seq = thermal_sequence(&im.name);
-            let (e, t) = (im.cam_from_world.inverse(), truth.thermal[&seq]);
-            (
-                e.rotation.angle_between(t.rotation).to_degrees(),
-                (e.translation_m - t.translation_m).length(),
-            )
-        })
-        .collect();
-    let direct_rot = median(direct.iter().map(|d| d.0).collect());
-    let direct_centre = median(direct.iter().map(|d| d.1).collect());
+    let (direct_rot, direct_centre, _) = direct_errors(&ds3, &truth, Rigid3::IDENTITY);
     eprintln!(
         "AprilTag fast path: {}/{} keyframes posed in {} s, {} views; in the truth's world without alignment: median rotation {direct_rot:.3}°, centre {direct_centre:.4} m ({:.2} % of the extent); alignment scale {:.4}",
         report3["registered"],
@@ -477,21 +489,7 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
         "the heated tags must pose the thermal keyframes: {}",
         report["frames"]
     );
-    let model = read_model(&ds.join("sparse/0")).expect("the dataset's model");
-    let errors: Vec<(f64, f64)> = model
-        .images
-        .iter()
-        .map(|im| {
-            let seq = thermal_sequence(&im.name);
-            let (e, t) = (im.cam_from_world.inverse(), truth.thermal[&seq]);
-            (
-                e.rotation.angle_between(t.rotation).to_degrees(),
-                (e.translation_m - t.translation_m).length(),
-            )
-        })
-        .collect();
-    let rot = median(errors.iter().map(|d| d.0).collect());
-    let centre = median(errors.iter().map(|d| d.1).collect());
+    let (rot, centre, views) = direct_errors(&ds, &truth, Rigid3::IDENTITY);
     eprintln!(
         "thermal-only walk {WALK_S} s: {}/{} thermal keyframes posed by heated tags ({} dropped as jumps), {} views + {} held out; in the truth's world without alignment: median rotation {rot:.3}°, centre {centre:.4} m ({:.2} % of the extent); times {}",
         report["registered"],
@@ -502,7 +500,7 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
         100.0 * centre / truth.extent_m,
         report["times"]
     );
-    assert!(model.images.len() >= 15, "views: {}", model.images.len());
+    assert!(views >= 15, "views: {views}");
     assert!(
         rot < 0.5,
         "median rotation error {rot:.3}° (< 0.5° required)"
@@ -534,22 +532,7 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
         report_b["frames"]
     );
     let world_from_board = truth.board.expect("the truth of a walk with --walk-board");
-    let model_b = read_model(&ds_board.join("sparse/0")).expect("the board dataset's model");
-    let errors_b: Vec<(f64, f64)> = model_b
-        .images
-        .iter()
-        .map(|im| {
-            let seq = thermal_sequence(&im.name);
-            let e = world_from_board.compose(&im.cam_from_world.inverse());
-            let t = truth.thermal[&seq];
-            (
-                e.rotation.angle_between(t.rotation).to_degrees(),
-                (e.translation_m - t.translation_m).length(),
-            )
-        })
-        .collect();
-    let rot_b = median(errors_b.iter().map(|d| d.0).collect());
-    let centre_b = median(errors_b.iter().map(|d| d.1).collect());
+    let (rot_b, centre_b, views_b) = direct_errors(&ds_board, &truth, world_from_board);
     eprintln!(
         "thermal-only walk, the board alone: {}/{} thermal keyframes posed ({} with the board in view), {} views + {} held out; median rotation {rot_b:.3}°, centre {centre_b:.4} m",
         report_b["registered"],
@@ -558,7 +541,7 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
         report_b["views"],
         report_b["held_out"],
     );
-    assert!(model_b.images.len() >= 5, "views: {}", model_b.images.len());
+    assert!(views_b >= 5, "views: {views_b}");
     assert!(
         rot_b < 0.5,
         "board: median rotation error {rot_b:.3}° (< 0.5° required)"
