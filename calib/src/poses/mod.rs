@@ -674,10 +674,11 @@ pub fn session_to_dataset(
         (false, None, Some(ts)) => (
             Some(ts.metres_per_unit),
             format!(
-                "measured from {fiducial} ({}): {:.5} m per world unit ({} tags, {} lengths, spread {:.2} %)",
+                "measured from {fiducial} ({}): {:.5} m per world unit ({} {}, {} lengths, spread {:.2} %)",
                 ts.method,
                 ts.metres_per_unit,
                 ts.tags,
+                if opts.board.is_some() { "squares" } else { "tags" },
                 ts.lengths,
                 100.0 * ts.spread
             ),
