@@ -194,23 +194,10 @@ pub fn detect_in_keyframes(
                     image::DynamicImage::ImageLuma8(g) => g,
                     other => luma_bt601(&other.to_rgb8()),
                 };
-                let scale = tag_upscale(grey.width(), grey.height());
-                let mut tags = detect_upscaled(detector, &grey, &path, scale)
+                // A thermal fiducial may be seen inverted (hot ink over cold foil, or the other
+                // way round: the module docs): the negative is searched too.
+                let tags = detect_upscaled(detector, grey, &path, stream == Stream::Thermal)
                     .map_err(|e| err(e.to_string()))?;
-                if stream == Stream::Thermal {
-                    // A thermal fiducial may be seen inverted (hot ink over cold foil, or the
-                    // other way round: the module docs): the negative is searched too, and a
-                    // tag found in both is kept once, as first found.
-                    let mut negative = grey;
-                    image::imageops::invert(&mut negative);
-                    let inverted = detect_upscaled(detector, &negative, &path, scale)
-                        .map_err(|e| err(e.to_string()))?;
-                    for t in inverted {
-                        if tags.iter().all(|d| d.id != t.id) {
-                            tags.push(t);
-                        }
-                    }
-                }
                 Ok(SeenTags {
                     sequence: k.sequence,
                     monotonic_ns: k.monotonic_ns,
@@ -233,34 +220,45 @@ pub fn tag_upscale(width: u32, height: u32) -> u32 {
     ((640 + long / 2) / long).clamp(1, 4)
 }
 
-/// Tags in `grey` enlarged `scale` times (Lanczos), their coordinates mapped back to the
-/// image's own pixels (pixel-centre origin: enlarged pixel `x` is `(x + 0.5) / scale − 0.5`).
+/// Tags in `grey` enlarged by [`tag_upscale`] (Lanczos, once), and with `negative_too` in
+/// its negative as well (a tag found in both kept once, as found first), their coordinates
+/// mapped back to the image's own pixels (pixel-centre origin: enlarged pixel `x` is
+/// `(x + 0.5) / scale − 0.5`).
 pub fn detect_upscaled(
     detector: &mut TagDetector,
-    grey: &image::GrayImage,
+    grey: image::GrayImage,
     path: &Path,
-    scale: u32,
+    negative_too: bool,
 ) -> Result<Vec<TagDetection>, crate::tags::TagError> {
-    if scale <= 1 {
-        return detector.detect(grey, path);
+    let scale = tag_upscale(grey.width(), grey.height());
+    let mut big = if scale <= 1 {
+        grey
+    } else {
+        image::imageops::resize(
+            &grey,
+            grey.width() * scale,
+            grey.height() * scale,
+            image::imageops::FilterType::Lanczos3,
+        )
+    };
+    let mut tags = detector.detect(&big, path)?;
+    if negative_too {
+        image::imageops::invert(&mut big);
+        for t in detector.detect(&big, path)? {
+            if tags.iter().all(|d| d.id != t.id) {
+                tags.push(t);
+            }
+        }
     }
-    let big = image::imageops::resize(
-        grey,
-        grey.width() * scale,
-        grey.height() * scale,
-        image::imageops::FilterType::Lanczos3,
-    );
-    let s = f64::from(scale);
-    let back = |p: [f64; 2]| [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
-    Ok(detector
-        .detect(&big, path)?
-        .into_iter()
-        .map(|mut t| {
+    if scale > 1 {
+        let s = f64::from(scale);
+        let back = |p: [f64; 2]| [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
+        for t in &mut tags {
             t.centre_px = back(t.centre_px);
             t.corners_px = t.corners_px.map(back);
-            t
-        })
-        .collect())
+        }
+    }
+    Ok(tags)
 }
 
 /// A keyframe posed from the tags in view.

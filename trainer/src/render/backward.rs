@@ -12,9 +12,9 @@
 //! `sign(0) = 0` for `|ω_j|`. The early-stop threshold and the α ≥ 1/255 cut are treated as
 //! constants (as in 3DGS): gradients are those of the blended sum over the samples taken.
 
-use super::forward::{blended_values, pixel, sample};
+use super::forward::{blended_values, front_to_back, pixel};
 use super::prepare::{Prepared, prepare};
-use super::{GBuffers, RenderSettings, T_MIN, TILE_SIZE};
+use super::{GBuffers, RenderSettings, TILE_SIZE};
 use crate::camera::PinholeCamera;
 use crate::error::TrainerError;
 use crate::primitive::{Primitives, quat_backward};
@@ -164,7 +164,6 @@ fn backward_tile<T: Real>(
         return out;
     }
     let npix = prep.width * prep.height;
-    let t_min = T::from_f64(T_MIN);
     let two_pi = T::from_f64(std::f64::consts::TAU);
     let up = |v: &Vec<T>, idx: usize| v.get(idx).copied().unwrap_or(T::ZERO);
     let mut samples = Vec::new();
@@ -190,20 +189,9 @@ fn backward_tile<T: Real>(
             let p = pixel::<T>(x, y);
             // Recompute the front-to-back samples with their transmittance.
             samples.clear();
-            let mut trans = T::ONE;
-            for (k, &i) in list.iter().enumerate() {
-                let i = i as usize;
-                let pv = &prep.prims[i];
-                let Some(s) = sample(prims, prep, pv, i, p) else {
-                    continue;
-                };
-                let next = trans * (T::ONE - s.alpha);
-                if next < t_min {
-                    break;
-                }
-                samples.push((k, i, trans, s));
-                trans = next;
-            }
+            front_to_back(prims, prep, list, p, |k, i, trans, s| {
+                samples.push((k, i, trans, *s))
+            });
             let mut s_after = T::ZERO;
             for &(k, i, trans_i, s) in samples.iter().rev() {
                 let pv = &prep.prims[i];

@@ -172,6 +172,34 @@ pub fn render_gbuffers<T: Real>(
     Ok(render_prepared(prims, &prep))
 }
 
+/// The samples pixel `p` blends, front to back over the primitives of its tile `list`:
+/// `visit(position in list, primitive, transmittance before it, sample)` for each, up to the
+/// early stop (module docs of `render`). Shared by the forward and the backward pass, which
+/// must see the same samples.
+#[inline]
+pub(crate) fn front_to_back<T: Real>(
+    prims: &Primitives<T>,
+    prep: &Prepared<T>,
+    list: &[u32],
+    p: [T; 3],
+    mut visit: impl FnMut(usize, usize, T, &Sample<T>),
+) {
+    let t_min = T::from_f64(T_MIN);
+    let mut trans = T::ONE;
+    for (k, &i) in list.iter().enumerate() {
+        let i = i as usize;
+        let Some(s) = sample(prims, prep, &prep.prims[i], i, p) else {
+            continue;
+        };
+        let next = trans * (T::ONE - s.alpha);
+        if next < t_min {
+            break;
+        }
+        visit(k, i, trans, &s);
+        trans = next;
+    }
+}
+
 /// Forward pass on prepared per-view data. Rows are rendered in parallel; each pixel is
 /// independent, so the result is the same bit for bit on any number of threads.
 pub fn render_prepared<T: Real>(prims: &Primitives<T>, prep: &Prepared<T>) -> GBuffers<T> {
@@ -182,31 +210,19 @@ pub fn render_prepared<T: Real>(prims: &Primitives<T>, prep: &Prepared<T>) -> GB
     if npix == 0 {
         return out;
     }
-    let t_min = T::from_f64(T_MIN);
     let mut accs = vec![[T::ZERO; 9]; npix];
     accs.par_chunks_mut(prep.width)
         .enumerate()
         .for_each(|(y, row)| {
             for (x, acc) in row.iter_mut().enumerate() {
-                let p = pixel::<T>(x, y);
-                let mut trans = T::ONE;
-                for &i in &prep.tile_lists[prep.tile_of(x, y)] {
-                    let i = i as usize;
-                    let pv = &prep.prims[i];
-                    let Some(s) = sample(prims, prep, pv, i, p) else {
-                        continue;
-                    };
-                    let next = trans * (T::ONE - s.alpha);
-                    if next < t_min {
-                        break;
-                    }
+                let list = &prep.tile_lists[prep.tile_of(x, y)];
+                front_to_back(prims, prep, list, pixel::<T>(x, y), |_, i, trans, s| {
                     let w = trans * s.alpha;
-                    let vals = blended_values(prims, pv, i, &s);
+                    let vals = blended_values(prims, &prep.prims[i], i, s);
                     for (a, v) in acc.iter_mut().zip(vals) {
                         *a += w * v;
                     }
-                    trans = next;
-                }
+                });
             }
         });
     for (pidx, acc) in accs.iter().enumerate() {
