@@ -29,7 +29,8 @@ pub enum MatcherArg {
 /// every --holdout-every-th view held out (holdout.txt). The dataset: sparse/0/ (the thermal
 /// camera with its calibrated distortion; the trainer undistorts at load), images/ (16-bit
 /// words untouched), holdout.txt, poses.json (what was kept and why), colmap/ (COLMAP's
-/// workspace and logs). The output folder must not exist or be empty.
+/// workspace and logs); with --with-rgb also the posed RGB keyframes (joint training). The
+/// output folder must not exist or be empty.
 #[derive(Debug, Args)]
 pub struct PosesArgs {
     /// Recorded session (.mcap, from s3tir-capture).
@@ -112,6 +113,12 @@ pub struct PosesArgs {
     /// keyframes are still posed, the rest skipped with their reason.
     #[arg(long, default_value_t = 0.5, value_parser = fraction)]
     min_registered: f64,
+    /// Also write every posed RGB keyframe (images/rgb_SEQUENCE.png as recorded, 8-bit RGB;
+    /// the calibrated RGB camera as camera 2; its pose in the thermal views' world; those
+    /// around held-out thermal views held out too), for joint RGB + thermal training. An error
+    /// on a session without RGB.
+    #[arg(long)]
+    with_rgb: bool,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -177,6 +184,7 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         tag_poses: !a.no_tag_poses,
         min_registered: a.min_registered,
         progress: !a.json,
+        with_rgb: a.with_rgb,
         ..PosesOptions::default()
     };
     let report = poses::session_to_dataset(&a.session, cal.as_ref(), &a.out, &opts)

@@ -148,7 +148,8 @@ enum Command {
     /// (thermal/NNNN.png 16-bit, rgb/NNNN.png, pair k under the same name). `--dataset DIR`:
     /// a posed thermal dataset for s3tir-train (COLMAP layout, radiometric 16-bit images
     /// untouched), made by `s3tir-calib poses` (run from this program's folder: COLMAP on the
-    /// RGB keyframes, thermal poses composed with the calibrated extrinsic); see its --help.
+    /// RGB keyframes, thermal poses composed with the calibrated extrinsic; `--with-rgb`: the
+    /// posed RGB keyframes too, for joint training); see its --help.
     Export {
         file: PathBuf,
         /// Board-folder layout of the pairs.
@@ -172,6 +173,11 @@ enum Command {
         /// and check COLMAP's model; s3tir-calib poses --no-tag-poses).
         #[arg(long)]
         no_tag_poses: bool,
+        /// The dataset also holds the posed RGB keyframes (a second camera, poses in the
+        /// thermal views' world) for joint RGB + thermal training (s3tir-calib poses
+        /// --with-rgb); an error on a session without RGB.
+        #[arg(long, requires = "dataset")]
+        with_rgb: bool,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time, and what the writer's
@@ -214,6 +220,7 @@ fn main() -> Result<()> {
             tags,
             board,
             no_tag_poses,
+            with_rgb,
         }) => {
             if let Some(out) = out {
                 let n = tools::export(&file, &out)?;
@@ -227,6 +234,7 @@ fn main() -> Result<()> {
                     tags.as_deref(),
                     board.as_deref(),
                     no_tag_poses,
+                    with_rgb,
                 )?;
             }
             Ok(())
@@ -286,6 +294,7 @@ fn export_dataset(
     tags: Option<&std::path::Path>,
     board: Option<&std::path::Path>,
     no_tag_poses: bool,
+    with_rgb: bool,
 ) -> Result<()> {
     let exe_dir = std::env::current_exe()
         .ok()
@@ -311,6 +320,9 @@ fn export_dataset(
     }
     if no_tag_poses {
         cmd.arg("--no-tag-poses");
+    }
+    if with_rgb {
+        cmd.arg("--with-rgb");
     }
     let status = cmd
         .status()

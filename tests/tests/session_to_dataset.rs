@@ -113,7 +113,9 @@ fn rgb_yuyv(seq: u32) -> Vec<u8> {
             } else {
                 200
             };
-            [luma, 128, luma, 128]
+            // A tint (U, V off 128): without any colour the trainer reads an 8-bit RGB image
+            // as a grey thermal one (with_rgb_the_trainer_loads_both_image_sets).
+            [luma, 110, luma, 150]
         })
         .collect()
 }
@@ -482,4 +484,54 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
         "fewer frames read"
     );
     assert!(report.views > 0);
+}
+
+/// `--with-rgb` (calib's `poses::tests` checks the poses, images and hold-out in detail): the
+/// trainer loads both image sets of the joint dataset, each through its own camera, and tests
+/// on the RGB views `holdout.txt` names as well as the thermal ones.
+#[test]
+fn with_rgb_the_trainer_loads_both_image_sets() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let rec = record(tmp.path(), None);
+    let model = truth_model(tmp.path(), &rec, 1);
+    let out = tmp.path().join("dataset");
+    let o = PosesOptions {
+        with_rgb: true,
+        ..opts(&model)
+    };
+    let report = poses::session_to_dataset(&rec.session, Some(&rig()), &out, &o)
+        .unwrap_or_else(|e| panic!("posing with --with-rgb: {e}"));
+    assert_eq!(report.rgb_views, rec.rgb.len(), "every posed RGB frame");
+    assert!(report.rgb_held_out > 0);
+
+    let ds = Dataset::load(&out, &LoadOptions::default()).expect("the trainer loads it");
+    let rgb: Vec<&str> = ds
+        .views
+        .iter()
+        .filter(|v| v.rgb.is_some())
+        .map(|v| v.name.as_str())
+        .collect();
+    assert_eq!(rgb.len(), report.rgb_views);
+    assert!(rgb.iter().all(|n| n.starts_with("rgb_")), "{rgb:?}");
+    assert_eq!(
+        ds.views.len(),
+        report.rgb_views + report.views + report.held_out
+    );
+    for v in &ds.views {
+        let want = if v.rgb.is_some() { R_W } else { T_W };
+        assert_eq!(
+            v.camera.width, want as usize,
+            "{} through its camera",
+            v.name
+        );
+    }
+    let tested_rgb = ds
+        .test
+        .iter()
+        .filter(|&&i| ds.views[i].rgb.is_some())
+        .count();
+    assert_eq!(
+        tested_rgb, report.rgb_held_out,
+        "held-out RGB views are tested"
+    );
 }

@@ -1,22 +1,57 @@
 //! The posed dataset the trainer reads (COLMAP layout, `trainer/src/dataset`):
-//! `sparse/0/{cameras,images,points3D}.txt` through the workspace's COLMAP codec (one thermal
-//! camera with the calibrated distortion), `images/thermal_SEQUENCE.png` (the recorded 16-bit
-//! words untouched), `holdout.txt` (one held-out image name per line: the trainer tests on
+//! `sparse/0/{cameras,images,points3D}.txt` through the workspace's COLMAP codec (camera 1: the
+//! thermal camera with the calibrated distortion), `images/thermal_SEQUENCE.png` (the recorded
+//! 16-bit words untouched), `holdout.txt` (one held-out image name per line: the trainer tests on
 //! these and never trains on them), `ffc.txt` (the views taken within
 //! [`FRESH_AFTER_FFC_NS`] of the end of a flat-field correction, from the FFC telemetry: their
 //! radiometric drift is zero, and the trainer's per-view response pins its offsets there) and
 //! `poses.json` (the stage's report).
+//!
+//! ## With the RGB keyframes (`--with-rgb`, [`super::PosesOptions::with_rgb`])
+//! For joint RGB + thermal training (one model, each image through its own camera) the dataset
+//! also holds every **posed RGB keyframe** ([`super::select::rgb_views`]): the keyframes
+//! COLMAP registered (or the user's model holds) or the fiducial fast path posed by PnP, less
+//! those whose pose jumps from their neighbours' (not used for the thermal poses either).
+//! - `images/rgb_SEQUENCE.png`: the recorded frame decoded to 8-bit RGB, lossless and **not
+//!   undistorted** (the trainer undistorts at load, as it does the thermal images);
+//! - camera 2 in `cameras.txt`: the calibrated RGB camera, its model and distortion written by
+//!   the same codec ([`colmap_params`]) as the thermal camera's;
+//! - one `images.txt` entry per RGB view with camera 2. Its pose is the keyframe's pose itself,
+//!   the very pose the thermal views are interpolated from (`world_from_thermal =
+//!   world_from_rgb(t) ∘ rgb_from_thermal`, the lever arm in world units), so both sets share
+//!   one world: COLMAP's (with its scale, when known, only in the lever arm) or the tag map's
+//!   or the board's on the fast path. At a keyframe's own time the two poses differ by exactly
+//!   the (scaled) extrinsic.
+//! - `holdout.txt` also names the RGB views within `max_sync_s` (0.12 s: the RGB keyframes
+//!   bracketing a thermal view are chosen within it) of each held-out thermal view, and the
+//!   one nearest to it in any case, so a held-out instant is held out in both modalities;
+//! - `poses.json`: `rgb_views` (RGB views written, held-out ones included) and `rgb_held_out`.
+//!
+//! A session without RGB frames cannot give any: `--with-rgb` on it is an error naming the
+//! session, raised before anything is written (a joint dataset was asked for; a thermal-only
+//! one under that name would only fail later, in the trainer's joint mode).
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-use super::frames::{FrameInfo, Stream, for_thermal_frames};
-use super::select::ThermalView;
+use super::frames::{FrameInfo, Pixels, Stream, for_frames};
+use super::select::{RgbView, ThermalView};
 use super::{PosesError, PosesReport};
 use crate::camera::CameraModel;
 use crate::colmap::{
     ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, colmap_params, write_text_model,
 };
+
+/// The RGB half of a joint dataset (`--with-rgb`): the calibrated RGB camera and its views.
+#[derive(Debug, Clone, Copy)]
+pub struct RgbViews<'a> {
+    pub camera: &'a CameraModel,
+    pub views: &'a [RgbView],
+}
+
+/// COLMAP camera id of the thermal camera; the RGB camera's is [`RGB_CAMERA_ID`].
+pub const THERMAL_CAMERA_ID: u32 = 1;
+pub const RGB_CAMERA_ID: u32 = 2;
 
 fn out_err(path: &Path, e: impl ToString) -> PosesError {
     PosesError::Output {
@@ -48,64 +83,137 @@ pub fn fresh_after_ffc(frames: &[FrameInfo], views: &[ThermalView]) -> Vec<u32> 
 }
 
 /// Writes the images, the model, `holdout.txt` and, when any view is `fresh` after a flat-field
-/// correction, `ffc.txt` into `out`.
+/// correction, `ffc.txt` into `out`; with `rgb`, the RGB views too (module docs).
 pub fn write(
     session: &Path,
     out: &Path,
     thermal: &CameraModel,
     views: &[ThermalView],
+    rgb: Option<RgbViews<'_>>,
     points: &[ColmapPoint],
     fresh: &[u32],
 ) -> Result<(), PosesError> {
     let images = out.join("images");
     std::fs::create_dir_all(&images).map_err(|e| out_err(&images, e))?;
     let wanted: BTreeSet<u32> = views.iter().map(|v| v.sequence).collect();
-    let mut written = BTreeSet::new();
-    for_thermal_frames(session, &wanted, |seq, w, h, pixels| {
-        let p = images.join(Stream::Thermal.file_name(seq));
-        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, pixels.to_vec())
-            .ok_or_else(|| out_err(&p, "pixel count does not match size"))?;
-        img.save(&p).map_err(|e| out_err(&p, e))?;
-        written.insert(seq);
+    let wanted_rgb: BTreeSet<u32> = rgb
+        .iter()
+        .flat_map(|r| r.views.iter().map(|v| v.sequence))
+        .collect();
+    let (mut written, mut written_rgb) = (BTreeSet::new(), BTreeSet::new());
+    let mut grey_rgb = 0usize;
+    for_frames(session, &wanted, &wanted_rgb, |seq, w, h, pixels| {
+        match pixels {
+            Pixels::Thermal(words) => {
+                let p = images.join(Stream::Thermal.dataset_file_name(seq));
+                let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, words.to_vec())
+                    .ok_or_else(|| out_err(&p, "pixel count does not match size"))?;
+                img.save(&p).map_err(|e| out_err(&p, e))?;
+                written.insert(seq);
+            }
+            Pixels::Rgb8(px) => {
+                let p = images.join(Stream::Rgb.dataset_file_name(seq));
+                if let Some(cam) = rgb.map(|r| r.camera)
+                    && (w, h) != (cam.width_px, cam.height_px)
+                {
+                    return Err(out_err(
+                        &p,
+                        format!(
+                            "RGB frame {seq} is {w}×{h} px, the calibrated RGB camera {}×{} px",
+                            cam.width_px, cam.height_px
+                        ),
+                    ));
+                }
+                if px.chunks_exact(3).all(|p| p[0] == p[1] && p[1] == p[2]) {
+                    grey_rgb += 1;
+                }
+                let img = image::RgbImage::from_raw(w, h, px.to_vec())
+                    .ok_or_else(|| out_err(&p, "pixel count does not match size"))?;
+                img.save(&p).map_err(|e| out_err(&p, e))?;
+                written_rgb.insert(seq);
+            }
+        }
         Ok(())
     })?;
-    if let Some(missing) = wanted.difference(&written).next() {
-        return Err(PosesError::Session {
-            path: session.to_path_buf(),
-            reason: format!("thermal frame {missing} was scanned but could not be read again"),
-        });
+    for (stream, wanted, written) in [
+        ("thermal", &wanted, &written),
+        ("RGB", &wanted_rgb, &written_rgb),
+    ] {
+        if let Some(missing) = wanted.difference(written).next() {
+            return Err(PosesError::Session {
+                path: session.to_path_buf(),
+                reason: format!("{stream} frame {missing} was scanned but could not be read again"),
+            });
+        }
+    }
+    if grey_rgb > 0 {
+        // The trainer tells RGB from thermal images by their pixels, and reads an 8-bit
+        // colour image without any colour as a grey (thermal) one.
+        tracing::warn!(
+            frames = grey_rgb,
+            "RGB frames without any colour (R = G = B everywhere, a monochrome camera or a neutral scene): the trainer may read them as grey thermal images"
+        );
+    }
+    let camera = |id: u32, model: &CameraModel| ColmapCamera {
+        id,
+        model_name: colmap_params(model).0.to_owned(),
+        model: *model,
+    };
+    let mut cameras = vec![camera(THERMAL_CAMERA_ID, thermal)];
+    let mut entries: Vec<(u32, String, crate::geometry::Rigid3)> = views
+        .iter()
+        .map(|v| {
+            (
+                THERMAL_CAMERA_ID,
+                Stream::Thermal.dataset_file_name(v.sequence),
+                v.world_from_cam,
+            )
+        })
+        .collect();
+    let mut holdout: Vec<String> = views
+        .iter()
+        .filter(|v| v.held_out)
+        .map(|v| Stream::Thermal.dataset_file_name(v.sequence))
+        .collect();
+    if let Some(r) = rgb {
+        cameras.push(camera(RGB_CAMERA_ID, r.camera));
+        entries.extend(r.views.iter().map(|v| {
+            (
+                RGB_CAMERA_ID,
+                Stream::Rgb.dataset_file_name(v.sequence),
+                v.world_from_cam,
+            )
+        }));
+        holdout.extend(
+            r.views
+                .iter()
+                .filter(|v| v.held_out)
+                .map(|v| Stream::Rgb.dataset_file_name(v.sequence)),
+        );
     }
     let model = ColmapModel {
-        cameras: vec![ColmapCamera {
-            id: 1,
-            model_name: colmap_params(thermal).0.to_owned(),
-            model: *thermal,
-        }],
-        images: views
-            .iter()
+        cameras,
+        images: entries
+            .into_iter()
             .enumerate()
-            .map(|(i, v)| ColmapImage {
+            .map(|(i, (camera_id, name, world_from_cam))| ColmapImage {
                 id: i as u32 + 1,
-                camera_id: 1,
-                name: Stream::Thermal.file_name(v.sequence),
-                cam_from_world: v.world_from_cam.inverse(),
+                camera_id,
+                name,
+                cam_from_world: world_from_cam.inverse(),
             })
             .collect(),
         points: points.to_vec(),
     };
     let sparse = out.join("sparse").join("0");
     write_text_model(&sparse, &model).map_err(|e| out_err(&sparse, e))?;
-    let holdout: String = views
-        .iter()
-        .filter(|v| v.held_out)
-        .map(|v| Stream::Thermal.file_name(v.sequence) + "\n")
-        .collect();
+    let holdout: String = holdout.into_iter().map(|n| n + "\n").collect();
     let p = out.join("holdout.txt");
     std::fs::write(&p, holdout).map_err(|e| out_err(&p, e))?;
     if !fresh.is_empty() {
         let list: String = fresh
             .iter()
-            .map(|&seq| Stream::Thermal.file_name(seq) + "\n")
+            .map(|&seq| Stream::Thermal.dataset_file_name(seq) + "\n")
             .collect();
         let p = out.join("ffc.txt");
         std::fs::write(&p, list).map_err(|e| out_err(&p, e))?;

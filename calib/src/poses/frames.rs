@@ -28,11 +28,21 @@ impl Stream {
         }
     }
 
-    /// The file name a frame of this stream gets in COLMAP's workspace and the dataset.
+    /// The file name a frame of this stream gets in COLMAP's workspace (keyframes: RGB as
+    /// JPEG) and, for thermal frames, in the dataset.
     pub fn file_name(self, sequence: u32) -> String {
         match self {
             Stream::Thermal => format!("thermal_{sequence:08}.png"),
             Stream::Rgb => format!("rgb_{sequence:08}.jpg"),
+        }
+    }
+
+    /// The file name a frame of this stream gets in the dataset's `images/`: PNG for both
+    /// (thermal 16-bit words, RGB 8-bit as decoded, never re-encoded lossily).
+    pub fn dataset_file_name(self, sequence: u32) -> String {
+        match self {
+            Stream::Thermal => format!("thermal_{sequence:08}.png"),
+            Stream::Rgb => format!("rgb_{sequence:08}.png"),
         }
     }
 
@@ -313,22 +323,60 @@ pub fn for_thermal_frames(
     sequences: &BTreeSet<u32>,
     mut write: impl FnMut(u32, u32, u32, &[u16]) -> Result<(), PosesError>,
 ) -> Result<(), PosesError> {
+    for_frames(
+        path,
+        sequences,
+        &BTreeSet::new(),
+        |seq, w, h, pixels| match pixels {
+            Pixels::Thermal(words) => write(seq, w, h, words),
+            Pixels::Rgb8(_) => Ok(()),
+        },
+    )
+}
+
+/// The pixels [`for_frames`] hands over: a thermal frame's words as recorded, or an RGB frame
+/// decoded to 8-bit RGB (row-major, 3 bytes a pixel), as recorded otherwise (not undistorted).
+#[derive(Debug, Clone, Copy)]
+pub enum Pixels<'a> {
+    Thermal(&'a [u16]),
+    Rgb8(&'a [u8]),
+}
+
+/// Reads the thermal frames `thermal` and the RGB frames `rgb` (session sequences) in one pass
+/// over the session and hands each one's pixels to `write`. A frame that does not parse or
+/// decode is not handed over (the caller checks that every wanted frame came).
+pub fn for_frames(
+    path: &Path,
+    thermal: &BTreeSet<u32>,
+    rgb: &BTreeSet<u32>,
+    mut write: impl FnMut(u32, u32, u32, Pixels<'_>) -> Result<(), PosesError>,
+) -> Result<(), PosesError> {
     let mut failure: Option<PosesError> = None;
     let mut ids = SessionSequences::default();
+    let label = path.display().to_string();
     read_session(path, |item| {
         let SessionItem::Frame(f) = item else {
             return Ok(());
         };
         let sequence = ids.next(f.raw.stream, f.raw.sequence);
-        if failure.is_some()
-            || f.raw.stream != s3tir_capture::frame::StreamKind::Thermal
-            || !sequences.contains(&sequence)
-        {
+        let wanted = match f.raw.stream {
+            s3tir_capture::frame::StreamKind::Thermal => thermal,
+            s3tir_capture::frame::StreamKind::Rgb => rgb,
+        };
+        if failure.is_some() || !wanted.contains(&sequence) {
             return Ok(());
         }
-        if let Ok(CapturedFrame::Thermal(t)) = parse_recorded(path, &f)
-            && let Err(e) = write(sequence, t.width, t.height, &t.pixels)
-        {
+        let result = match parse_recorded(path, &f) {
+            Ok(CapturedFrame::Thermal(t)) => {
+                write(sequence, t.width, t.height, Pixels::Thermal(&t.pixels))
+            }
+            Ok(CapturedFrame::Rgb(r)) => match r.to_rgb8(&label) {
+                Ok(px) => write(sequence, r.width, r.height, Pixels::Rgb8(&px)),
+                Err(_) => Ok(()),
+            },
+            Err(_) => Ok(()),
+        };
+        if let Err(e) = result {
             failure = Some(e);
         }
         Ok(())
@@ -347,6 +395,9 @@ mod tests {
         for (s, q) in [(Stream::Thermal, 0), (Stream::Rgb, 123_456)] {
             let n = s.file_name(q);
             assert_eq!(Stream::parse_file_name(&n), Some((s, q)), "{n}");
+            let d = s.dataset_file_name(q);
+            assert!(d.ends_with(".png"), "{d}");
+            assert_eq!(Stream::parse_file_name(&d), Some((s, q)), "{d}");
             assert_eq!(
                 Stream::parse_file_name(&format!("images/{n}")),
                 Some((s, q))

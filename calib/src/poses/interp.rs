@@ -31,6 +31,12 @@ impl Track {
         self.keys.is_empty()
     }
 
+    /// The registered keyframes, `(monotonic_ns, world_from_cam)` in time order (one per
+    /// capture time): the poses every interpolated one is made of, in the same world.
+    pub fn keys(&self) -> &[(u64, Rigid3)] {
+        &self.keys
+    }
+
     /// The camera's pose at `t_ns`, or `None` outside the track or across a gap.
     pub fn world_from_cam(&self, t_ns: u64) -> Option<Rigid3> {
         let i = self.keys.partition_point(|k| k.0 <= t_ns);

@@ -63,7 +63,11 @@
 //!    16-bit words untouched, PNG), `holdout.txt`, and `poses.json` (every frame's decision and
 //!    why, the SfM figures and the timings). Distortion: images stay untouched on disk; the
 //!    trainer undistorts them once at load (`OPENCV`/`FULL_OPENCV` camera, bilinear, same K),
-//!    so the rasterisers stay pinhole and the dataset stays radiometric.
+//!    so the rasterisers stay pinhole and the dataset stays radiometric. With `--with-rgb`
+//!    ([`PosesOptions::with_rgb`]) the posed RGB keyframes join it for joint training: their
+//!    frames as 8-bit RGB PNG, the calibrated RGB camera as camera 2, their poses the very
+//!    keyframe poses the thermal views were interpolated from (one world), held out around
+//!    the held-out thermal views ([`dataset`] module docs).
 //!
 //! Nothing already written is lost: the output folder must not exist (or be empty), the stage
 //! builds in `OUT.partial` (COLMAP's logs stay there when it fails; the next run clears it) and
@@ -77,6 +81,8 @@ pub mod frames;
 pub mod interp;
 pub mod select;
 pub mod sfm;
+#[cfg(test)]
+mod tests;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -206,6 +212,10 @@ pub struct PosesOptions {
     pub threads: usize,
     /// Draw progress bars.
     pub progress: bool,
+    /// Also write the posed RGB keyframes (`images/rgb_SEQUENCE.png`, a second camera) for
+    /// joint RGB + thermal training ([`dataset`] module docs); an error on a session without
+    /// RGB frames.
+    pub with_rgb: bool,
 }
 
 impl Default for PosesOptions {
@@ -232,6 +242,7 @@ impl Default for PosesOptions {
             tag_poses: true,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
             progress: false,
+            with_rgb: false,
         }
     }
 }
@@ -286,8 +297,15 @@ pub struct PosesReport {
     /// The model's keyframe rotations against the tags' PnP poses (with `--tags`, COLMAP or
     /// user model; [`agreement`]).
     pub tag_agreement: Option<agreement::TagAgreement>,
+    /// Thermal views trained on, and held out.
     pub views: usize,
     pub held_out: usize,
+    /// RGB views written (`--with-rgb`; held-out ones included; 0 without it).
+    #[serde(default)]
+    pub rgb_views: usize,
+    /// Of them, in `holdout.txt`.
+    #[serde(default)]
+    pub rgb_held_out: usize,
     /// Count of thermal frames per reason they were not used.
     pub skipped: std::collections::BTreeMap<String, usize>,
     pub times: StageTimes,
@@ -463,6 +481,17 @@ pub fn session_to_dataset(
         }
     };
     let rig = rig_models(cal, &scan)?;
+    // `--with-rgb` needs RGB frames: refused before anything is written (dataset module docs).
+    let rgb_camera = match (opts.with_rgb, rig.rgb) {
+        (false, _) => None,
+        (true, Some((camera, _))) if !scan.rgb.is_empty() => Some(camera),
+        (true, _) => {
+            return Err(PosesError::Nothing {
+                path: session.to_path_buf(),
+                reason: "--with-rgb asks for the posed RGB keyframes, but the session records no (readable) RGB frame: a thermal-only session gives a thermal dataset, pose it without --with-rgb".into(),
+            });
+        }
+    };
     // One fiducial map: the tags' (world = the map's) or the board's (world = the board's).
     let tag_map = match (&opts.tags, &opts.board) {
         (Some(tags), Some(board)) => {
@@ -761,9 +790,33 @@ pub fn session_to_dataset(
         });
     }
 
+    // `--with-rgb`: the track's own keys, the poses the thermal views were interpolated from
+    // (one world for both sets; dataset module docs).
+    let rgb_views = match rgb_camera {
+        Some(_) => select::rgb_views(&track, &scan.rgb, &views, opts.max_sync_s),
+        None => Vec::new(),
+    };
+    if rgb_camera.is_some() {
+        let written: BTreeMap<u64, bool> = rgb_views
+            .iter()
+            .map(|v| (v.monotonic_ns, v.held_out))
+            .collect();
+        for d in decisions.iter_mut().filter(|d| d.stream == "rgb") {
+            match written.get(&d.monotonic_ns) {
+                Some(true) => d.decision.push_str("; held-out RGB view"),
+                Some(false) => d.decision.push_str("; RGB view"),
+                None => {}
+            }
+        }
+    }
+
     let t = std::time::Instant::now();
     let fresh = dataset::fresh_after_ffc(&scan.thermal, &views);
-    dataset::write(session, out, &rig.thermal, &views, &sfm_points, &fresh)?;
+    let rgb = rgb_camera.as_ref().map(|camera| dataset::RgbViews {
+        camera,
+        views: &rgb_views,
+    });
+    dataset::write(session, out, &rig.thermal, &views, rgb, &sfm_points, &fresh)?;
     times.write_s = t.elapsed().as_secs_f64();
     times.total_s = t_all.elapsed().as_secs_f64();
 
@@ -795,6 +848,8 @@ pub fn session_to_dataset(
         tag_agreement,
         views: views.iter().filter(|v| !v.held_out).count(),
         held_out: views.iter().filter(|v| v.held_out).count(),
+        rgb_views: rgb_views.len(),
+        rgb_held_out: rgb_views.iter().filter(|v| v.held_out).count(),
         skipped,
         times,
         frames: decisions,
@@ -888,6 +943,13 @@ pub fn summary(r: &PosesReport) -> String {
         r.views,
         r.held_out
     );
+    if r.rgb_views > 0 {
+        let _ = writeln!(
+            s,
+            "  with RGB: {} posed RGB keyframes, {} of them held out (camera 2)",
+            r.rgb_views, r.rgb_held_out
+        );
+    }
     for (why, n) in &r.skipped {
         let _ = writeln!(s, "  skipped {n}: {why}");
     }

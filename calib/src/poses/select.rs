@@ -30,6 +30,15 @@ pub struct ThermalView {
     pub held_out: bool,
 }
 
+/// A posed RGB keyframe written into the dataset (`--with-rgb`, [`rgb_views`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RgbView {
+    pub sequence: u32,
+    pub monotonic_ns: u64,
+    pub world_from_cam: Rigid3,
+    pub held_out: bool,
+}
+
 /// Median of `v` (the upper one for an even count; 0 for an empty slice).
 pub(super) fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -339,6 +348,55 @@ pub fn thermal_views(
     (kept, decisions, counts)
 }
 
+/// The RGB views of `--with-rgb` (module docs of [`super::dataset`]): every key of `track`, the
+/// posed RGB keyframes the thermal poses are interpolated between, with its pose as it is (the
+/// same world as the thermal views, by construction), named by the frame of `rgb_frames` (the
+/// session's RGB frames) at its capture time. Held out: the views within `window_s` of a
+/// held-out thermal view's capture time, and the one nearest to it in any case, so that a
+/// held-out instant is held out in both modalities. Keys of no RGB frame (a thermal-stream
+/// track) give no view.
+pub fn rgb_views(
+    track: &Track,
+    rgb_frames: &[FrameInfo],
+    thermal: &[ThermalView],
+    window_s: f64,
+) -> Vec<RgbView> {
+    let by_time: BTreeMap<u64, u32> = rgb_frames
+        .iter()
+        .rev()
+        .map(|f| (f.monotonic_ns, f.sequence))
+        .collect();
+    let mut views: Vec<RgbView> = track
+        .keys()
+        .iter()
+        .filter_map(|&(t, world_from_cam)| {
+            Some(RgbView {
+                sequence: *by_time.get(&t)?,
+                monotonic_ns: t,
+                world_from_cam,
+                held_out: false,
+            })
+        })
+        .collect();
+    if views.is_empty() {
+        return views;
+    }
+    let window_ns = (window_s.max(0.0) * 1e9) as u64;
+    for t in thermal
+        .iter()
+        .filter(|v| v.held_out)
+        .map(|v| v.monotonic_ns)
+    {
+        let dt = |r: &RgbView| r.monotonic_ns.abs_diff(t);
+        let nearest = (0..views.len()).min_by_key(|&i| dt(&views[i])).unwrap_or(0);
+        views[nearest].held_out = true;
+        for r in views.iter_mut().filter(|r| dt(r) <= window_ns) {
+            r.held_out = true;
+        }
+    }
+    views
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -457,6 +515,60 @@ mod tests {
             },
         );
         assert_eq!(capped.len(), 6, "the budget holds with bridges: {capped:?}");
+    }
+
+    #[test]
+    fn rgb_views_are_the_track_keys_held_out_around_held_out_thermal_views() {
+        // RGB at 10 Hz; keys (posed) at every frame but 4 and 12.
+        let rgb = frames(&[1.0; 20], &[]);
+        let pose = |t: u64| {
+            Rigid3::new(
+                glam::DQuat::from_rotation_y(t as f64 * 1e-9),
+                DVec3::new(t as f64 * 1e-9, 0.0, 0.0),
+            )
+        };
+        let keys: Vec<(u64, Rigid3)> = rgb
+            .iter()
+            .filter(|f| f.sequence != 4 && f.sequence != 12)
+            .map(|f| (f.monotonic_ns, pose(f.monotonic_ns)))
+            .collect();
+        let track = Track::new(&keys, 0.26);
+        let thermal = |t_s: f64, held_out: bool| ThermalView {
+            sequence: 0,
+            monotonic_ns: (t_s * 1e9) as u64,
+            world_from_cam: Rigid3::IDENTITY,
+            held_out,
+        };
+        // Held out at 0.43 s (RGB 0.4 and 0.5 within 0.12 s; 0.4 is not posed) and at 1.2 s
+        // (not posed: 1.1 and 1.3 within 0.12 s); 0.9 s trains.
+        let views = rgb_views(
+            &track,
+            &rgb,
+            &[thermal(0.43, true), thermal(0.9, false), thermal(1.2, true)],
+            0.12,
+        );
+        assert_eq!(views.len(), 18, "one view per posed keyframe");
+        assert!(
+            views
+                .iter()
+                .all(|v| v.world_from_cam == pose(v.monotonic_ns)
+                    && u64::from(v.sequence) * 100_000_000 == v.monotonic_ns),
+            "the keys' own poses, named by their frames"
+        );
+        let held: Vec<u32> = views
+            .iter()
+            .filter(|v| v.held_out)
+            .map(|v| v.sequence)
+            .collect();
+        assert_eq!(held, vec![5, 11, 13]);
+        // A window of 0: the nearest one only.
+        let nearest = rgb_views(&track, &rgb, &[thermal(0.43, true)], 0.0);
+        let held: Vec<u32> = nearest
+            .iter()
+            .filter(|v| v.held_out)
+            .map(|v| v.sequence)
+            .collect();
+        assert_eq!(held, vec![5]);
     }
 
     #[test]
