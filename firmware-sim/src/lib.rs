@@ -11,7 +11,9 @@
 //! - [`rig`]: the thermal + RGB rig geometry and board trajectories.
 //! - [`dataset`]: the `board` calibration set writer.
 //! - [`scene`]: trainer datasets of simple thermal scenes with truth; [`response`]: their
-//!   per-frame automatic gain control (8-bit) and drift between flat-field corrections.
+//!   per-frame automatic gain control (8-bit) and drift between flat-field corrections;
+//!   [`scene_joint`]: the same scenes seen by a thermal + RGB rig (RGB at K× the thermal
+//!   resolution), with high-resolution truth (`scene --rgb-scale K`).
 //! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
 //!   (`run --walk`), with the truth trajectory; [`fiducials`]: the AprilTags on its walls and
 //!   their map (`tags.toml`).
@@ -25,6 +27,7 @@ pub mod render;
 pub mod response;
 pub mod rig;
 pub mod scene;
+pub mod scene_joint;
 pub mod sensor;
 pub mod serve;
 pub mod walk;

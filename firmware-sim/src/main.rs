@@ -12,6 +12,7 @@ use s3tir_firmware_sim::fiducials::TagInk;
 use s3tir_firmware_sim::response::ResponseEffects;
 use s3tir_firmware_sim::rig::Rig;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with};
+use s3tir_firmware_sim::scene_joint::{JointOptions, write_joint_scene_set};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
 use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkRoom, WalkSpec, serve_walk};
@@ -112,6 +113,13 @@ enum Command {
     /// a wall with an emissivity edge and an in-wall heating pipe): COLMAP text model in
     /// DIR/sparse/0/, 16-bit TLinear PNGs in DIR/images/, RGB in DIR/rgb/, ground-truth depth
     /// and temperature in DIR/depth/ and DIR/temperature/.
+    ///
+    /// With --rgb-scale K: the joint RGB + thermal layout instead, a thermal camera
+    /// (--width × --height) and an RGB camera of K times its resolution, rigidly 3 cm apart:
+    /// DIR/images/thermal/NNNN.png and DIR/images/rgb/NNNN.png (both cameras in one COLMAP
+    /// model in DIR/sparse/0/), DIR/holdout.txt, and truth in DIR/truth/ (noise-free apparent
+    /// temperature at the thermal and at the RGB resolution, depth of both cameras, noise-free
+    /// RGB). See firmware-sim/README.md, `scene`.
     Scene {
         /// Output directory (created).
         #[arg(long)]
@@ -144,6 +152,21 @@ enum Command {
         /// first frame). The frames taken right after one are listed in DIR/ffc.txt.
         #[arg(long, default_value_t = 6)]
         ffc_every: usize,
+        /// Joint RGB + thermal layout: an RGB camera of K times the thermal resolution per axis
+        /// (K·width × K·height, same 57° field of view), mounted 3 cm beside the thermal
+        /// camera. Writes DIR/images/thermal/ and DIR/images/rgb/ (COLMAP cameras 1 and 2,
+        /// images 2k+1 and 2k+2 of instant k), DIR/holdout.txt (both images of every 8th
+        /// instant) and DIR/truth/: apparent/thermal/ and apparent_sr/thermal/ (noise-free,
+        /// blur-free apparent temperature at the thermal pose, W×H and K·W×K·H, centikelvin),
+        /// depth/thermal/ and depth/rgb/ (mm), rgb/rgb/ (noise-free RGB) instead of DIR/images/,
+        /// rgb/, depth/ and temperature/. 1 to 8; 0 (default): the thermal-only layout above.
+        #[arg(long, default_value_t = 0, value_name = "K")]
+        rgb_scale: u32,
+        /// With --rgb-scale: the RGB camera in low light, exposed at 2 % instead of 100 % (shot
+        /// and read noise dominate); its truth in DIR/truth/rgb/ has the same exposure without
+        /// the noise.
+        #[arg(long)]
+        low_light: bool,
     },
     /// Run the simulated rig in real time: frames over a Unix socket (simwire), the Boson FSLP
     /// firmware and the rig controller on pseudo-terminals. Prints `key: value` lines
@@ -284,10 +307,14 @@ fn main() -> Result<()> {
             agc,
             drift_k,
             ffc_every,
+            rgb_scale,
+            low_light,
         } => {
             if !(drift_k >= 0.0 && drift_k.is_finite()) {
                 anyhow::bail!("--drift-k must be a finite number ≥ 0, got {drift_k}");
             }
+            let joint = JointOptions::from_flags(rgb_scale, low_light)
+                .context("checking --rgb-scale and --low-light")?;
             let effects = ResponseEffects {
                 agc,
                 drift_step_k: drift_k,
@@ -306,9 +333,11 @@ fn main() -> Result<()> {
                 LayoutArg::Objects => SceneLayout::Objects,
                 LayoutArg::Wall => SceneLayout::Wall,
             };
-            write_scene_set_with(&cfg, layout, effects, &mut |done, _| {
-                bar.set_position(done as u64)
-            })
+            let mut progress = |done: usize, _| bar.set_position(done as u64);
+            match joint {
+                None => write_scene_set_with(&cfg, layout, effects, &mut progress),
+                Some(joint) => write_joint_scene_set(&cfg, layout, effects, &joint, &mut progress),
+            }
             .with_context(|| format!("writing the scene set to {}", out.display()))?;
             bar.finish();
             tracing::info!(

@@ -1,5 +1,7 @@
 //! Simple thermal scenes with ground truth for the trainer, written as a COLMAP text model.
 //! Two layouts ([`SceneLayout`]): `Objects` (the default, below) and `Wall` (further below).
+//! The same scenes seen by a thermal + RGB rig, RGB at K× the thermal resolution, with
+//! high-resolution truth: [`crate::scene_joint`] (`scene --rgb-scale K`).
 //!
 //! World frame: x east, y north, z up, metres; the ground is the plane z = 0.
 //!
@@ -613,29 +615,93 @@ fn sample_object_points(count: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, [u8; 
     pts
 }
 
+/// `scene.json` (firmware-sim/README.md, `scene`); the joint layout adds `joint`
+/// ([`crate::scene_joint`]).
 #[derive(Debug, Serialize)]
-struct SceneJson {
-    layout: &'static str,
-    world_frame: &'static str,
-    env_k: f64,
-    background_k: f64,
-    camera: CameraModel,
-    colmap_camera_model: &'static str,
-    pixel_convention: &'static str,
-    thermal_units: &'static str,
-    depth_units: &'static str,
-    temperature_units: &'static str,
-    netd_k: f64,
-    seed: u64,
-    views: usize,
+pub(crate) struct SceneJson {
+    pub(crate) layout: &'static str,
+    pub(crate) world_frame: &'static str,
+    pub(crate) env_k: f64,
+    pub(crate) background_k: f64,
+    pub(crate) camera: CameraModel,
+    pub(crate) colmap_camera_model: &'static str,
+    pub(crate) pixel_convention: &'static str,
+    pub(crate) thermal_units: String,
+    pub(crate) depth_units: &'static str,
+    pub(crate) temperature_units: &'static str,
+    pub(crate) netd_k: f64,
+    pub(crate) seed: u64,
+    pub(crate) views: usize,
+    /// Only in the joint layout (absent from the default layout's file).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) joint: Option<crate::scene_joint::JointJson>,
 }
 
-fn io(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> SimError {
+impl SceneJson {
+    /// The fields both layouts share; `images_dir` is where the thermal images are
+    /// (`images/` or `images/thermal/`), named in `thermal_units`.
+    pub(crate) fn new(
+        cfg: &SceneConfig,
+        layout: SceneLayout,
+        camera: CameraModel,
+        effects: ResponseEffects,
+        images_dir: &str,
+        netd_k: f64,
+    ) -> Self {
+        Self {
+            layout: match layout {
+                SceneLayout::Objects => "objects",
+                SceneLayout::Wall => "wall",
+            },
+            world_frame: match layout {
+                SceneLayout::Objects => "x east, y north, z up, metres; ground plane z = 0",
+                SceneLayout::Wall => "x east, y north, z up, metres; wall plane y = 0, facing -y",
+            },
+            env_k: ENV_K,
+            background_k: BACKGROUND_K,
+            camera,
+            colmap_camera_model: "PINHOLE (cx, cy shifted by +0.5 px to COLMAP's pixel convention)",
+            pixel_convention: "camera.intrinsics: OpenCV, centre of the top-left pixel at (0, 0)",
+            thermal_units: match (effects.agc, effects.drift_step_k > 0.0) {
+                (true, _) => format!(
+                    "{images_dir}: 8-bit grey, each frame stretched from its own min to max \
+                     apparent temperature (automatic gain control; windows in response.json)"
+                ),
+                (false, true) => format!(
+                    "{images_dir}: TLinear centikelvin (apparent black-body temperature x 100) \
+                     plus a per-frame drift offset (response.json)"
+                ),
+                (false, false) => format!(
+                    "{images_dir}: TLinear centikelvin (apparent black-body temperature x 100)"
+                ),
+            },
+            depth_units: "depth/: camera z along the pixel-centre ray, millimetres, 0 = no surface",
+            temperature_units: "temperature/: true surface temperature along the pixel-centre ray, centikelvin, 0 = no surface",
+            netd_k,
+            seed: cfg.seed,
+            views: cfg.views,
+            joint: None,
+        }
+    }
+}
+
+/// The error of a failed file operation `what` on `path`.
+pub(crate) fn io(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> SimError {
     let path = path.to_path_buf();
     move |source| SimError::Io { path, what, source }
 }
 
-fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError> {
+/// Creates the folders `dirs` (relative to `out`) and their parents.
+pub(crate) fn create_dirs(out: &Path, dirs: &[&str]) -> Result<(), SimError> {
+    for d in dirs {
+        let p = out.join(d);
+        fs::create_dir_all(&p).map_err(io(&p, "create directory"))?;
+    }
+    Ok(())
+}
+
+/// Writes a `w × h` 16-bit grey PNG.
+pub(crate) fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError> {
     let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, data).ok_or(
         SimError::InvalidParameter {
             parameter: "image buffer",
@@ -647,6 +713,261 @@ fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError>
         what: "16-bit PNG",
         reason: format!("{}: {e}", path.display()),
     })
+}
+
+/// Writes a `w × h` 8-bit sRGB PNG of packed RGB bytes.
+pub(crate) fn save_rgb8(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<(), SimError> {
+    image::RgbImage::from_raw(w, h, rgb)
+        .ok_or(SimError::InvalidParameter {
+            parameter: "rgb buffer",
+            value: path.display().to_string(),
+            why: "size does not match",
+        })?
+        .save(path)
+        .map_err(|e| SimError::Encode {
+            what: "RGB PNG",
+            reason: format!("{}: {e}", path.display()),
+        })
+}
+
+/// Writes a thermal frame as the response simulator exported it (16-bit centikelvin or 8-bit
+/// grey after AGC).
+pub(crate) fn save_exported(
+    path: &Path,
+    w: u32,
+    h: u32,
+    frame: ExportedFrame,
+) -> Result<(), SimError> {
+    match frame {
+        ExportedFrame::CentiKelvin(words) => save_u16(path, w, h, words),
+        ExportedFrame::Grey8(grey) => image::GrayImage::from_raw(w, h, grey)
+            .ok_or(SimError::InvalidParameter {
+                parameter: "grey buffer",
+                value: path.display().to_string(),
+                why: "size does not match",
+            })?
+            .save(path)
+            .map_err(|e| SimError::Encode {
+                what: "8-bit PNG",
+                reason: format!("{}: {e}", path.display()),
+            }),
+    }
+}
+
+/// Depths in metres → the 16-bit millimetre words of the depth truth (0 stays 0: no surface).
+pub(crate) fn depth_mm_words(depth_m: &[f64]) -> Vec<u16> {
+    depth_m
+        .iter()
+        .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
+        .collect()
+}
+
+/// Temperatures in kelvin → centikelvin words.
+pub(crate) fn centikelvin_words(temp_k: &[f64]) -> Vec<u16> {
+    temp_k
+        .iter()
+        .map(|t| (t * 100.0).round().clamp(0.0, 65535.0) as u16)
+        .collect()
+}
+
+/// The thermal core of the scene datasets: the Lepton 3.5's noise and PSF at `camera`, without
+/// telemetry, dropped frames, automatic flat-field corrections or fixed-pattern drift.
+pub(crate) fn scene_thermal_profile(camera: CameraModel) -> ThermalProfile {
+    let mut profile = ThermalProfile::lepton35();
+    profile.camera = camera;
+    profile.telemetry_rows = 0;
+    profile.drop_probability = 0.0;
+    profile.auto_ffc_period_s = 0.0;
+    profile.fpn_drift_k_per_s = 0.0;
+    profile
+}
+
+/// One thermal frame of a `w × h` area-averaged radiance image: PSF blur, then the sensor's
+/// noise and TLinear output (centikelvin words).
+pub(crate) fn sense_thermal(
+    sensor: &mut ThermalSensor,
+    radiance: &[f64],
+    w: u32,
+    h: u32,
+) -> Result<Vec<u16>, SimError> {
+    let blurred = gaussian_blur(
+        radiance,
+        w as usize,
+        h as usize,
+        sensor.profile.psf_sigma_px,
+    );
+    match sensor.next_frame(&blurred) {
+        ThermalOutput::Frame(f) => Ok(f.words),
+        ThermalOutput::Dropped { .. } => Err(SimError::InvalidParameter {
+            parameter: "drop_probability",
+            value: "0".into(),
+            why: "a frame was dropped although dropping is disabled",
+        }),
+    }
+}
+
+/// RGB blur of the scene datasets, 1σ pixels.
+pub(crate) const SCENE_RGB_BLUR_PX: f64 = 0.5;
+
+/// The RGB image of a `w × h` render: the linear channels blurred by [`SCENE_RGB_BLUR_PX`],
+/// exposed with shot and read noise, packed 8-bit sRGB.
+pub(crate) fn expose_scene_rgb(
+    profile: &RgbProfile,
+    r: &SceneRender,
+    w: u32,
+    h: u32,
+    rng: &mut ChaCha8Rng,
+) -> Vec<u8> {
+    let [c0, c1, c2] = r
+        .rgb_linear
+        .each_ref()
+        .map(|c| gaussian_blur(c, w as usize, h as usize, SCENE_RGB_BLUR_PX));
+    expose_rgb_channels(profile, [&c0, &c1, &c2], rng)
+}
+
+/// One `images.txt` record: `cam_from_world` of image `id`, taken by camera `camera_id`.
+#[derive(Debug, Clone)]
+pub(crate) struct ColmapImageRecord {
+    pub(crate) id: usize,
+    pub(crate) cam_from_world: Rigid3,
+    pub(crate) camera_id: u32,
+    pub(crate) name: String,
+}
+
+/// Writes the COLMAP text model (`cameras.txt`, `images.txt`, `points3D.txt`) into
+/// `sparse_dir`: PINHOLE cameras with `cx, cy` moved by +½ px to COLMAP's pixel convention,
+/// images with empty 2-D feature lines, points with empty tracks.
+pub(crate) fn write_colmap_text(
+    sparse_dir: &Path,
+    cameras: &[(u32, CameraModel)],
+    images: &[ColmapImageRecord],
+    points: &[(DVec3, [u8; 3])],
+) -> Result<(), SimError> {
+    let mut cameras_txt = format!(
+        "# Camera list with one line of data per camera:\n\
+         #   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n\
+         # Number of cameras: {}\n",
+        cameras.len()
+    );
+    for (id, cam) in cameras {
+        let i = cam.intrinsics;
+        // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); ours is at (0, 0).
+        cameras_txt.push_str(&format!(
+            "{id} PINHOLE {} {} {:.17} {:.17} {:.17} {:.17}\n",
+            cam.width_px,
+            cam.height_px,
+            i.fx,
+            i.fy,
+            i.cx + 0.5,
+            i.cy + 0.5
+        ));
+    }
+    let mut images_txt = String::from(
+        "# Image list with two lines of data per image:\n\
+         #   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n\
+         #   POINTS2D[] as (X, Y, POINT3D_ID)  (left empty: no feature tracks)\n",
+    );
+    images_txt.push_str(&format!(
+        "# Number of images: {}, mean observations per image: 0\n",
+        images.len()
+    ));
+    for im in images {
+        // One of ±q, with w ≥ 0 (COLMAP's habit).
+        let q = if im.cam_from_world.rotation.w < 0.0 {
+            -im.cam_from_world.rotation
+        } else {
+            im.cam_from_world.rotation
+        };
+        let t = im.cam_from_world.translation_m;
+        images_txt.push_str(&format!(
+            "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {} {}\n\n",
+            im.id, q.w, q.x, q.y, q.z, t.x, t.y, t.z, im.camera_id, im.name
+        ));
+    }
+    let mut points_txt = String::from(
+        "# 3D point list with one line of data per point:\n\
+         #   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n",
+    );
+    points_txt.push_str(&format!(
+        "# Number of points: {}, mean track length: 0\n",
+        points.len()
+    ));
+    for (k, (p, c)) in points.iter().enumerate() {
+        points_txt.push_str(&format!(
+            "{} {:.9} {:.9} {:.9} {} {} {} 0\n",
+            k + 1,
+            p.x,
+            p.y,
+            p.z,
+            c[0],
+            c[1],
+            c[2]
+        ));
+    }
+    for (name, text) in [
+        ("cameras.txt", cameras_txt),
+        ("images.txt", images_txt),
+        ("points3D.txt", points_txt),
+    ] {
+        let p = sparse_dir.join(name);
+        let mut f = fs::File::create(&p).map_err(io(&p, "create"))?;
+        f.write_all(text.as_bytes()).map_err(io(&p, "write"))?;
+    }
+    Ok(())
+}
+
+/// Writes `ffc.txt` (with drift, without AGC: the frames right after a flat-field correction)
+/// and `response.json` (with any effect) into `out`.
+pub(crate) fn write_response_files(
+    out: &Path,
+    effects: ResponseEffects,
+    response: &ResponseSimulator,
+) -> Result<(), SimError> {
+    if effects.drift_step_k > 0.0 && !effects.agc {
+        // What a capture session's FFC telemetry says: the frames right after a correction.
+        let fresh: String = response
+            .truth()
+            .frames
+            .iter()
+            .filter(|f| f.ffc_before)
+            .map(|f| f.image.clone() + "\n")
+            .collect();
+        let p = out.join("ffc.txt");
+        fs::write(&p, fresh).map_err(io(&p, "write"))?;
+    }
+    if effects.any() {
+        write_json(
+            &out.join("response.json"),
+            &response.truth(),
+            "response.json",
+        )?;
+    }
+    Ok(())
+}
+
+/// Writes `value` as pretty JSON followed by a newline.
+pub(crate) fn write_json(
+    path: &Path,
+    value: &impl Serialize,
+    what: &'static str,
+) -> Result<(), SimError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| SimError::Encode {
+        what,
+        reason: e.to_string(),
+    })?;
+    fs::write(path, text + "\n").map_err(io(path, "write"))
+}
+
+/// Checks the size and view count both layouts need.
+pub(crate) fn check_scene_config(cfg: &SceneConfig) -> Result<(), SimError> {
+    if cfg.width_px < 2 || cfg.height_px < 2 || cfg.views == 0 {
+        return Err(SimError::InvalidParameter {
+            parameter: "width/height/views",
+            value: format!("{}x{} x {}", cfg.width_px, cfg.height_px, cfg.views),
+            why: "need at least 2x2 pixels and one view",
+        });
+    }
+    Ok(())
 }
 
 /// Writes the `Objects` scene dataset (files in firmware-sim/README.md).
@@ -670,34 +991,20 @@ pub fn write_scene_set_with_layout(
 
 /// Writes the scene dataset of `layout` with per-frame response `effects` (automatic gain
 /// control on 8-bit exports, offset drift between flat-field corrections; truth in
-/// `response.json`, see [`crate::response`]).
+/// `response.json`, see [`crate::response`]). The joint RGB + thermal layout is
+/// [`crate::scene_joint::write_joint_scene_set`].
 pub fn write_scene_set_with(
     cfg: &SceneConfig,
     layout: SceneLayout,
     effects: ResponseEffects,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(), SimError> {
-    if cfg.width_px < 2 || cfg.height_px < 2 || cfg.views == 0 {
-        return Err(SimError::InvalidParameter {
-            parameter: "width/height/views",
-            value: format!("{}x{} x {}", cfg.width_px, cfg.height_px, cfg.views),
-            why: "need at least 2x2 pixels and one view",
-        });
-    }
+    check_scene_config(cfg)?;
     let out = &cfg.out_dir;
-    for d in ["sparse/0", "images", "rgb", "depth", "temperature"] {
-        let p = out.join(d);
-        fs::create_dir_all(&p).map_err(io(&p, "create directory"))?;
-    }
+    create_dirs(out, &["sparse/0", "images", "rgb", "depth", "temperature"])?;
     let cam = scene_camera(cfg.width_px, cfg.height_px);
     let grid = RayGrid::new(&cam);
-    let mut profile = ThermalProfile::lepton35();
-    profile.camera = cam;
-    profile.telemetry_rows = 0;
-    profile.drop_probability = 0.0;
-    profile.auto_ffc_period_s = 0.0;
-    profile.fpn_drift_k_per_s = 0.0;
-    let mut sensor = ThermalSensor::new(profile, cfg.seed);
+    let mut sensor = ThermalSensor::new(scene_thermal_profile(cam), cfg.seed);
     let radiometry = Radiometry::new();
     let rgb_profile = RgbProfile {
         camera: cam,
@@ -707,199 +1014,37 @@ pub fn write_scene_set_with(
     let mut response = ResponseSimulator::new(effects, cfg.seed);
     let poses = poses(layout, cfg.views);
     let (w, h) = (cfg.width_px, cfg.height_px);
-    let mut images_txt = String::from(
-        "# Image list with two lines of data per image:\n\
-         #   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n\
-         #   POINTS2D[] as (X, Y, POINT3D_ID)  (left empty: no feature tracks)\n",
-    );
-    images_txt.push_str(&format!(
-        "# Number of images: {}, mean observations per image: 0\n",
-        cfg.views
-    ));
+    let mut images = Vec::with_capacity(cfg.views);
     for (k, cam_from_world) in poses.iter().enumerate() {
         let r = render_scene(layout, &grid, cam_from_world, &radiometry);
-        let blurred = gaussian_blur(&r.radiance, w as usize, h as usize, profile.psf_sigma_px);
-        let words = match sensor.next_frame(&blurred) {
-            ThermalOutput::Frame(f) => f.words,
-            ThermalOutput::Dropped { .. } => {
-                return Err(SimError::InvalidParameter {
-                    parameter: "drop_probability",
-                    value: "0".into(),
-                    why: "a frame was dropped although dropping is disabled",
-                });
-            }
-        };
+        let words = sense_thermal(&mut sensor, &r.radiance, w, h)?;
         let name = format!("{k:04}.png");
-        let image_path = out.join("images").join(&name);
-        match response.export(&name, &words) {
-            ExportedFrame::CentiKelvin(words) => save_u16(&image_path, w, h, words)?,
-            ExportedFrame::Grey8(grey) => image::GrayImage::from_raw(w, h, grey)
-                .ok_or(SimError::InvalidParameter {
-                    parameter: "grey buffer",
-                    value: name.clone(),
-                    why: "size does not match",
-                })?
-                .save(&image_path)
-                .map_err(|e| SimError::Encode {
-                    what: "8-bit PNG",
-                    reason: format!("{}: {e}", image_path.display()),
-                })?,
-        }
-        let depth: Vec<u16> = r
-            .depth_m
-            .iter()
-            .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
-            .collect();
-        save_u16(&out.join("depth").join(&name), w, h, depth)?;
-        let temp: Vec<u16> = r
-            .temp_k
-            .iter()
-            .map(|t| (t * 100.0).round().clamp(0.0, 65535.0) as u16)
-            .collect();
+        let exported = response.export(&name, &words);
+        save_exported(&out.join("images").join(&name), w, h, exported)?;
+        save_u16(
+            &out.join("depth").join(&name),
+            w,
+            h,
+            depth_mm_words(&r.depth_m),
+        )?;
+        let temp = centikelvin_words(&r.temp_k);
         save_u16(&out.join("temperature").join(&name), w, h, temp)?;
-        // RGB: the same pixels; interleave the three blurred linear channels.
-        let chans: Vec<Vec<f64>> = r
-            .rgb_linear
-            .iter()
-            .map(|c| gaussian_blur(c, w as usize, h as usize, 0.5))
-            .collect();
-        let rgb = expose_rgb_channels(&rgb_profile, [&chans[0], &chans[1], &chans[2]], &mut rng);
-        let p = out.join("rgb").join(&name);
-        image::RgbImage::from_raw(w, h, rgb)
-            .ok_or(SimError::InvalidParameter {
-                parameter: "rgb buffer",
-                value: name.clone(),
-                why: "size does not match",
-            })?
-            .save(&p)
-            .map_err(|e| SimError::Encode {
-                what: "RGB PNG",
-                reason: format!("{}: {e}", p.display()),
-            })?;
-        // One of ±q, with w ≥ 0 (COLMAP's habit).
-        let q = if cam_from_world.rotation.w < 0.0 {
-            -cam_from_world.rotation
-        } else {
-            cam_from_world.rotation
-        };
-        let t = cam_from_world.translation_m;
-        images_txt.push_str(&format!(
-            "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} 1 {}\n\n",
-            k + 1,
-            q.w,
-            q.x,
-            q.y,
-            q.z,
-            t.x,
-            t.y,
-            t.z,
-            name
-        ));
+        // RGB: the same pixels.
+        let rgb = expose_scene_rgb(&rgb_profile, &r, w, h, &mut rng);
+        save_rgb8(&out.join("rgb").join(&name), w, h, rgb)?;
+        images.push(ColmapImageRecord {
+            id: k + 1,
+            cam_from_world: *cam_from_world,
+            camera_id: 1,
+            name,
+        });
         progress(k + 1, cfg.views);
     }
-    let i = cam.intrinsics;
-    // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); ours is at (0, 0).
-    let cameras_txt = format!(
-        "# Camera list with one line of data per camera:\n\
-         #   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n\
-         # Number of cameras: 1\n\
-         1 PINHOLE {w} {h} {:.17} {:.17} {:.17} {:.17}\n",
-        i.fx,
-        i.fy,
-        i.cx + 0.5,
-        i.cy + 0.5
-    );
     let points = sample_surface_points(layout, 2000, &mut rng);
-    let mut points_txt = String::from(
-        "# 3D point list with one line of data per point:\n\
-         #   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n",
-    );
-    points_txt.push_str(&format!(
-        "# Number of points: {}, mean track length: 0\n",
-        points.len()
-    ));
-    for (k, (p, c)) in points.iter().enumerate() {
-        points_txt.push_str(&format!(
-            "{} {:.9} {:.9} {:.9} {} {} {} 0\n",
-            k + 1,
-            p.x,
-            p.y,
-            p.z,
-            c[0],
-            c[1],
-            c[2]
-        ));
-    }
-    for (name, text) in [
-        ("sparse/0/cameras.txt", cameras_txt),
-        ("sparse/0/images.txt", images_txt),
-        ("sparse/0/points3D.txt", points_txt),
-    ] {
-        let p = out.join(name);
-        let mut f = fs::File::create(&p).map_err(io(&p, "create"))?;
-        f.write_all(text.as_bytes()).map_err(io(&p, "write"))?;
-    }
-    let meta = SceneJson {
-        layout: match layout {
-            SceneLayout::Objects => "objects",
-            SceneLayout::Wall => "wall",
-        },
-        world_frame: match layout {
-            SceneLayout::Objects => "x east, y north, z up, metres; ground plane z = 0",
-            SceneLayout::Wall => "x east, y north, z up, metres; wall plane y = 0, facing -y",
-        },
-        env_k: ENV_K,
-        background_k: BACKGROUND_K,
-        camera: cam,
-        colmap_camera_model: "PINHOLE (cx, cy shifted by +0.5 px to COLMAP's pixel convention)",
-        pixel_convention: "camera.intrinsics: OpenCV, centre of the top-left pixel at (0, 0)",
-        thermal_units: match (effects.agc, effects.drift_step_k > 0.0) {
-            (true, _) => {
-                "images/: 8-bit grey, each frame stretched from its own min to max apparent \
-                 temperature (automatic gain control; windows in response.json)"
-            }
-            (false, true) => {
-                "images/: TLinear centikelvin (apparent black-body temperature x 100) plus a \
-                 per-frame drift offset (response.json)"
-            }
-            (false, false) => {
-                "images/: TLinear centikelvin (apparent black-body temperature x 100)"
-            }
-        },
-        depth_units: "depth/: camera z along the pixel-centre ray, millimetres, 0 = no surface",
-        temperature_units: "temperature/: true surface temperature along the pixel-centre ray, centikelvin, 0 = no surface",
-        netd_k: profile.netd_k,
-        seed: cfg.seed,
-        views: cfg.views,
-    };
-    if effects.drift_step_k > 0.0 && !effects.agc {
-        // What a capture session's FFC telemetry says: the frames right after a correction.
-        let fresh: String = response
-            .truth()
-            .frames
-            .iter()
-            .filter(|f| f.ffc_before)
-            .map(|f| f.image.clone() + "\n")
-            .collect();
-        let p = out.join("ffc.txt");
-        fs::write(&p, fresh).map_err(io(&p, "write"))?;
-    }
-    if effects.any() {
-        let p = out.join("response.json");
-        let text =
-            serde_json::to_string_pretty(&response.truth()).map_err(|e| SimError::Encode {
-                what: "response.json",
-                reason: e.to_string(),
-            })?;
-        fs::write(&p, text + "\n").map_err(io(&p, "write"))?;
-    }
-    let p = out.join("scene.json");
-    let text = serde_json::to_string_pretty(&meta).map_err(|e| SimError::Encode {
-        what: "scene.json",
-        reason: e.to_string(),
-    })?;
-    fs::write(&p, text + "\n").map_err(io(&p, "write"))?;
-    Ok(())
+    write_colmap_text(&out.join("sparse/0"), &[(1, cam)], &images, &points)?;
+    let meta = SceneJson::new(cfg, layout, cam, effects, "images/", sensor.profile.netd_k);
+    write_response_files(out, effects, &response)?;
+    write_json(&out.join("scene.json"), &meta, "scene.json")
 }
 
 /// Whether pixel `(x, y)` of a `width`-wide [`pixel_hits`] map and every pixel within

@@ -566,13 +566,7 @@ pub fn expose_rgb_channels(
     channels: [&[f64]; 3],
     rng: &mut ChaCha8Rng,
 ) -> Vec<u8> {
-    // sRGB encoding through a table of the linear signal in 1/SRGB_LUT_STEPS steps (finer
-    // than one 8-bit code everywhere: the steepest slope, 12.92 near black, moves one code
-    // per 3·10⁻⁴).
-    const SRGB_LUT_STEPS: usize = 1 << 16;
-    let lut: Vec<u8> = (0..=SRGB_LUT_STEPS)
-        .map(|k| (srgb_encode(k as f64 / SRGB_LUT_STEPS as f64) * 255.0).round() as u8)
-        .collect();
+    let lut = srgb8_table();
     let n = channels.iter().map(|c| c.len()).min().unwrap_or(0);
     let mut out = Vec::with_capacity(n * 3);
     let read_var = profile.read_noise_e * profile.read_noise_e;
@@ -586,6 +580,35 @@ pub fn expose_rgb_channels(
         }
     }
     out
+}
+
+/// [`expose_rgb_channels`] without shot or read noise: the mean signal at the profile's
+/// exposure, clipped at full well and sRGB-encoded to 8 bits through the same table (what a
+/// noise-free camera at that exposure would record; the joint scene's RGB truth).
+pub fn expose_rgb_channels_noise_free(profile: &RgbProfile, channels: [&[f64]; 3]) -> Vec<u8> {
+    let lut = srgb8_table();
+    let n = channels.iter().map(|c| c.len()).min().unwrap_or(0);
+    let mut out = Vec::with_capacity(n * 3);
+    for i in 0..n {
+        for ch in channels {
+            let e = ch[i] * profile.exposure * profile.full_well_e;
+            let signal = (e / profile.full_well_e).clamp(0.0, 1.0);
+            out.push(lut[(signal * SRGB_LUT_STEPS as f64).round() as usize]);
+        }
+    }
+    out
+}
+
+/// Steps per unit linear signal of the sRGB encoding table ([`srgb8_table`]).
+const SRGB_LUT_STEPS: usize = 1 << 16;
+
+/// sRGB encoding to 8 bits as a table of the linear signal (fraction of full well) in
+/// 1/[`SRGB_LUT_STEPS`] steps, entries 0..=SRGB_LUT_STEPS: finer than one 8-bit code
+/// everywhere (the steepest slope, 12.92 near black, moves one code per 3·10⁻⁴).
+fn srgb8_table() -> Vec<u8> {
+    (0..=SRGB_LUT_STEPS)
+        .map(|k| (srgb_encode(k as f64 / SRGB_LUT_STEPS as f64) * 255.0).round() as u8)
+        .collect()
 }
 
 /// Length of the standard-normal table of [`StaticRgbExposer`] (a power of two).
@@ -611,7 +634,7 @@ pub struct StaticRgbExposer {
 }
 
 impl StaticRgbExposer {
-    const LUT_STEPS: usize = 1 << 16;
+    const LUT_STEPS: usize = SRGB_LUT_STEPS;
 
     /// Precomputes the exposure of `reflectance` (one value per pixel) tinted per channel.
     pub fn new(
@@ -637,9 +660,7 @@ impl StaticRgbExposer {
                 n as f32
             })
             .collect();
-        let lut = (0..=Self::LUT_STEPS)
-            .map(|k| (srgb_encode(k as f64 / Self::LUT_STEPS as f64) * 255.0).round() as u8)
-            .collect();
+        let lut = srgb8_table();
         Self {
             mean_e,
             sigma_e,

@@ -1,10 +1,15 @@
-// Backward rasteriser body, compiled four times (raster_backward_{atomic,cas}{,_sg}.comp):
+// Backward rasteriser body, compiled four times (raster_backward_{atomic,cas}{,_sg}.comp), and
+// four more with USE_COLOUR (raster_backward_*_rgb.comp):
 //   USE_FLOAT_ATOMICS  global sums with atomicAdd(float); otherwise a compare-and-swap loop on
 //                      the bits, for drivers without float atomics (Raspberry Pi 5).
 //   USE_SUBGROUP_REDUCE each subgroup sums its pixels' contributions (subgroupAdd) and one
 //                      invocation adds the sum to global memory; without it every pixel adds
 //                      its own. (Batching the subgroup sums in shared memory and adding them per
 //                      tile was measured 2.8x slower on lavapipe: its barriers are expensive.)
+//   USE_COLOUR         the RGB planes too: their upstream dL/d(R, G, B) enters w (each
+//                      sample's colour from raster_project_rgb) and each primitive gets the sums
+//                      dL/dc = sum T alpha dL/d(R, G, B) (ACC_COLOUR), which
+//                      raster_backward_finish_rgb chains through the ReLU and the SH basis.
 // One workgroup per 8-column half of a 16x16 tile, one invocation per column of it.
 //
 // Mirrors the CPU reference (trainer/src/render/backward.rs) sample by sample. The CPU walks the
@@ -66,6 +71,9 @@ void global_add(uint idx, float v) {
     }
 }
 #endif
+#ifdef USE_COLOUR
+COLOUR_TEXELS(8)
+#endif
 
 layout(push_constant) uniform Push {
     uint n;
@@ -116,7 +124,7 @@ void put_band(uint base, float v[ACC_BAND]) {
 
 // Per pixel of this invocation's column (private to the invocation): upstream gradients, W =
 // sum_c g_c plane_c (see the top), end of its samples, ray, and the walk's running T and W.
-float g[PIX * 6u];
+float g[PIX * UP_PLANES];
 float w_total[PIX];
 uint end[PIX];
 vec3 p[PIX];
@@ -205,22 +213,35 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m, bool thermal) 
         }
         float wt[PIX], d_alpha[PIX], g_f[PIX], g_t[PIX];
         float sum_omega = 0.0, sum_psi_high = 0.0;
+#ifdef USE_COLOUR
+        vec3 colour = prim_colour(i);
+        vec3 sum_colour = vec3(0.0);
+#endif
         for (uint r = rows; r < rows + ROWS; ++r) {
             wt[r] = 0.0;
             d_alpha[r] = 0.0;
             g_f[r] = 0.0;
             if (valid[r]) {
-                float w_i = g[6u * r] * max(pre[r], 0.0) + g[6u * r + 1u] * omega + g[6u * r + 2u] * misc.x +
-                            g[6u * r + 3u] * beta + g[6u * r + 4u] * t[r] + g[6u * r + 5u];
+                float w_i = g[UP_PLANES * r] * max(pre[r], 0.0) + g[UP_PLANES * r + 1u] * omega +
+                            g[UP_PLANES * r + 2u] * misc.x + g[UP_PLANES * r + 3u] * beta +
+                            g[UP_PLANES * r + 4u] * t[r] + g[UP_PLANES * r + 5u];
+#ifdef USE_COLOUR
+                w_i += g[UP_PLANES * r + UP_RGB] * colour.r + g[UP_PLANES * r + UP_RGB + 1u] * colour.g +
+                       g[UP_PLANES * r + UP_RGB + 2u] * colour.b;
+#endif
                 w_upto[r] += trans[r] * alpha[r] * w_i;
                 d_alpha[r] = trans[r] * w_i - (w_total[r] - w_upto[r]) / (1.0 - alpha[r]);
                 wt[r] = trans[r] * alpha[r];
                 trans[r] *= 1.0 - alpha[r];
-                g_f[r] = pre[r] > 0.0 ? wt[r] * g[6u * r] : 0.0;
+                g_f[r] = pre[r] > 0.0 ? wt[r] * g[UP_PLANES * r] : 0.0;
             }
-            g_t[r] = wt[r] * g[6u * r + 4u];
-            sum_omega += wt[r] * g[6u * r + 1u] + g_f[r];
-            sum_psi_high += wt[r] * g[6u * r + 2u];
+            g_t[r] = wt[r] * g[UP_PLANES * r + 4u];
+            sum_omega += wt[r] * g[UP_PLANES * r + 1u] + g_f[r];
+            sum_psi_high += wt[r] * g[UP_PLANES * r + 2u];
+#ifdef USE_COLOUR
+            sum_colour += wt[r] * vec3(g[UP_PLANES * r + UP_RGB], g[UP_PLANES * r + UP_RGB + 1u],
+                                       g[UP_PLANES * r + UP_RGB + 2u]);
+#endif
         }
 
         // Spectrum: per band amplitude (through the thermal image; psi_high's part is added in
@@ -250,7 +271,7 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m, bool thermal) 
         vec3 g_a = vec3(0.0);
         vec3 g_bp[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
         for (uint r = rows; r < rows + ROWS; ++r) {
-            g_beta += wt[r] * g[6u * r + 3u];
+            g_beta += wt[r] * g[UP_PLANES * r + 3u];
             float g_q = 0.0;
             if (!clamped[r]) {
                 g_o += d_alpha[r] * sv[r];
@@ -272,9 +293,15 @@ void walk(uint rows, uint todo, uint start, float near_m, uint m, bool thermal) 
                 g_bp[2] += gb.z * p[r];
             }
         }
+#ifdef USE_COLOUR
+        put_geom(float[ACC_GEOM](g_a.x, g_a.y, g_a.z, g_bp[0].x, g_bp[0].y, g_bp[0].z, g_bp[1].x,
+                                 g_bp[1].y, g_bp[1].z, g_bp[2].x, g_bp[2].y, g_bp[2].z, g_o, g_beta,
+                                 sum_omega, sum_psi_high, sum_colour.x, sum_colour.y, sum_colour.z));
+#else
         put_geom(float[ACC_GEOM](g_a.x, g_a.y, g_a.z, g_bp[0].x, g_bp[0].y, g_bp[0].z, g_bp[1].x,
                                  g_bp[1].y, g_bp[1].z, g_bp[2].x, g_bp[2].y, g_bp[2].z, g_o, g_beta,
                                  sum_omega, sum_psi_high));
+#endif
     }
 }
 
@@ -296,17 +323,25 @@ void main() {
         w_total[r] = 0.0;
         end[r] = range.x;
         bool any_g = false;
-        for (uint c = 0u; c < 6u; ++c) {
-            g[6u * r + c] = 0.0;
+        for (uint c = 0u; c < UP_PLANES; ++c) {
+            g[UP_PLANES * r + c] = 0.0;
         }
         if (x < pc.width && y < pc.height) {
             uint pidx = y * pc.width + x;
             for (uint c = 0u; c < 6u; ++c) {
                 float gc = c == 0u && !thermal ? 0.0 : upstream[c * npix + pidx];
-                g[6u * r + c] = gc;
+                g[UP_PLANES * r + c] = gc;
                 any_g = any_g || gc != 0.0;
                 w_total[r] += gc * planes[c * npix + pidx];
             }
+#ifdef USE_COLOUR
+            for (uint c = 0u; c < 3u; ++c) {
+                float gc = upstream[(UP_RGB + c) * npix + pidx];
+                g[UP_PLANES * r + UP_RGB + c] = gc;
+                any_g = any_g || gc != 0.0;
+                w_total[r] += gc * planes[(RGB_PLANE + c) * npix + pidx];
+            }
+#endif
             // A pixel without upstream gradient contributes nothing: give it an empty walk.
             end[r] = any_g ? floatBitsToUint(planes[END_PLANE * npix + pidx]) : range.x;
         }

@@ -27,7 +27,9 @@
 
 // Parameter buffer (floats), sections for n primitives with m bands, in this order:
 // means 3n, log_scales 3n, quats 4n (w x y z), opacity_logits n, beta_raw n, omega_low n,
-// band_amp m n, band_freq 3 m n, band_phase m n.
+// band_amp m n, band_freq 3 m n, band_phase m n; then, in a run with colour only, sh 3 K n
+// (K = (degree + 1)^2 coefficients per channel: channel c of coefficient k of primitive i at
+// 3 (K i + k) + c, primitive.rs).
 uint off_means(uint n, uint m) { return 0u; }
 uint off_log_scales(uint n, uint m) { return 3u * n; }
 uint off_quats(uint n, uint m) { return 6u * n; }
@@ -37,6 +39,7 @@ uint off_omega_low(uint n, uint m) { return 12u * n; }
 uint off_band_amp(uint n, uint m) { return 13u * n; }
 uint off_band_freq(uint n, uint m) { return 13u * n + m * n; }
 uint off_band_phase(uint n, uint m) { return 13u * n + 4u * m * n; }
+uint off_sh(uint n, uint m) { return 13u * n + 5u * m * n; }
 
 // Samples with q* > q_max (1 + QMAX_MARGIN) cannot reach alpha >= 1/255: q_max = L^(2/beta),
 // L = ln(255 o), is where o exp(-q^(beta/2)) = 1/255. The margin keeps every sample whose exact
@@ -115,16 +118,41 @@ struct BandView {
 
 // Planes written by raster_forward (each width*height floats): thermal, psi_low, psi_high,
 // psi_beta, depth, alpha, then the end plane: per pixel, one past the position in the tile's
-// list of the last sample blended (uint bits), which bounds the backward pass.
-#define FORWARD_PLANES 7u
+// list of the last sample blended (uint bits), which bounds the backward pass; with colour
+// (the *_rgb kernels, USE_COLOUR) then the R, G and B planes.
+// The backward pass's upstream planes: dL/d(thermal, psi_low, psi_high, psi_beta, depth,
+// alpha) and with colour dL/d(R, G, B).
 #define END_PLANE 6u
+#ifdef USE_COLOUR
+#define FORWARD_PLANES 10u
+#define RGB_PLANE 7u
+#define UP_PLANES 9u
+#define UP_RGB 6u
+#else
+#define FORWARD_PLANES 7u
+#define UP_PLANES 6u
+#endif
+
+// A primitive's colour in the current view (vec4: r, g, b, 0 per primitive, written by
+// raster_project_rgb), read by the rasterisers through a texel buffer as the views are.
+#define COLOUR_TEXELS(BINDING)                                                               \
+    layout(set = 0, binding = BINDING) uniform samplerBuffer colour_texels;                  \
+    vec3 prim_colour(uint i) {                                                               \
+        return texelFetch(colour_texels, int(i)).xyz;                                        \
+    }
 
 // View-space gradient sums per primitive, written by raster_backward_* and chained to the
 // parameters by raster_backward_finish: dL/da (3), dL/dB p^T (9, row-major: row = component of
 // b), dL/dopacity, dL/dbeta, dL/domega_low, dL/dpsi_high (the primitive's own psi_high = sum_j
 // |amp_j|; finish gives band j sign(amp_j) of it), then per band: dL/damp through the thermal
-// image, dL/dtheta0 (= dL/dphase), sum dL/dtheta t p (3).
+// image, dL/dtheta0 (= dL/dphase), sum dL/dtheta t p (3). With colour (USE_COLOUR) the
+// geometry fields end with dL/dc (3, the colour's sums, before its ReLU) at ACC_COLOUR.
+#ifdef USE_COLOUR
+#define ACC_COLOUR 16u
+#define ACC_GEOM 19u
+#else
 #define ACC_GEOM 16u
+#endif
 #define ACC_BAND 5u
 uint acc_fields(uint m) { return ACC_GEOM + ACC_BAND * m; }
 

@@ -82,6 +82,22 @@ impl PinholeCamera {
         crate::real::v3::mat_mul(&rt, &kinv)
     }
 
+    /// The same camera read out at `k`× the resolution (same pose and field of view):
+    /// focal lengths × k, principal point scaled about the pixel-centre origin
+    /// (`c' = (c + ½)·k − ½`), image size × k. Renders super-resolved views.
+    pub fn scaled(&self, k: usize) -> Self {
+        let s = k as f64;
+        Self {
+            fx_px: self.fx_px * s,
+            fy_px: self.fy_px * s,
+            cx_px: (self.cx_px + 0.5) * s - 0.5,
+            cy_px: (self.cy_px + 0.5) * s - 0.5,
+            width: self.width * k,
+            height: self.height * k,
+            cam_from_world: self.cam_from_world,
+        }
+    }
+
     /// Camera-frame point of a world point.
     pub fn to_cam(&self, p_world: [f64; 3]) -> [f64; 3] {
         self.cam_from_world

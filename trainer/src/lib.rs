@@ -23,3 +23,8 @@ pub mod metrics;
 pub mod ply;
 pub mod report;
 pub mod train;
+
+// Joint RGB + thermal (TGA-GS, issue 18): scoring against a simulated scene's truth, and the
+// ablation table.
+pub mod ablation;
+pub mod truth;

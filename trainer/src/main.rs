@@ -7,11 +7,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use s3tir_trainer::dataset::images::ColourMode;
-use s3tir_trainer::dataset::{Dataset, LoadOptions, ThermalUnits};
+use s3tir_trainer::dataset::{Dataset, LoadOptions, Modality, ThermalUnits};
 use s3tir_trainer::report;
 use s3tir_trainer::train::{
-    self, Backend, ConsistPartner, CpuBackend, Densify, Event, Mode, Outcome, ResponseConfig,
-    ResponseKind, TrainConfig, Trainer, files,
+    self, Backend, ConsistPartner, CpuBackend, Densify, Event, Joint, Mode, Outcome,
+    ResponseConfig, ResponseKind, RgbLoss, TrainConfig, Trainer, files,
 };
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
@@ -21,6 +21,15 @@ use s3tir_trainer::train::{
 /// [--backend cpu|vulkan] [--budget N] [--seed S]` (or `s3tir-train train DATA …`). DATA is a
 /// COLMAP dataset (`sparse/0/` + `images/`), e.g. the output of `s3tir-firmware-sim scene`.
 /// Ctrl-C writes a checkpoint and exits; `--resume` continues from it.
+///
+/// Joint RGB + thermal (TGA-GS) on a rig's pair of cameras: a dataset holding both cameras'
+/// images, each with its own camera (`s3tir-calib poses SESSION --with-rgb`, or
+/// `s3tir-train SESSION.mcap --with-rgb`), trains one model with a thermal and a colour head:
+/// `s3tir-train DATA --out RUN --rgb-pretrain 3000` — RGB pre-training, then every step trains
+/// a view with the other camera's image of the same instant; L1-low for dark RGB
+/// (`--rgb-loss auto`), the thermal gradient alignment loss (`--thermal-align`), the thermal
+/// head rendered at the RGB resolution into `renders_sr/`. `ablation` measures the variants on
+/// a simulated joint scene (`s3tir-firmware-sim scene --rgb-scale 4 --low-light`).
 ///
 /// `devices` lists the Vulkan devices this computer offers and what the trainer needs of them
 /// (storage-buffer range, shared memory, subgroups, float atomics).
@@ -72,7 +81,19 @@ enum Command {
         /// Vulkan device index (see `devices`; default: the best device).
         #[arg(long)]
         device_index: Option<usize>,
+        /// Also score the run against its dataset's truth (a simulated joint scene's
+        /// DATA/truth: thermal at the input resolution and super-resolved at K× against
+        /// bicubic upsampling, RGB, depth).
+        #[arg(long)]
+        truth: bool,
     },
+    /// The TGA-GS ablation on a dataset with truth (`s3tir-firmware-sim scene --rgb-scale K`):
+    /// four runs with the training options given — thermal-only, joint, joint without the
+    /// thermal gradient alignment loss, joint without RGB pre-training — into
+    /// RUN_DIR/<variant>/, each scored against DATA/truth (thermal at the input resolution and
+    /// super-resolved at K× against bicubic upsampling, RGB, depth); the table in
+    /// RUN_DIR/ablation.md and ablation.json. Either backend (`--backend`).
+    Ablation(Box<TrainArgs>),
     /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs).
     Compare {
         /// Run folders.
@@ -119,6 +140,10 @@ struct TrainArgs {
     /// without COLMAP where mapped tags are in view.
     #[arg(long)]
     tags: Option<PathBuf>,
+    /// Session input: also put the posed RGB keyframes into the dataset (their own camera,
+    /// the same world), so the run trains jointly on RGB and thermal (see --views).
+    #[arg(long)]
+    with_rgb: bool,
     /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
     /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]
@@ -241,6 +266,45 @@ struct TrainArgs {
     /// its shortcuts (capacity.json: cpu_step_ms_*; six CPU passes, so off by default).
     #[arg(long)]
     cpu_timing: bool,
+    /// Joint RGB + thermal (TGA-GS): which of the dataset's image sets to train on. A COLMAP
+    /// model holding a rig's thermal and RGB images (each with its own camera: thermal pose =
+    /// RGB pose composed with the calibrated extrinsic) trains one set of primitives with a
+    /// thermal head and an SH colour head: `both` (joint), `thermal` or `rgb` alone.
+    #[arg(long, default_value_t = Modality::Both)]
+    views: Modality,
+    /// Joint: RGB pre-training, the first N iterations on RGB views only, then every view
+    /// (paper §3.3; counted inside --iters) [default: 0; `ablation`: a tenth of --iters].
+    #[arg(long)]
+    rgb_pretrain: Option<u64>,
+    /// Joint: each step trains one drawn view only, instead of the view together with the
+    /// other camera's image of the same instant (after the RGB pre-training).
+    #[arg(long)]
+    no_pair_steps: bool,
+    /// Joint: RGB views' loss — `l1-low` (TGA-GS's L1-low on a log curve for dark images, plus
+    /// D-SSIM), `l1` (L1 + D-SSIM), or `auto`: l1-low when the RGB training views average
+    /// below 0.2 (low light).
+    #[arg(long, default_value_t = RgbLoss::Auto)]
+    rgb_loss: RgbLoss,
+    /// Joint: weight of every term of a thermal view's loss.
+    #[arg(long, default_value_t = Joint::default().thermal_weight)]
+    thermal_weight: f64,
+    /// Joint: weight of every term of an RGB view's loss.
+    #[arg(long, default_value_t = Joint::default().rgb_weight)]
+    rgb_weight: f64,
+    /// Weight of the thermal gradient alignment loss (TGA-GS §3.4: rendered normals from the
+    /// depth G-buffer against the thermal image's gradients) on thermal views; 0 turns it off
+    /// [default: 0.05 in a joint run, 0 in a thermal-only run].
+    #[arg(long)]
+    thermal_align: Option<f64>,
+    /// Joint: also render the held-out thermal views at K× their resolution into
+    /// RUN_DIR/renders_sr/ (super-resolved thermal: the shared geometry carries the RGB views'
+    /// edges into the thermal head) [default: the RGB over the thermal resolution in a joint
+    /// run; 1: none].
+    #[arg(long)]
+    sr_scale: Option<usize>,
+    /// Degree of the SH colour of runs with RGB views (0–3).
+    #[arg(long, default_value_t = 0)]
+    sh_degree: usize,
 }
 
 /// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
@@ -297,9 +361,17 @@ fn main() -> Result<()> {
                 json,
                 backend,
                 device_index,
+                truth,
             }),
             _,
-        ) => eval_cmd(&run_dir, json, &backend, device_index),
+        ) => {
+            if truth {
+                truth_cmd(&run_dir, json)
+            } else {
+                eval_cmd(&run_dir, json, &backend, device_index)
+            }
+        }
+        (Some(Command::Ablation(a)), _) => ablation_cmd(*a),
         (Some(Command::Compare { runs, out }), _) => compare_cmd(&runs, &out),
         (
             Some(Command::Synth {
@@ -365,49 +437,7 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
         }
         cfg
     } else {
-        let mut cfg = TrainConfig::new(data);
-        cfg.load = LoadOptions {
-            holdout_every: a.holdout,
-            thermal_units: if a.units == "counts" {
-                ThermalUnits::RawCounts
-            } else {
-                ThermalUnits::CentiKelvin
-            },
-            colour: if a.pseudo_colour {
-                ColourMode::Pseudo
-            } else {
-                ColourMode::Rgb
-            },
-            downscale: a.downscale,
-            images_dir: None,
-        };
-        cfg.mode = a.mode;
-        cfg.iters = a.iters.unwrap_or(30_000);
-        cfg.time_budget_s = a.time_budget;
-        cfg.densify.grad_threshold = a.densify_grad;
-        cfg.densify.from = a.densify_from;
-        cfg.densify.until = a.densify_until;
-        cfg.densify.every = a.densify_every;
-        cfg.densify.prune_opacity = a.prune_opacity;
-        cfg.response.kind = a.response;
-        cfg.response.prior = a.response_prior;
-        cfg.response.lr_offset = a.response_lr;
-        cfg.response.lr_log_gain = 2.0 * a.response_lr;
-        cfg.cpu_timing = a.cpu_timing;
-        cfg.warmup = a.warmup;
-        cfg.budget = a.budget;
-        cfg.seed = a.seed;
-        cfg.bands = a.bands;
-        cfg.consist = !a.no_consist;
-        cfg.sparse = !a.no_sparse;
-        cfg.smooth = !a.no_smooth;
-        cfg.eval_every_s = a.eval_every_s;
-        cfg.checkpoint_every_s = a.checkpoint_every_s;
-        cfg.lr.beta = a.beta_lr;
-        cfg.consist_every = a.consist_every;
-        cfg.consist_partner = a.consist_partner;
-        cfg.backend = a.backend.clone().unwrap_or_else(|| "cpu".into());
-        cfg
+        new_config(&a, data)?
     };
     let dataset = Dataset::load(&cfg.data, &cfg.load)
         .with_context(|| format!("loading dataset {}", cfg.data.display()))?;
@@ -437,6 +467,85 @@ fn train_cmd(a: TrainArgs) -> Result<()> {
     }
 }
 
+/// The configuration of a new run from the command line (`data`: the dataset folder).
+fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
+    let mut cfg = TrainConfig::new(data);
+    cfg.load = LoadOptions {
+        holdout_every: a.holdout,
+        thermal_units: if a.units == "counts" {
+            ThermalUnits::RawCounts
+        } else {
+            ThermalUnits::CentiKelvin
+        },
+        colour: if a.pseudo_colour {
+            ColourMode::Pseudo
+        } else {
+            ColourMode::Rgb
+        },
+        downscale: a.downscale,
+        images_dir: None,
+        modality: a.views,
+    };
+    if a.sh_degree > s3tir_trainer::sh::SH_MAX_DEGREE {
+        bail!(
+            "--sh-degree {} is above the highest supported degree, {}",
+            a.sh_degree,
+            s3tir_trainer::sh::SH_MAX_DEGREE
+        );
+    }
+    if let Some(w) = a.thermal_align
+        && !(w >= 0.0 && w.is_finite())
+    {
+        bail!("--thermal-align must be a finite weight ≥ 0, got {w}");
+    }
+    for (flag, w) in [
+        ("--thermal-weight", a.thermal_weight),
+        ("--rgb-weight", a.rgb_weight),
+    ] {
+        if !(w >= 0.0 && w.is_finite()) {
+            bail!("{flag} must be a finite weight ≥ 0, got {w}");
+        }
+    }
+    cfg.sh_degree = a.sh_degree;
+    cfg.joint = Joint {
+        rgb_pretrain: a.rgb_pretrain.unwrap_or(0),
+        thermal_weight: a.thermal_weight,
+        rgb_weight: a.rgb_weight,
+        rgb_loss: a.rgb_loss,
+        thermal_align: a.thermal_align,
+        sr_scale: a.sr_scale,
+        pair_steps: !a.no_pair_steps,
+        ..Joint::default()
+    };
+    cfg.mode = a.mode;
+    cfg.iters = a.iters.unwrap_or(30_000);
+    cfg.time_budget_s = a.time_budget;
+    cfg.densify.grad_threshold = a.densify_grad;
+    cfg.densify.from = a.densify_from;
+    cfg.densify.until = a.densify_until;
+    cfg.densify.every = a.densify_every;
+    cfg.densify.prune_opacity = a.prune_opacity;
+    cfg.response.kind = a.response;
+    cfg.response.prior = a.response_prior;
+    cfg.response.lr_offset = a.response_lr;
+    cfg.response.lr_log_gain = 2.0 * a.response_lr;
+    cfg.cpu_timing = a.cpu_timing;
+    cfg.warmup = a.warmup;
+    cfg.budget = a.budget;
+    cfg.seed = a.seed;
+    cfg.bands = a.bands;
+    cfg.consist = !a.no_consist;
+    cfg.sparse = !a.no_sparse;
+    cfg.smooth = !a.no_smooth;
+    cfg.eval_every_s = a.eval_every_s;
+    cfg.checkpoint_every_s = a.checkpoint_every_s;
+    cfg.lr.beta = a.beta_lr;
+    cfg.consist_every = a.consist_every;
+    cfg.consist_partner = a.consist_partner;
+    cfg.backend = a.backend.clone().unwrap_or_else(|| "cpu".into());
+    Ok(cfg)
+}
+
 /// `s3tir-train SESSION.mcap`: the poses stage (calib's, in-process) writes the dataset first.
 fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
     use s3tir_calib::calfile::CalibrationFile;
@@ -459,6 +568,7 @@ fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
     let opts = PosesOptions {
         colmap: a.colmap.clone(),
         tags: a.tags.clone(),
+        with_rgb: a.with_rgb,
         holdout_every: a.holdout,
         progress: true,
         ..PosesOptions::default()
@@ -577,6 +687,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         "  host reads per step         {:8.1} ({:.0} bytes; {:.1} submissions), Vulkan s3tir",
         r.host_reads_per_step, r.host_read_bytes_per_step, r.submissions_per_step
     );
+    println!("  {}", r.joint_line());
     println!("  GPU time (dispatches) per step:  s3tir mode              3dgs mode");
     for k in &r.kernels {
         println!(
@@ -742,9 +853,12 @@ fn run_training<B: Backend>(
                 files::CAPACITY,
                 files::BETA_HIST,
                 files::RENDERS,
+                files::RENDERS_SR,
                 files::GBUFFERS,
             ] {
-                println!("  {}", out.join(f).display());
+                if out.join(f).exists() {
+                    println!("  {}", out.join(f).display());
+                }
             }
             println!(
                 "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path; view response: {}",
@@ -762,6 +876,21 @@ fn run_training<B: Backend>(
             );
             if let Some(r) = &cap.response {
                 println!("view response: {}", r.describe());
+            }
+            if let Some(why) = &cap.rgb_loss {
+                println!(
+                    "joint RGB + thermal: RGB loss {why}; thermal gradient alignment {}; {}",
+                    if cap.thermal_align > 0.0 {
+                        format!("weight {}", cap.thermal_align)
+                    } else {
+                        "off".into()
+                    },
+                    if trainer.cfg.joint.pair_steps {
+                        "each step trains a view with the other camera's image of its instant"
+                    } else {
+                        "each step trains one view (--no-pair-steps)"
+                    }
+                );
             }
             println!(
                 "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
@@ -809,6 +938,142 @@ fn evaluate_on(
         }
         _ => train::evaluate_run(run_dir, CpuBackend::default()).with_context(what),
     }
+}
+
+/// `eval --truth`: the run scored against its dataset's truth.
+fn truth_cmd(run_dir: &Path, json: bool) -> Result<()> {
+    let s = s3tir_trainer::truth::score_run(run_dir, CpuBackend::default())
+        .with_context(|| format!("scoring {} against its dataset's truth", run_dir.display()))?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    let t = |x: &s3tir_trainer::truth::ThermalScore| {
+        format!(
+            "PSNR {:6.2} dB  SSIM {:.4}  MAE {:.3} K",
+            x.psnr, x.ssim, x.kelvin_mae
+        )
+    };
+    println!(
+        "{} held-out instants, super-resolution {}×",
+        s.views, s.scale
+    );
+    println!("thermal, input resolution:      {}", t(&s.thermal));
+    println!(
+        "thermal, rendered at {}×:        {}",
+        s.scale,
+        t(&s.thermal_sr)
+    );
+    println!(
+        "thermal, bicubic {}× of input:   {}",
+        s.scale,
+        t(&s.bicubic_sr)
+    );
+    if let (Some(p), Some(q)) = (s.rgb_psnr, s.rgb_ssim) {
+        println!("RGB:                            PSNR {p:6.2} dB  SSIM {q:.4}");
+    }
+    for (what, d) in [
+        ("RGB cameras", s.depth_rgb),
+        ("thermal cameras", s.depth_thermal),
+    ] {
+        println!(
+            "depth at the {what}: MAE {:.1} mm over {:.0} % of the true surface",
+            d.mae_m * 1000.0,
+            d.coverage * 100.0
+        );
+    }
+    Ok(())
+}
+
+/// `s3tir-train ablation`: the four runs and their table.
+fn ablation_cmd(mut a: TrainArgs) -> Result<()> {
+    let (Some(data), Some(out)) = (a.data.clone(), a.out.clone()) else {
+        bail!("the ablation needs DATA and --out RUN_DIR");
+    };
+    if a.resume {
+        bail!("the ablation does not resume: choose a new --out");
+    }
+    if out.exists() {
+        bail!(
+            "{} exists: the ablation never overwrites runs (choose another --out)",
+            out.display()
+        );
+    }
+    let data = std::fs::canonicalize(&data)
+        .with_context(|| format!("dataset folder {}", data.display()))?;
+    let iters = a.iters.unwrap_or(30_000);
+    a.rgb_pretrain = Some(a.rgb_pretrain.unwrap_or(iters / 10));
+    let base = new_config(&a, data)?;
+    println!(
+        "ablation of {} into {}: {} iterations per run, RGB pre-training {}, {} backend",
+        base.data.display(),
+        out.display(),
+        base.iters,
+        base.joint.rgb_pretrain,
+        base.backend
+    );
+    match base.backend.as_str() {
+        #[cfg(feature = "vulkan")]
+        "vulkan" => {
+            let opts = vulkan_options(a.device_index, a.no_float_atomics);
+            ablation_on(&base, &out, &mut || {
+                s3tir_trainer::gpu::backend::VulkanBackend::new(
+                    &opts,
+                    s3tir_trainer::render::RenderSettings::default(),
+                )
+                .map_err(|e| train::TrainError::Config {
+                    reason: format!("opening the Vulkan backend: {e}"),
+                })
+            })
+        }
+        #[cfg(not(feature = "vulkan"))]
+        "vulkan" => {
+            bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
+        }
+        _ => ablation_on(&base, &out, &mut || Ok(CpuBackend::default())),
+    }
+}
+
+/// The ablation's runs on the backend `backend` makes, with a progress bar; writes the table.
+fn ablation_on<B: Backend>(
+    base: &TrainConfig,
+    out: &Path,
+    backend: &mut dyn FnMut() -> std::result::Result<B, train::TrainError>,
+) -> Result<()> {
+    use s3tir_trainer::ablation::{self, Variant};
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let bar = indicatif::ProgressBar::new(base.iters * Variant::ALL.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} it {msg} [{elapsed_precise}]",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let runs = Variant::ALL.len() as u64;
+    let iters_per_run = base.iters;
+    let rows = ablation::run_ablation(base, out, backend, &stop, &mut |v, e| {
+        if let Event::Step { iteration, .. } = e {
+            let k = Variant::ALL.iter().position(|x| *x == v).unwrap_or(0) as u64;
+            bar.set_position((k * iters_per_run + iteration).min(runs * iters_per_run));
+            bar.set_message(v.slug());
+        }
+    })
+    .with_context(|| format!("the ablation in {}", out.display()))?;
+    bar.finish_and_clear();
+    let table = ablation::markdown(&rows);
+    let md = out.join("ablation.md");
+    std::fs::write(&md, &table).with_context(|| format!("writing {}", md.display()))?;
+    let js = out.join("ablation.json");
+    std::fs::write(&js, serde_json::to_string_pretty(&rows)? + "\n")
+        .with_context(|| format!("writing {}", js.display()))?;
+    print!("{table}");
+    println!("written: {} and {}", md.display(), js.display());
+    Ok(())
 }
 
 fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usize>) -> Result<()> {

@@ -129,6 +129,12 @@ pub struct EvalSummary {
     #[serde(default)]
     pub kelvin_mae_aligned: Option<f64>,
     pub views: Vec<ViewMetrics>,
+    /// Means over the held-out RGB views of a run with colour (PSNR over the three planes,
+    /// SSIM the planes' mean); `None` without RGB views.
+    #[serde(default)]
+    pub rgb_psnr: Option<f64>,
+    #[serde(default)]
+    pub rgb_ssim: Option<f64>,
 }
 
 impl EvalSummary {
@@ -150,8 +156,27 @@ impl EvalSummary {
             ssim_aligned: opt_mean(&|v| v.ssim_aligned),
             kelvin_mae_aligned: opt_mean(&|v| v.kelvin_mae_aligned),
             views,
+            rgb_psnr: None,
+            rgb_ssim: None,
         }
     }
+}
+
+/// PSNR over the three planes and the planes' mean SSIM of a planar RGB render (`3·w·h`).
+pub fn rgb_metrics(pred: &[f32], target: &[f32], width: usize, height: usize) -> (f64, f64) {
+    let n = width * height;
+    let s = (0..3)
+        .map(|c| {
+            ssim(
+                &pred[c * n..(c + 1) * n],
+                &target[c * n..(c + 1) * n],
+                width,
+                height,
+            )
+        })
+        .sum::<f64>()
+        / 3.0;
+    (psnr(pred, target), s)
 }
 
 /// Metrics of one rendered thermal plane against its target.

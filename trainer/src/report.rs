@@ -288,6 +288,40 @@ pub fn write_plane_png(
     })
 }
 
+/// Writes a planar RGB render (`3·w·h` values in [0, 1], as datasets hold RGB) as an 8-bit
+/// PNG.
+pub fn write_rgb_png(
+    path: &Path,
+    planes: &[f32],
+    width: usize,
+    height: usize,
+) -> Result<(), ReportError> {
+    let n = width * height;
+    if planes.len() != 3 * n {
+        return Err(ReportError::Format {
+            path: path.to_path_buf(),
+            reason: format!(
+                "RGB planes hold {} values, not 3×{width}×{height}",
+                planes.len()
+            ),
+        });
+    }
+    let bytes: Vec<u8> = (0..n)
+        .flat_map(|p| (0..3).map(move |c| (c, p)))
+        .map(|(c, p)| (planes[c * n + p].clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let img = image::RgbImage::from_raw(width as u32, height as u32, bytes).ok_or_else(|| {
+        ReportError::Format {
+            path: path.to_path_buf(),
+            reason: format!("not {width}×{height}"),
+        }
+    })?;
+    img.save(path).map_err(|e| ReportError::Format {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
 /// Writes a normalised thermal plane as a 16-bit PNG in the scene's raw units (centikelvin for
 /// radiometric data), so renders compare with the inputs word for word.
 pub fn write_thermal_png16(

@@ -21,7 +21,7 @@
 //! zero thermal plane and every other plane bit-identical to the full render, on the GPU and on
 //! the CPU; its backward pass (thermal upstream zero, no band phases evaluated) matches the CPU
 //! reference's full backward pass within the tolerances above.
-//! Does NOT test the RGB (SH colour) branch: it is not on the GPU yet.
+//! The RGB (SH colour) branch is `gpu_colour.rs`'s; the scenes here have no colour.
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

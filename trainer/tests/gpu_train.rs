@@ -405,6 +405,7 @@ fn vulkan_run_too_large_for_the_device_is_refused_up_front() {
         bands: 4,
         width: 40,
         height: 30,
+        sh_k: 0,
     };
     assert!(
         backend.check_run(&shape(fits)).is_ok(),

@@ -7,6 +7,9 @@
 //!   pinhole camera with the same `K` (bilinear resampling through `s3tir_calib`'s Brown–Conrady
 //!   model; output pixels whose source falls outside the image take the nearest edge value —
 //!   a known limitation: there is no validity mask);
+//! - an image is RGB when it is 8-bit colour, or 8-bit grey and named as the RGB camera's
+//!   ([`named_rgb`]: `rgb/…` or `rgb_…`, the joint layouts the simulator and the poses stage
+//!   write); the model may hold both image sets, each with its own camera (joint training);
 //! - thermal values (16-bit words, 8-bit grey, pseudo-colour palette index) are normalised to
 //!   [0, 1] with **one range per scene** ([`ThermalRange`]), kept so renders and errors convert
 //!   back to kelvin when the words are centikelvin; RGB is divided by 255;
@@ -117,6 +120,43 @@ fn read_name_list(
     Ok(Some(names))
 }
 
+/// Which of a dataset's image sets a run trains on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Modality {
+    /// Every image: a joint RGB + thermal run when the model holds both.
+    #[default]
+    Both,
+    /// Thermal images only (RGB images are dropped at load).
+    Thermal,
+    /// RGB images only.
+    Rgb,
+}
+
+impl std::fmt::Display for Modality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Modality::Both => "both",
+            Modality::Thermal => "thermal",
+            Modality::Rgb => "rgb",
+        })
+    }
+}
+
+impl std::str::FromStr for Modality {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "both" => Ok(Modality::Both),
+            "thermal" => Ok(Modality::Thermal),
+            "rgb" => Ok(Modality::Rgb),
+            other => Err(format!(
+                "unknown image set `{other}` (expected both, thermal or rgb)"
+            )),
+        }
+    }
+}
+
 /// Options of [`Dataset::load`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LoadOptions {
@@ -130,6 +170,9 @@ pub struct LoadOptions {
     pub downscale: usize,
     /// Images folder (default `DATA/images`).
     pub images_dir: Option<PathBuf>,
+    /// Which image sets to keep (options written before it read as both).
+    #[serde(default)]
+    pub modality: Modality,
 }
 
 impl Default for LoadOptions {
@@ -140,6 +183,7 @@ impl Default for LoadOptions {
             colour: ColourMode::Rgb,
             downscale: 1,
             images_dir: None,
+            modality: Modality::Both,
         }
     }
 }
@@ -209,6 +253,17 @@ pub struct Dataset {
     pub fresh_after_ffc: Option<Vec<usize>>,
 }
 
+/// Whether an image name says it is the RGB camera's: in an `rgb/` folder (the simulator's
+/// joint scenes) or named `rgb_…` (the poses stage's `--with-rgb` datasets).
+pub fn named_rgb(name: &str) -> bool {
+    let p = Path::new(name);
+    p.components()
+        .next()
+        .is_some_and(|c| c.as_os_str() == "rgb" && p.components().count() > 1)
+        || p.file_name()
+            .is_some_and(|f| f.to_string_lossy().starts_with("rgb_"))
+}
+
 fn find_model_dir(root: &Path) -> Option<PathBuf> {
     let has = |d: &Path| d.join("cameras.txt").exists() || d.join("cameras.bin").exists();
     [
@@ -262,6 +317,19 @@ impl Dataset {
                 })?;
             let path = images_dir.join(&im.name);
             let raw = load_image(&path, opts.colour)?;
+            // An 8-bit image that is grey by its pixels but named as the RGB camera's (a
+            // neutral scene, a monochrome RGB sensor) stays RGB: a joint dataset's modality
+            // is the camera's, not the content's.
+            let raw = if raw.kind == ImageKind::Grey8 && named_rgb(&im.name) {
+                let n = raw.values.len();
+                RawImage {
+                    kind: ImageKind::Rgb8,
+                    values: raw.values.iter().copied().cycle().take(3 * n).collect(),
+                    ..raw
+                }
+            } else {
+                raw
+            };
             let (ew, eh) = (cam.model.width_px as usize, cam.model.height_px as usize);
             if raw.width != ew || raw.height != eh {
                 return Err(DatasetError::SizeMismatch {
@@ -369,12 +437,29 @@ impl Dataset {
             .collect();
 
         let k = opts.holdout_every;
-        let (test, train): (Vec<usize>, Vec<usize>) =
-            match read_name_list(root, HOLDOUT_FILE, &views)? {
-                Some(names) => (0..views.len()).partition(|&i| names.contains(&views[i].name)),
-                None => (0..views.len()).partition(|&i| k > 0 && i % k == 0),
-            };
-        let fresh_after_ffc = read_name_list(root, FFC_FILE, &views)?.map(|names| {
+        let held_out = read_name_list(root, HOLDOUT_FILE, &views)?;
+        let fresh = read_name_list(root, FFC_FILE, &views)?;
+        // The image sets not trained on are dropped after the name lists are checked against
+        // the whole model (a joint holdout.txt names both sets).
+        let views: Vec<View> = views
+            .into_iter()
+            .filter(|v| match opts.modality {
+                Modality::Both => true,
+                Modality::Thermal => v.thermal.is_some(),
+                Modality::Rgb => v.rgb.is_some(),
+            })
+            .collect();
+        if views.is_empty() {
+            return Err(DatasetError::Empty {
+                root: root.to_path_buf(),
+                reason: format!("no {} images in the model", opts.modality),
+            });
+        }
+        let (test, train): (Vec<usize>, Vec<usize>) = match held_out {
+            Some(names) => (0..views.len()).partition(|&i| names.contains(&views[i].name)),
+            None => (0..views.len()).partition(|&i| k > 0 && i % k == 0),
+        };
+        let fresh_after_ffc = fresh.map(|names| {
             (0..views.len())
                 .filter(|&i| names.contains(&views[i].name))
                 .collect()
@@ -481,6 +566,35 @@ impl Dataset {
         }
         (n > 0).then(|| (sum / n as f64) as f32)
     }
+
+    /// Mean RGB (in [0, 1]) at the projections of `p` into the RGB training views that see it
+    /// (`None` if none does) — used to initialise the SH colour from the images, as ω_low is
+    /// from the thermal ones (a point's stored colour need not match the images' exposure: a
+    /// low-light camera records the scene far darker, and a colour too bright at the start
+    /// is first corrected through opacity, which the thermal head shares).
+    pub fn rgb_at(&self, p_world: [f64; 3]) -> Option<[f64; 3]> {
+        let mut sum = [0.0f64; 3];
+        let mut n = 0usize;
+        for &i in &self.train {
+            let v = &self.views[i];
+            let Some(rgb) = &v.rgb else { continue };
+            let pc = v.camera.to_cam(p_world);
+            if pc[2] <= 1e-6 {
+                continue;
+            }
+            let [u, vv] = v.camera.project_cam(pc);
+            let (x, y) = (u.round(), vv.round());
+            let (w, h) = (v.camera.width, v.camera.height);
+            if x >= 0.0 && y >= 0.0 && (x as usize) < w && (y as usize) < h {
+                let p = y as usize * w + x as usize;
+                for (c, s) in sum.iter_mut().enumerate() {
+                    *s += f64::from(rgb[c * w * h + p]);
+                }
+                n += 1;
+            }
+        }
+        (n > 0).then(|| sum.map(|s| s / n as f64))
+    }
 }
 
 /// Bilinear sample of plane `c` of `img` at pixel `(u, v)`, clamped to the edge.
@@ -550,5 +664,31 @@ fn downsample(img: &RawImage, s: usize) -> RawImage {
         height: h,
         kind: img.kind,
         values: out,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::named_rgb;
+
+    /// The joint layouts' RGB names (the simulator's `rgb/NNNN.png`, the poses stage's
+    /// `rgb_SEQ.png`) are RGB by name; thermal names and a file merely called `rgb` are not.
+    #[test]
+    fn rgb_camera_images_are_known_by_name() {
+        for name in ["rgb/0008.png", "rgb_000123.png", "walk/rgb_1.png"] {
+            assert!(named_rgb(name), "{name} should read as the RGB camera's");
+        }
+        for name in [
+            "thermal/0008.png",
+            "thermal_000123.png",
+            "rgb.png",
+            "0008.png",
+            "rgb",
+        ] {
+            assert!(
+                !named_rgb(name),
+                "{name} should not read as the RGB camera's"
+            );
+        }
     }
 }

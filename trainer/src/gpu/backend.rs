@@ -17,7 +17,11 @@
 //! [`VulkanBackend::set_resident_optimiser`] off, steps take the device path
 //! ([`Backend::device_step`]: the same, with the gradients read back for the host's Adam); with
 //! [`VulkanBackend::set_device_losses`] off, the host path (images read back). Targets are uploaded
-//! once per view. RGB steps (SH colour) are not supported on the GPU.
+//! once per view. Primitives with an SH colour (joint RGB + thermal runs) take the host path:
+//! [`Backend::render`] renders the thermal image, the G-buffers and the RGB planes on the GPU,
+//! the losses run on the host and [`Backend::backward`] back-propagates every plane, the RGB
+//! ones included, on the GPU; the device and resident steps are thermal-only and return an
+//! error for primitives with colour.
 
 use std::collections::HashMap;
 
@@ -665,18 +669,20 @@ impl VulkanBackend {
         })
     }
 
-    fn check_no_colour(prims: &Primitives<f32>) -> Result<(), TrainerError> {
-        if prims.sh_degree.is_some() {
-            return Err(TrainerError::Gpu {
-                source: GpuError::InvalidInput {
-                    reason:
-                        "primitives carry RGB colour (SH); the Vulkan backend renders thermal and \
-                             G-buffers only so far — train RGB on the CPU backend"
-                            .to_owned(),
-                },
-            });
+    /// The device and resident steps evaluate thermal losses only (their `DeviceStep` has no
+    /// RGB target) and keep no colour: a step of primitives with colour takes the host path
+    /// (render, losses on the host, [`Backend::backward`]). Called with colour anyway, they
+    /// return this error rather than gradients without the colour's losses.
+    fn colour_refused(call: &str) -> TrainerError {
+        TrainerError::Gpu {
+            source: GpuError::InvalidInput {
+                reason: format!(
+                    "{call}: the primitives carry an SH colour; the Vulkan backend's device and \
+                     resident steps are thermal-only — steps with colour take the host path \
+                     (Backend::render, host losses, Backend::backward)"
+                ),
+            },
         }
-        Ok(())
     }
 }
 
@@ -702,10 +708,12 @@ impl Backend for VulkanBackend {
     fn check_run(&self, shape: &RunShape) -> Result<(), TrainerError> {
         let report = self.ctx.report();
         let npix = shape.width * shape.height;
-        let storage = super::raster::run_buffers(shape.budget, shape.bands, npix).map(|(b, r)| {
-            let limit = report.max_storage_buffer_range_bytes;
-            (b, r, "bytes", "maxStorageBufferRange", limit)
-        });
+        let storage = super::raster::run_buffers(shape.budget, shape.bands, shape.sh_k, npix).map(
+            |(b, r)| {
+                let limit = report.max_storage_buffer_range_bytes;
+                (b, r, "bytes", "maxStorageBufferRange", limit)
+            },
+        );
         let texel = super::raster::run_texel_buffers(shape.budget, shape.bands).map(|(b, r)| {
             let limit = report.max_texel_buffer_elements;
             (b, r, "texels", "maxTexelBufferElements", limit)
@@ -738,7 +746,6 @@ impl Backend for VulkanBackend {
         cam: &PinholeCamera,
     ) -> Result<GBuffers<f32>, TrainerError> {
         let _span = tracing::trace_span!("vulkan_render").entered();
-        Self::check_no_colour(prims)?;
         self.raster()?
             .render(&self.ctx, prims, cam, Outputs::All, &self.settings)
             .map_err(|source| TrainerError::Gpu { source })
@@ -750,7 +757,6 @@ impl Backend for VulkanBackend {
         cam: &PinholeCamera,
     ) -> Result<GBuffers<f32>, TrainerError> {
         let _span = tracing::trace_span!("vulkan_render_gbuffers").entered();
-        Self::check_no_colour(prims)?;
         self.raster()?
             .render(&self.ctx, prims, cam, Outputs::GBuffers, &self.settings)
             .map_err(|source| TrainerError::Gpu { source })
@@ -763,7 +769,6 @@ impl Backend for VulkanBackend {
         upstream: &GBuffers<f32>,
     ) -> Result<Primitives<f32>, TrainerError> {
         let _span = tracing::trace_span!("vulkan_backward").entered();
-        Self::check_no_colour(prims)?;
         self.raster()?
             .render_backward(&self.ctx, prims, cam, &self.settings, upstream)
             .map_err(|source| TrainerError::Gpu { source })
@@ -780,8 +785,11 @@ impl Backend for VulkanBackend {
             .pair
             .map(|p| p.camera())
             .is_none_or(|c| (c.width, c.height) == (step.cam.width, step.cam.height));
-        if !self.device_losses || prims.sh_degree.is_some() || !same_size {
+        if !self.device_losses || !same_size {
             return None;
+        }
+        if prims.sh_degree.is_some() {
+            return Some(Err(Self::colour_refused("device_step")));
         }
         let _span = tracing::trace_span!("vulkan_device_step").entered();
         Some(
@@ -826,8 +834,11 @@ impl Backend for VulkanBackend {
             .optimiser
             .as_ref()
             .is_some_and(GpuOptimiser::is_resident);
-        if !resident || prims.sh_degree.is_some() || !same_size {
+        if !resident || !same_size {
             return None;
+        }
+        if prims.sh_degree.is_some() {
+            return Some(Err(Self::colour_refused("resident_step")));
         }
         let _span = tracing::trace_span!("vulkan_resident_step").entered();
         Some(

@@ -1,8 +1,9 @@
 //! `s3tir-train bench`: training steps per second of the Vulkan backend against the CPU
 //! backend on the same scene, budget and loop, the cost of the full S³-TIR primitive against the
-//! 3DGS mode, the CPU backend on every core against one thread, and where the GPU time goes
-//! (timestamp queries per kernel). Every figure is a ratio between runs made in the same
-//! invocation, on this machine.
+//! 3DGS mode, the CPU backend on every core against one thread, a joint RGB + thermal run (the
+//! same scene with every second view RGB, SH degree 0) against the thermal-only run, and where
+//! the GPU time goes (timestamp queries per kernel). Every figure is a ratio between runs made
+//! in the same invocation, on this machine.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -111,6 +112,45 @@ pub struct BenchReport {
     pub host_reads_per_step: f64,
     pub host_read_bytes_per_step: f64,
     pub submissions_per_step: f64,
+    /// Vulkan backend, s3tir mode, the joint RGB + thermal scene (the bench scene with every
+    /// second view's image RGB at the same size; SH degree 0). Its steps take the host path:
+    /// render and backward on the GPU, the losses (RGB L1 + D-SSIM, thermal terms and the
+    /// thermal alignment term) and Adam on the host.
+    pub joint_steps_per_s: f64,
+    /// `s3tir_steps_per_s / joint_steps_per_s`: the time of a joint step over a thermal-only
+    /// step's (goal ≤ 1.6).
+    pub joint_over_thermal: f64,
+    /// Vulkan backend, s3tir mode, the thermal-only scene on the host path (device losses off):
+    /// the joint steps' path without the colour or RGB views.
+    pub thermal_host_path_steps_per_s: f64,
+    /// GPU time of every kernel per step, thermal-only run (s3tir mode) and joint run (from the
+    /// per-kernel timestamps).
+    pub thermal_kernel_ms_per_step: f64,
+    pub joint_kernel_ms_per_step: f64,
+    /// The colour kernels' (`*_rgb`) share of `joint_kernel_ms_per_step`.
+    pub joint_colour_kernel_ms_per_step: f64,
+    /// A joint step's wall time not spent in kernels: the host's work (losses, Adam, reading
+    /// the images back and uploading their gradients, recording and submitting).
+    pub joint_host_ms_per_step: f64,
+}
+
+impl BenchReport {
+    /// The joint run's figures in one line of text (`s3tir-train bench` prints it).
+    pub fn joint_line(&self) -> String {
+        format!(
+            "joint RGB + thermal (half the views RGB, SH degree 0): {:.2} steps/s, {:.2}x the \
+             thermal step (goal <= 1.6); per joint step {:.1} ms in kernels ({:.1} ms of them \
+             colour kernels) and {:.1} ms on the host (losses, Adam, image reads: the host \
+             path); thermal-only step {:.1} ms in kernels, {:.2} steps/s on the host path",
+            self.joint_steps_per_s,
+            self.joint_over_thermal,
+            self.joint_kernel_ms_per_step,
+            self.joint_colour_kernel_ms_per_step,
+            self.joint_host_ms_per_step,
+            self.thermal_kernel_ms_per_step,
+            self.thermal_host_path_steps_per_s,
+        )
+    }
 }
 
 /// Errors of the benchmark.
@@ -153,6 +193,29 @@ fn config(data: &Path, mode: Mode, partner: ConsistPartner, opts: &BenchOptions)
     c
 }
 
+/// The images the benchmark scene trains on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scene {
+    /// The synthetic thermal scene.
+    Thermal,
+    /// The same scene with every second view's image an RGB image of the same size (three
+    /// planes made from its thermal image): a joint RGB + thermal run, with colour.
+    Joint,
+}
+
+/// Turns every second view of `data` into an RGB view (see [`Scene::Joint`]).
+fn make_joint(data: &mut Dataset) {
+    for view in data.views.iter_mut().skip(1).step_by(2) {
+        if let Some(t) = view.thermal.take() {
+            let rgb: Vec<f32> = (t.iter().copied())
+                .chain(t.iter().map(|x| 1.0 - x))
+                .chain(t.iter().map(|x| 0.25 + 0.5 * x))
+                .collect();
+            view.rgb = Some(rgb);
+        }
+    }
+}
+
 /// CPU time consumed so far by every thread of this process, in seconds.
 fn process_cpu_s() -> f64 {
     use nix::time::{ClockId, clock_gettime};
@@ -186,19 +249,22 @@ impl<B: Backend> Timed<B> {
     fn start(
         data_dir: &Path,
         run_dir: &Path,
-        (mode, partner): (Mode, ConsistPartner),
+        (mode, partner, scene): (Mode, ConsistPartner, Scene),
         opts: &BenchOptions,
         backend: B,
         before_timing: &mut dyn FnMut(&mut B),
         traffic: &dyn Fn(&B) -> (u64, u64, u64),
     ) -> Result<Self, BenchError> {
         let train = |source| BenchError::Train { source };
-        let data = Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| {
+        let mut data = Dataset::load(data_dir, &LoadOptions::default()).map_err(|source| {
             BenchError::Scene {
                 path: data_dir.to_path_buf(),
                 source,
             }
         })?;
+        if scene == Scene::Joint {
+            make_joint(&mut data);
+        }
         let mut trainer = Trainer::new(
             config(data_dir, mode, partner, opts),
             data,
@@ -310,7 +376,7 @@ fn run_in(
     let mut cpu = Timed::start(
         &data_dir,
         &root.join("cpu"),
-        (Mode::S3tir, ConsistPartner::default()),
+        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
         opts,
         CpuBackend { settings },
         &mut |_| {},
@@ -328,7 +394,7 @@ fn run_in(
         Timed::start(
             &data_dir,
             &root.join("cpu-1"),
-            (Mode::S3tir, ConsistPartner::default()),
+            (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
             opts,
             CpuBackend { settings },
             &mut |_| {},
@@ -340,7 +406,7 @@ fn run_in(
     let mut gaussian = Timed::start(
         &data_dir,
         &root.join("vk-3dgs"),
-        (Mode::Gaussian, ConsistPartner::default()),
+        (Mode::Gaussian, ConsistPartner::default(), Scene::Thermal),
         opts,
         vk,
         &mut |_| {},
@@ -352,7 +418,7 @@ fn run_in(
     let mut s3tir = Timed::start(
         &data_dir,
         &root.join("vk-s3tir"),
-        (Mode::S3tir, ConsistPartner::default()),
+        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
         opts,
         vk,
         &mut |_| {},
@@ -363,7 +429,30 @@ fn run_in(
     let mut rendered = Timed::start(
         &data_dir,
         &root.join("vk-s3tir-render"),
-        (Mode::S3tir, ConsistPartner::Render),
+        (Mode::S3tir, ConsistPartner::Render, Scene::Thermal),
+        opts,
+        vk,
+        &mut |_| {},
+        &vulkan_traffic,
+    )?;
+    progress("Vulkan backend, s3tir mode, joint RGB + thermal scene: warm-up");
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let mut joint = Timed::start(
+        &data_dir,
+        &root.join("vk-joint"),
+        (Mode::S3tir, ConsistPartner::default(), Scene::Joint),
+        opts,
+        vk,
+        &mut |_| {},
+        &vulkan_traffic,
+    )?;
+    progress("Vulkan backend, s3tir mode, host path (device losses off): warm-up");
+    let mut vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    vk.set_device_losses(false);
+    let mut host_path = Timed::start(
+        &data_dir,
+        &root.join("vk-host"),
+        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
         opts,
         vk,
         &mut |_| {},
@@ -383,19 +472,56 @@ fn run_in(
         gaussian.round(n)?;
         s3tir.round(n)?;
         rendered.round(n)?;
+        joint.round(n)?;
+        host_path.round(n)?;
     }
     let cpu = cpu.finish(&no_traffic)?;
     let cpu1 = cpu1.finish(&no_traffic)?;
     let gaussian = gaussian.finish(&vulkan_traffic)?;
     let s3tir = s3tir.finish(&vulkan_traffic)?;
     let rendered = rendered.finish(&vulkan_traffic)?;
+    let joint = joint.finish(&vulkan_traffic)?;
+    let host_path = host_path.finish(&vulkan_traffic)?;
     drop(gaussian.backend);
     drop(s3tir.backend);
     drop(rendered.backend);
+    drop(joint.backend);
+    drop(host_path.backend);
 
     // Timestamps add work of their own: time the kernels in separate passes.
-    let (s3tir_kernels, vk) = profile(&data_dir, root, Mode::S3tir, opts, settings, progress)?;
-    let (gaussian_kernels, _) = profile(&data_dir, root, Mode::Gaussian, opts, settings, progress)?;
+    let (s3tir_kernels, vk) = profile(
+        &data_dir,
+        root,
+        (Mode::S3tir, Scene::Thermal),
+        opts,
+        settings,
+        progress,
+    )?;
+    let (gaussian_kernels, _) = profile(
+        &data_dir,
+        root,
+        (Mode::Gaussian, Scene::Thermal),
+        opts,
+        settings,
+        progress,
+    )?;
+    let (joint_kernels, _) = profile(
+        &data_dir,
+        root,
+        (Mode::S3tir, Scene::Joint),
+        opts,
+        settings,
+        progress,
+    )?;
+    let ms_per_step = |k: &KernelTimes, colour_only: bool| {
+        k.iter()
+            .filter(|(name, _)| !colour_only || name.ends_with("_rgb"))
+            .map(|(_, t)| t.0)
+            .sum::<f64>()
+            / 1e6
+            / opts.steps as f64
+    };
+    let joint_kernel_ms = ms_per_step(&joint_kernels, false);
     let total_ns: f64 = s3tir_kernels.values().map(|k| k.0).sum();
     let steps = opts.steps as f64;
     let mut kernels: Vec<KernelShare> = s3tir_kernels
@@ -428,7 +554,7 @@ fn run_in(
     kernels.sort_by(|a, b| b.ms_per_step.total_cmp(&a.ms_per_step));
     let peak_gpu_bytes = vk.context().peak_allocated_bytes();
     let per_step = |x: u64| x as f64 / opts.steps as f64;
-    Ok(BenchReport {
+    let report = BenchReport {
         device,
         width: opts.width,
         height: opts.height,
@@ -453,24 +579,35 @@ fn run_in(
         host_reads_per_step: per_step(s3tir.traffic.0),
         host_read_bytes_per_step: per_step(s3tir.traffic.1),
         submissions_per_step: per_step(s3tir.traffic.2),
-    })
+        joint_steps_per_s: joint.steps_per_s,
+        joint_over_thermal: s3tir.steps_per_s / joint.steps_per_s,
+        thermal_host_path_steps_per_s: host_path.steps_per_s,
+        thermal_kernel_ms_per_step: ms_per_step(&s3tir_kernels, false),
+        joint_kernel_ms_per_step: joint_kernel_ms,
+        joint_colour_kernel_ms_per_step: ms_per_step(&joint_kernels, true),
+        joint_host_ms_per_step: (1e3 / joint.steps_per_s - joint_kernel_ms).max(0.0),
+    };
+    Ok(report)
 }
 
 /// Per kernel name: GPU time (ns) and dispatches.
 type KernelTimes = BTreeMap<String, (f64, u64)>;
 
 /// GPU time per kernel (ns) and its dispatches, summed over `opts.steps` steps of a Vulkan run
-/// in `mode`, timed with timestamp queries; returns the backend too (its peak memory is
-/// reported).
+/// in `mode` on `scene`, timed with timestamp queries; returns the backend too (its peak memory
+/// is reported).
 fn profile(
     data_dir: &Path,
     root: &Path,
-    mode: Mode,
+    (mode, scene): (Mode, Scene),
     opts: &BenchOptions,
     settings: RenderSettings,
     progress: &mut dyn FnMut(&str),
 ) -> Result<(KernelTimes, VulkanBackend), BenchError> {
-    let name = mode.to_string();
+    let name = match scene {
+        Scene::Thermal => mode.to_string(),
+        Scene::Joint => format!("{mode}-joint"),
+    };
     progress(&format!(
         "Vulkan backend, {name} mode: per-kernel timestamps"
     ));
@@ -479,7 +616,7 @@ fn profile(
     let mut profiled = Timed::start(
         data_dir,
         &root.join(format!("vk-prof-{name}")),
-        (mode, ConsistPartner::default()),
+        (mode, ConsistPartner::default(), scene),
         opts,
         vk,
         &mut |b: &mut VulkanBackend| {

@@ -13,8 +13,8 @@
 //! - [`pool`]: reuse of released buffers (a warm training step allocates nothing; per-primitive
 //!   buffers sized for the run's budget),
 //! - [`raster`]: the forward rasteriser (projection + culling, binning, sort, per-tile blend of
-//!   the thermal image and G-buffers) and its exact backward pass, held to the CPU reference
-//!   renderer by parity tests,
+//!   the thermal image, the G-buffers and, for primitives with an SH colour, the RGB planes) and
+//!   its exact backward pass, held to the CPU reference renderer by parity tests,
 //! - [`loss`]: the single-view loss (L1 + D-SSIM, sparsity, TV) and its gradient,
 //! - [`consistency`]: the multi-view frequency consistency term and its gradients,
 //! - [`optimiser`]: parameters, Adam moments and densification statistics resident on the GPU,

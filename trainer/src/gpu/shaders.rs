@@ -34,7 +34,26 @@ const RASTER_TEXELS: &[(u32, TexelFormat)] = &[
     (3, TexelFormat::R32Uint),
 ];
 
-/// Every kernel's interface.
+/// The texel bindings of `raster_forward_rgb`: [`RASTER_TEXELS`] and the primitives' colours
+/// (RGBA32F) at binding 6.
+const RASTER_FORWARD_RGB_TEXELS: &[(u32, TexelFormat)] = &[
+    (1, TexelFormat::Rgba32Float),
+    (2, TexelFormat::Rgba32Float),
+    (3, TexelFormat::R32Uint),
+    (6, TexelFormat::Rgba32Float),
+];
+
+/// The texel bindings of `raster_backward_*_rgb`: [`RASTER_TEXELS`] and the primitives' colours
+/// (RGBA32F) at binding 8.
+const RASTER_BACKWARD_RGB_TEXELS: &[(u32, TexelFormat)] = &[
+    (1, TexelFormat::Rgba32Float),
+    (2, TexelFormat::Rgba32Float),
+    (3, TexelFormat::R32Uint),
+    (8, TexelFormat::Rgba32Float),
+];
+
+/// Every kernel's interface. The `*_rgb` kernels are the rasteriser's with the SH colour
+/// (`USE_COLOUR`), built only for runs with colour.
 pub const KERNELS: &[KernelSpec] = &[
     KernelSpec {
         name: "reduce_shared",
@@ -109,6 +128,14 @@ pub const KERNELS: &[KernelSpec] = &[
         needs_float_atomic_add: false,
     },
     KernelSpec {
+        name: "raster_project_rgb",
+        bindings: 7,
+        texel: &[],
+        push_constant_bytes: 20,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
         name: "raster_emit",
         bindings: 4,
         texel: &[],
@@ -128,6 +155,14 @@ pub const KERNELS: &[KernelSpec] = &[
         name: "raster_forward",
         bindings: 6,
         texel: RASTER_TEXELS,
+        push_constant_bytes: 24,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "raster_forward_rgb",
+        bindings: 7,
+        texel: RASTER_FORWARD_RGB_TEXELS,
         push_constant_bytes: 24,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
@@ -165,6 +200,38 @@ pub const KERNELS: &[KernelSpec] = &[
         needs_float_atomic_add: false,
     },
     KernelSpec {
+        name: "raster_backward_atomic_rgb",
+        bindings: 9,
+        texel: RASTER_BACKWARD_RGB_TEXELS,
+        push_constant_bytes: 24,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: true,
+    },
+    KernelSpec {
+        name: "raster_backward_cas_rgb",
+        bindings: 9,
+        texel: RASTER_BACKWARD_RGB_TEXELS,
+        push_constant_bytes: 24,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "raster_backward_atomic_sg_rgb",
+        bindings: 9,
+        texel: RASTER_BACKWARD_RGB_TEXELS,
+        push_constant_bytes: 24,
+        needs_subgroup_arithmetic: true,
+        needs_float_atomic_add: true,
+    },
+    KernelSpec {
+        name: "raster_backward_cas_sg_rgb",
+        bindings: 9,
+        texel: RASTER_BACKWARD_RGB_TEXELS,
+        push_constant_bytes: 24,
+        needs_subgroup_arithmetic: true,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
         name: "adam",
         bindings: 9,
         texel: &[],
@@ -177,6 +244,14 @@ pub const KERNELS: &[KernelSpec] = &[
         bindings: 5,
         texel: &[],
         push_constant_bytes: 8,
+        needs_subgroup_arithmetic: false,
+        needs_float_atomic_add: false,
+    },
+    KernelSpec {
+        name: "raster_backward_finish_rgb",
+        bindings: 5,
+        texel: &[],
+        push_constant_bytes: 12,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },

@@ -7,7 +7,10 @@
 //! gradient buffers, so the terms accumulate straight into the renderer's upstream
 //! [`GBuffers`](crate::render::GBuffers). A view's radiometric response (per-frame gain and
 //! offset) is applied to the rendered thermal plane before these terms: [`response`].
+//! Optional TGA-GS thermal gradient alignment (depth-buffer normals vs the target's gradient):
+//! [`align`].
 
+pub mod align;
 pub mod consistency;
 pub mod photometric;
 pub mod regularizers;

@@ -104,6 +104,8 @@ pub struct RunShape {
     pub bands: usize,
     pub width: usize,
     pub height: usize,
+    /// SH coefficients per colour channel ((degree + 1)²; 0: the run has no colour).
+    pub sh_k: usize,
 }
 
 /// A renderer with gradients.

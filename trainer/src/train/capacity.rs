@@ -41,6 +41,8 @@ impl<B: Backend> Trainer<B> {
             },
             bands_initial: self.prims.bands,
             bands_now: self.prims.bands,
+            rgb_loss: self.rgb_loss_choice().map(|(_, why)| why),
+            thermal_align: self.thermal_align_setting(),
             notes,
             ..CapacityReport::default()
         }
@@ -218,5 +220,11 @@ pub struct CapacityReport {
     /// [`Trainer::capacity_report`]).
     #[serde(default)]
     pub response: Option<super::ResponseSummary>,
+    /// Joint runs: which loss the RGB views take and why (`None`: no RGB views).
+    #[serde(default)]
+    pub rgb_loss: Option<String>,
+    /// The thermal gradient alignment loss's weight after the RGB pre-training (0: off).
+    #[serde(default)]
+    pub thermal_align: f64,
     pub notes: Vec<String>,
 }

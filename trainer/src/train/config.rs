@@ -82,6 +82,105 @@ impl Default for Weights {
     }
 }
 
+/// How the RGB views' photometric loss is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RgbLoss {
+    /// `l1-low` when the RGB training views are dark (mean below [`LOW_LIGHT_MEAN`]), `l1`
+    /// otherwise.
+    #[default]
+    Auto,
+    /// TGA-GS's L1-low (paper §3.4) in place of L1, plus D-SSIM: see
+    /// [`crate::loss::photometric::l1_low_dssim`].
+    L1Low,
+    /// 3DGS's `(1 − λ)·L1 + λ·D-SSIM`.
+    L1,
+}
+
+/// Mean 8-bit RGB value (in [0, 1], sRGB-encoded) below which `--rgb-loss auto` takes the
+/// RGB views as low-light. A well-exposed indoor scene averages 0.3–0.5; the simulator's
+/// low-light camera (2 % exposure) about 0.1.
+pub const LOW_LIGHT_MEAN: f64 = 0.2;
+
+impl fmt::Display for RgbLoss {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            RgbLoss::Auto => "auto",
+            RgbLoss::L1Low => "l1-low",
+            RgbLoss::L1 => "l1",
+        })
+    }
+}
+
+impl FromStr for RgbLoss {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(RgbLoss::Auto),
+            "l1-low" => Ok(RgbLoss::L1Low),
+            "l1" => Ok(RgbLoss::L1),
+            other => Err(format!(
+                "unknown RGB loss `{other}` (expected auto, l1-low or l1)"
+            )),
+        }
+    }
+}
+
+/// Weight of the thermal gradient alignment loss in runs with RGB views when the user sets
+/// none (see [`Joint::thermal_align`]).
+pub const DEFAULT_THERMAL_ALIGN: f64 = 0.05;
+
+/// Joint RGB + thermal training on shared geometry (TGA-GS, paper §3.3–3.4). Inert in a run
+/// without RGB views, except `thermal_align` when set explicitly.
+///
+/// Every primitive has its S³-TIR thermal radiance and an SH colour; a thermal view and an
+/// RGB view each supervise through their own camera (pose, intrinsics, resolution), so the
+/// geometry the RGB views sharpen is the geometry the thermal head is rendered with.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Joint {
+    /// After the RGB pre-training every step trains a view together with its partner of the
+    /// other modality (the other camera's image of the same instant: the most overlapping
+    /// view; one optimiser step on the sum of both losses, as the paper's end-to-end phase),
+    /// so a joint iteration supervises both heads. Off: each step trains one drawn view.
+    pub pair_steps: bool,
+    /// RGB pre-training: the first this-many iterations (of the schedule: a fraction of a
+    /// time budget) train on RGB views only, then every view trains (paper §3.3). Counted
+    /// inside the run's iterations, as the paper keeps its total at 30 k. Ignored without RGB
+    /// views.
+    pub rgb_pretrain: u64,
+    /// Multiplies every term of a thermal view's loss.
+    pub thermal_weight: f64,
+    /// Multiplies every term of an RGB view's loss.
+    pub rgb_weight: f64,
+    pub rgb_loss: RgbLoss,
+    /// ε of L1-low (paper: 10⁻³, after Aleth-NeRF).
+    pub l1_low_eps: f64,
+    /// Weight of the thermal gradient alignment loss ([`crate::loss::align`]) on thermal views
+    /// after the RGB pre-training; `None`: [`DEFAULT_THERMAL_ALIGN`] when the run has RGB
+    /// views, 0 otherwise (thermal-only runs keep their loss unless asked); 0 turns it off.
+    pub thermal_align: Option<f64>,
+    /// Super-resolved thermal renders of the held-out thermal views (`renders_sr/`) at this
+    /// factor; `None`: the RGB camera's resolution over the thermal camera's (rounded) in a
+    /// run with both, none otherwise; 1: none.
+    pub sr_scale: Option<usize>,
+}
+
+impl Default for Joint {
+    fn default() -> Self {
+        Self {
+            pair_steps: true,
+            rgb_pretrain: 0,
+            thermal_weight: 1.0,
+            rgb_weight: 1.0,
+            rgb_loss: RgbLoss::Auto,
+            l1_low_eps: 1e-3,
+            thermal_align: None,
+            sr_scale: None,
+        }
+    }
+}
+
 /// Density control: 3DGS-style clone/split/prune under a **hard primitive budget**.
 ///
 /// Every `every` iterations while the schedule is in `[from, min(until, iters/2))` (see the
@@ -241,6 +340,9 @@ pub struct TrainConfig {
     /// off unless asked for (`--cpu-timing`).
     #[serde(default)]
     pub cpu_timing: bool,
+    /// Joint RGB + thermal training (configs written before it read as the default).
+    #[serde(default)]
+    pub joint: Joint,
 }
 
 impl TrainConfig {
@@ -288,6 +390,7 @@ impl TrainConfig {
             backend: "cpu".into(),
             response: super::ResponseConfig::default(),
             cpu_timing: false,
+            joint: Joint::default(),
         }
     }
 }

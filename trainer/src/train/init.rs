@@ -72,7 +72,11 @@ impl<B: Backend> Trainer<B> {
                 beta: 2.0,
                 omega_low: self.data.thermal_at(*p).map_or(0.5, f64::from),
                 bands,
-                sh: vec![rgb.map(|c| (f64::from(c) / 255.0 - 0.5) / c0)],
+                sh: vec![
+                    (self.data.rgb_at(*p))
+                        .unwrap_or_else(|| rgb.map(|c| f64::from(c) / 255.0))
+                        .map(|c| (c - 0.5) / c0),
+                ],
             });
         }
         let mut prims = prims.cast::<f32>();
@@ -183,47 +187,50 @@ pub(super) fn knn3_mean_distance(pts: &[[f64; 3]], lo: [f64; 3], hi: [f64; 3]) -
         .collect()
 }
 
+/// The fraction of a 6×6 grid of `a`'s rays, cut at the depth of the point `centre`, that
+/// lands inside `b`'s image.
+pub(super) fn view_overlap(a: &PinholeCamera, b: &PinholeCamera, centre: [f64; 3]) -> f64 {
+    let depth = a.to_cam(centre)[2];
+    if depth.is_nan() || depth <= 0.0 {
+        return 0.0;
+    }
+    let mut hit = 0;
+    const G: usize = 6;
+    for gy in 0..G {
+        for gx in 0..G {
+            let u = (gx as f64 + 0.5) / G as f64 * a.width as f64 - 0.5;
+            let v = (gy as f64 + 0.5) / G as f64 * a.height as f64 - 0.5;
+            let pc = b.to_cam(a.unproject(u, v, depth));
+            if pc[2] > 0.0 {
+                let [x, y] = b.project_cam(pc);
+                if x >= 0.0 && y >= 0.0 && x <= (b.width - 1) as f64 && y <= (b.height - 1) as f64 {
+                    hit += 1;
+                }
+            }
+        }
+    }
+    f64::from(hit) / (G * G) as f64
+}
+
 /// Overlap partner of every training view (see the module docs), and every training view's
-/// overlapping views (overlap ≥ `min_overlap`, ascending index).
+/// overlapping views (overlap ≥ `min_overlap`, ascending index, same modality).
 pub(super) fn choose_pairs(
     data: &Dataset,
     centre: [f64; 3],
     min_overlap: f64,
 ) -> (Vec<Option<usize>>, Vec<Vec<usize>>) {
-    let overlap = |a: &PinholeCamera, b: &PinholeCamera| -> f64 {
-        let depth = a.to_cam(centre)[2];
-        if depth.is_nan() || depth <= 0.0 {
-            return 0.0;
-        }
-        let mut hit = 0;
-        const G: usize = 6;
-        for gy in 0..G {
-            for gx in 0..G {
-                let u = (gx as f64 + 0.5) / G as f64 * a.width as f64 - 0.5;
-                let v = (gy as f64 + 0.5) / G as f64 * a.height as f64 - 0.5;
-                let pc = b.to_cam(a.unproject(u, v, depth));
-                if pc[2] > 0.0 {
-                    let [x, y] = b.project_cam(pc);
-                    if x >= 0.0
-                        && y >= 0.0
-                        && x <= (b.width - 1) as f64
-                        && y <= (b.height - 1) as f64
-                    {
-                        hit += 1;
-                    }
-                }
-            }
-        }
-        f64::from(hit) / (G * G) as f64
-    };
+    let overlap = |a: &PinholeCamera, b: &PinholeCamera| view_overlap(a, b, centre);
     let mut pairs = vec![None; data.views.len()];
     let mut neighbours = vec![Vec::new(); data.views.len()];
     for &i in &data.train {
         let a = &data.views[i].camera;
         let ca = a.centre_world();
         let mut best: Option<(f64, usize)> = None;
+        let thermal = data.views[i].thermal.is_some();
         for &j in &data.train {
-            if j == i {
+            // Pairs within one modality: the term regularises the thermal head's Ψ buffers,
+            // and a joint run's RGB steps would only dilute the thermal views' pairs.
+            if j == i || data.views[j].thermal.is_some() != thermal {
                 continue;
             }
             let b = &data.views[j].camera;

@@ -60,6 +60,7 @@ pub mod config;
 mod density;
 mod error;
 mod init;
+mod joint;
 mod outputs;
 pub mod params;
 pub mod response;
@@ -69,7 +70,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -79,19 +80,23 @@ pub use backend::{
     ResidentStepResult, RunShape,
 };
 pub use capacity::CapacityReport;
-pub use config::{Capacity, ConsistPartner, Densify, Mode, TrainConfig, Weights};
+pub use config::{
+    Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN, Mode, RgbLoss,
+    TrainConfig, Weights,
+};
 pub use density::{DensifyRound, view_space_gradient};
 pub use error::TrainError;
 use error::io_err;
 use init::choose_pairs;
-pub use outputs::{RunEval, evaluate_run, load_config};
+pub use joint::{Background, composite_background, composite_background_backward};
+pub use outputs::{BackgroundFile, RunEval, evaluate_run, load_config, read_background};
 pub use response::{ResponseConfig, ResponseKind, ResponseModel, ResponseSummary};
 
 use crate::camera::PinholeCamera;
 use crate::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint};
 use crate::dataset::Dataset;
+use crate::loss::align::{AlignSettings, thermal_align};
 use crate::loss::consistency::{ConsistencyOptions, consistency_loss};
-use crate::loss::photometric::l1_dssim;
 use crate::loss::response::{ResponseGrad, ViewResponse, view_loss_with_response};
 use crate::loss::{LossWeights, view_loss};
 use crate::primitive::Primitives;
@@ -109,7 +114,11 @@ pub mod files {
     pub const CAPACITY: &str = "capacity.json";
     pub const BETA_HIST: &str = "beta_hist.png";
     pub const RENDERS: &str = "renders";
+    /// Super-resolved thermal renders of the held-out thermal views (joint runs, `--sr-scale`).
+    pub const RENDERS_SR: &str = "renders_sr";
     pub const GBUFFERS: &str = "gbuffers";
+    /// The RGB background colour (runs with RGB views).
+    pub const BACKGROUND: &str = "rgb_background.json";
 }
 
 /// What the loop reports as it goes (the CLI draws it).
@@ -160,6 +169,9 @@ struct LoopState {
     /// `--response auto` dropped the response by mid-run: the views agreed.
     #[serde(default)]
     response_dropped: bool,
+    /// The RGB views' background colour, learned with the scene (`None`: no RGB views).
+    #[serde(default)]
+    background: Option<joint::Background>,
 }
 
 /// A training run on a backend.
@@ -188,6 +200,13 @@ pub struct Trainer<B: Backend> {
     /// step (cleared whenever the primitives change between steps).
     kept: Option<KeptView>,
     state: LoopState,
+    /// The RGB training views (the RGB pre-training draws from them).
+    rgb_train: Vec<usize>,
+    /// Mean value of the RGB training views (`None`: no RGB views).
+    rgb_mean: Option<f64>,
+    /// Each training view's partner of the other modality (joint runs), see
+    /// [`Joint::pair_steps`].
+    modality_partners: Vec<Option<usize>>,
 }
 
 /// A training view's G-buffers kept from its step for the next step's consistency term.
@@ -238,6 +257,11 @@ fn run_shape(cfg: &TrainConfig, data: &Dataset) -> RunShape {
         bands: if cfg.mode.has_bands() { cfg.bands } else { 0 },
         width: largest(|c| c.width),
         height: largest(|c| c.height),
+        sh_k: if data.has_rgb() {
+            (cfg.sh_degree.min(crate::sh::SH_MAX_DEGREE) + 1).pow(2)
+        } else {
+            0
+        },
     }
 }
 
@@ -295,6 +319,7 @@ impl<B: Backend> Trainer<B> {
         t.adam = AdamState::new(&t.prims);
         t.state.capacity = t.initial_capacity();
         t.state.response = t.initial_response();
+        t.state.background = t.data.has_rgb().then(joint::Background::default);
         Ok(t)
     }
 
@@ -357,6 +382,11 @@ impl<B: Backend> Trainer<B> {
         let f = median(data.views.iter().map(|v| v.camera.fx_px).collect()).unwrap_or(1.0);
         let min_log_scale = (0.5 * depth / f).max(1e-9).ln() as f32;
         let (pairs, neighbours) = choose_pairs(&data, centre, cfg.capacity.min_pair_overlap);
+        let rgb_train = (data.train.iter().copied())
+            .filter(|&i| data.views[i].rgb.is_some())
+            .collect();
+        let rgb_mean = joint::rgb_mean(&data);
+        let modality_partners = joint::modality_partners(&data, centre);
         Self {
             cfg,
             data,
@@ -375,6 +405,9 @@ impl<B: Backend> Trainer<B> {
             resident: false,
             kept: None,
             state: LoopState::default(),
+            rgb_train,
+            rgb_mean,
+            modality_partners,
         }
     }
 
@@ -394,44 +427,57 @@ impl<B: Backend> Trainer<B> {
         });
     }
 
-    /// Loss and upstream gradient of one view's own terms, and the gradient of its response
-    /// (when the run learns one).
+    /// Loss and upstream gradient (into `up`) of one view's own terms, the gradient of its
+    /// response (when the run learns one) and, for an RGB view, of the RGB background colour.
     fn view_terms(
         &self,
         vi: usize,
         gb: &GBuffers<f32>,
         weights: &LossWeights,
         up: &mut GBuffers<f32>,
-    ) -> Result<(f64, Option<ResponseGrad>), TrainError> {
+    ) -> Result<ViewTerms, TrainError> {
         let view = &self.data.views[vi];
         let mut loss = 0.0;
         let mut response = None;
+        let mut rgb_background_grad = None;
         if let Some(target) = &view.thermal {
+            let mut thermal = 0.0;
             match self.view_response(vi) {
                 Some(r) => {
                     let (l, g) = view_loss_with_response(gb, target, weights, &r, up)?;
-                    loss += l.total;
+                    thermal += l.total;
                     response = Some(g);
                 }
-                None => loss += view_loss(gb, target, weights, up)?.total,
+                None => thermal += view_loss(gb, target, weights, up)?.total,
             }
+            let wa = self.thermal_align_weight();
+            if wa > 0.0 {
+                let a = thermal_align(gb, target, &view.camera, &AlignSettings::default(), wa, up)?;
+                thermal += a.loss;
+            }
+            // The modality weight scales every term of the view (one view, one modality).
+            let wt = self.cfg.joint.thermal_weight;
+            if wt != 1.0 {
+                for (_, plane) in up.planes_mut() {
+                    plane.iter_mut().for_each(|g| *g *= wt as f32);
+                }
+                if let Some(g) = response.as_mut() {
+                    g.gain *= wt;
+                    g.offset *= wt;
+                }
+            }
+            loss += wt * thermal;
         }
         if let (Some(target), false) = (&view.rgb, gb.rgb.is_empty()) {
-            let n = gb.width * gb.height;
-            for c in 0..3 {
-                let r = l1_dssim(
-                    &gb.rgb[c * n..(c + 1) * n],
-                    &target[c * n..(c + 1) * n],
-                    gb.width,
-                    gb.height,
-                    weights.lambda_dssim,
-                    1.0 / 3.0,
-                    &mut up.rgb[c * n..(c + 1) * n],
-                )?;
-                loss += r.loss / 3.0;
-            }
+            let (l, g) = self.rgb_terms(gb, target, weights, up)?;
+            loss += l;
+            rgb_background_grad = Some(g);
         }
-        Ok((loss, response))
+        Ok(ViewTerms {
+            loss,
+            response,
+            background: rgb_background_grad,
+        })
     }
 
     /// View `vi`'s learned response (`None`: the run learns none).
@@ -470,7 +516,7 @@ impl<B: Backend> Trainer<B> {
         let mut rng = ChaCha8Rng::seed_from_u64(
             self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.iteration,
         );
-        let drawn = self.data.train[rng.random_range(0..self.data.train.len())];
+        let drawn = self.draw_view(&mut rng);
         if self.state.warmup_ended_at.is_none() && self.after_warmup() {
             self.state.warmup_ended_at = Some(self.iteration);
             if self.cfg.mode.learns_beta() || self.prims.bands > 0 {
@@ -491,7 +537,10 @@ impl<B: Backend> Trainer<B> {
         // A partner kept on the host (the last step took the host path) needs the host path.
         let host_kept = matches!(pair, Some(PairChoice::Previous(_)))
             && self.kept.as_ref().is_some_and(|k| k.gbuffers.is_some());
-        let thermal_only = self.data.views[vi].thermal.is_some() && !has_rgb && !host_kept;
+        let thermal_only = self.data.views[vi].thermal.is_some()
+            && !has_rgb
+            && !host_kept
+            && !self.host_losses_only();
         if thermal_only && !self.resident {
             self.resident = self.backend.resident_upload(&mut OptimiserState {
                 prims: &mut self.prims,
@@ -506,7 +555,7 @@ impl<B: Backend> Trainer<B> {
         let mut resident_loss = None;
         if let (Some(losses), true) = (
             thermal_step(&self.data, vi, pair, weights, &cam_i, response),
-            self.resident,
+            self.resident && !self.host_losses_only(),
         ) {
             let step = ResidentStep {
                 losses,
@@ -573,7 +622,7 @@ impl<B: Backend> Trainer<B> {
             thermal_step(&self.data, vi, pair, weights, &cam_i, response),
             has_rgb,
         ) {
-            (Some(step), false) if !host_kept => {
+            (Some(step), false) if !host_kept && !self.host_losses_only() => {
                 self.backend.device_step(&self.prims, &step).transpose()?
             }
             _ => None,
@@ -587,7 +636,11 @@ impl<B: Backend> Trainer<B> {
             None => {
                 let gb_i = self.backend.render(&self.prims, &cam_i)?;
                 let mut up_i = GBuffers::zeros(gb_i.width, gb_i.height, has_rgb);
-                let (mut loss, response_grad) = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
+                let terms = self.view_terms(vi, &gb_i, &weights, &mut up_i)?;
+                if let (Some(bg), Some(g)) = (self.state.background.as_mut(), terms.background) {
+                    bg.step(g);
+                }
+                let (mut loss, response_grad) = (terms.loss, terms.response);
 
                 let mut grads = None;
                 if let Some(PairChoice::Previous(vj)) = pair {
@@ -635,17 +688,20 @@ impl<B: Backend> Trainer<B> {
                 }
                 let g_i = self.backend.backward(&self.prims, &cam_i, &up_i)?;
                 self.keep(vi, pair.is_some(), Some(gb_i));
-                let grads = match grads {
+                let mut grads = match grads {
                     None => g_i,
                     Some(mut g) => {
-                        for ((_, a), (_, b)) in g.groups_mut().into_iter().zip(g_i.groups()) {
-                            for (x, y) in a.iter_mut().zip(b) {
-                                *x += *y;
-                            }
-                        }
+                        add_grads(&mut g, &g_i);
                         g
                     }
                 };
+                // Joint runs: the view of the other modality taken with this one trains in
+                // the same step (one loss over both images, as the paper's end-to-end phase).
+                if let Some(vr) = self.modality_partner(vi) {
+                    let (l, g) = self.partner_gradients(vr, &weights)?;
+                    loss += l;
+                    add_grads(&mut grads, &g);
+                }
                 (loss, grads, response_grad)
             }
         };
@@ -744,6 +800,24 @@ impl<B: Backend> Trainer<B> {
         });
         self.write_outputs()?;
         Ok(Outcome::Finished)
+    }
+}
+
+/// What one view's own terms give ([`Trainer::view_terms`]).
+struct ViewTerms {
+    loss: f64,
+    /// The gradient of the view's response (thermal views of a run that learns one).
+    response: Option<ResponseGrad>,
+    /// The gradient of the RGB background colour (RGB views).
+    background: Option<[f64; 3]>,
+}
+
+/// `a += b`, group by group.
+fn add_grads(a: &mut Primitives<f32>, b: &Primitives<f32>) {
+    for ((_, x), (_, y)) in a.groups_mut().into_iter().zip(b.groups()) {
+        for (p, q) in x.iter_mut().zip(y) {
+            *p += *q;
+        }
     }
 }
 

@@ -5,10 +5,11 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::joint::composite_background;
 use super::{Backend, TrainConfig, TrainError, Trainer, files, io_err};
 use crate::checkpoint;
 use crate::dataset::Dataset;
-use crate::metrics::{EvalSummary, view_metrics};
+use crate::metrics::{EvalSummary, rgb_metrics, view_metrics};
 use crate::primitive::beta_of_raw;
 use crate::report::{self, MetricsRow};
 
@@ -22,20 +23,36 @@ impl<B: Backend> Trainer<B> {
             self.data.test.clone()
         };
         let mut out = Vec::new();
+        let mut rgb = Vec::new();
         for i in ids {
             let v = &self.data.views[i];
-            let Some(target) = &v.thermal else { continue };
-            let gb = self.backend.render(&self.prims, &v.camera)?;
-            out.push(view_metrics(
-                &v.name,
-                &gb.thermal,
-                target,
-                gb.width,
-                gb.height,
-                self.data.range.as_ref(),
-            ));
+            match (&v.thermal, &v.rgb) {
+                (Some(target), _) => {
+                    let gb = self.backend.render(&self.prims, &v.camera)?;
+                    out.push(view_metrics(
+                        &v.name,
+                        &gb.thermal,
+                        target,
+                        gb.width,
+                        gb.height,
+                        self.data.range.as_ref(),
+                    ));
+                }
+                (None, Some(target)) if !self.prims.sh.is_empty() => {
+                    let gb = self.backend.render(&self.prims, &v.camera)?;
+                    let shown = composite_background(&gb.rgb, &gb.alpha, self.rgb_background());
+                    rgb.push(rgb_metrics(&shown, target, gb.width, gb.height));
+                }
+                (None, _) => {}
+            }
         }
-        Ok(EvalSummary::from_views(out))
+        let mut e = EvalSummary::from_views(out);
+        if !rgb.is_empty() {
+            let n = rgb.len() as f64;
+            e.rgb_psnr = Some(rgb.iter().map(|r| r.0).sum::<f64>() / n);
+            e.rgb_ssim = Some(rgb.iter().map(|r| r.1).sum::<f64>() / n);
+        }
+        Ok(e)
     }
 
     pub(super) fn eval_row(&mut self) -> Result<MetricsRow, TrainError> {
@@ -74,20 +91,42 @@ impl<B: Backend> Trainer<B> {
         let gbuf = dir.join(files::GBUFFERS);
         std::fs::create_dir_all(&renders).map_err(io_err(&renders))?;
         std::fs::create_dir_all(&gbuf).map_err(io_err(&gbuf))?;
+        let sr = self.sr_scale();
+        let renders_sr = dir.join(files::RENDERS_SR);
+        if sr.is_some() {
+            std::fs::create_dir_all(&renders_sr).map_err(io_err(&renders_sr))?;
+        }
         for &i in &self.data.test {
             let v = &self.data.views[i];
             let gb = self.backend.render(&self.prims, &v.camera)?;
-            let stem = Path::new(&v.name)
-                .file_stem()
-                .map_or_else(|| format!("view{i}"), |s| s.to_string_lossy().into_owned());
-            if let Some(range) = &self.data.range {
-                report::write_thermal_png16(
+            let stem = output_stem(&v.name, i);
+            match (&v.rgb, &self.data.range) {
+                (Some(_), _) if !gb.rgb.is_empty() => report::write_rgb_png(
                     &renders.join(format!("{stem}.png")),
-                    &gb.thermal,
+                    &composite_background(&gb.rgb, &gb.alpha, self.rgb_background()),
                     gb.width,
                     gb.height,
-                    range,
-                )?;
+                )?,
+                (None, Some(range)) => {
+                    report::write_thermal_png16(
+                        &renders.join(format!("{stem}.png")),
+                        &gb.thermal,
+                        gb.width,
+                        gb.height,
+                        range,
+                    )?;
+                    if let Some(k) = sr {
+                        let gk = self.backend.render(&self.prims, &v.camera.scaled(k))?;
+                        report::write_thermal_png16(
+                            &renders_sr.join(format!("{stem}.png")),
+                            &gk.thermal,
+                            gk.width,
+                            gk.height,
+                            range,
+                        )?;
+                    }
+                }
+                _ => {}
             }
             report::write_gbuffers(&gbuf, &stem, &gb)?;
         }
@@ -105,6 +144,14 @@ impl<B: Backend> Trainer<B> {
         )?;
         let eval = self.evaluate()?;
         write_json(&dir.join(files::EVAL), &eval)?;
+        if let Some(bg) = &self.state.background {
+            write_json(
+                &dir.join(files::BACKGROUND),
+                &BackgroundFile {
+                    rgb_background: bg.colour,
+                },
+            )?;
+        }
         let mut cap = self.capacity_report();
         if self.cfg.cpu_timing
             && let Some((with, general)) = self.cpu_shortcut_timing()?
@@ -117,11 +164,50 @@ impl<B: Backend> Trainer<B> {
     }
 }
 
+/// The file stem of a view's outputs: its image name without the extension, folders joined
+/// by `_` (a joint dataset's `thermal/0008.png` and `rgb/0008.png` must not collide).
+fn output_stem(name: &str, index: usize) -> String {
+    let p = Path::new(name);
+    let stem = p.with_extension("");
+    let s = stem
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join("_");
+    if s.is_empty() {
+        format!("view{index}")
+    } else {
+        s
+    }
+}
+
 pub(super) fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainError> {
     let s = serde_json::to_string_pretty(v).map_err(|e| TrainError::Config {
         reason: e.to_string(),
     })?;
     std::fs::write(path, s).map_err(io_err(path))
+}
+
+/// `RUN_DIR/rgb_background.json`: the background colour the RGB views are composited over
+/// (runs with RGB views).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BackgroundFile {
+    /// Per channel, in the images' units ([0, 1]).
+    pub rgb_background: [f64; 3],
+}
+
+/// The RGB background colour a finished run wrote (black when it wrote none).
+pub fn read_background(run_dir: &Path) -> Result<[f32; 3], TrainError> {
+    let path = run_dir.join(files::BACKGROUND);
+    if !path.exists() {
+        return Ok([0.0; 3]);
+    }
+    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+    let f: BackgroundFile = serde_json::from_str(&text).map_err(|e| TrainError::Run {
+        run_dir: run_dir.to_path_buf(),
+        reason: format!("{}: {e}", path.display()),
+    })?;
+    Ok(f.rgb_background.map(|c| c as f32))
 }
 
 /// Held-out evaluation of a finished (or checkpointed) run, as `s3tir-train eval` prints it.
@@ -162,6 +248,8 @@ pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, T
     let mode = cfg.mode.to_string();
     let mut t = Trainer::bare(cfg, data, backend, run_dir);
     t.prims = prims;
+    let bg = read_background(run_dir)?;
+    t.state.background = Some(super::joint::Background::fixed(bg.map(f64::from)));
     let e = t.evaluate()?;
     Ok(RunEval {
         run_dir: run_dir.to_path_buf(),

@@ -1,0 +1,10 @@
+// Backward rasteriser with the RGB planes and atomicAdd(float) after a subgroup sum: see
+// raster_backward.glsl.
+#version 450
+#extension GL_EXT_shader_atomic_float : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#define USE_FLOAT_ATOMICS
+#define USE_SUBGROUP_REDUCE
+#define USE_COLOUR
+#include "raster_backward.glsl"

@@ -1,0 +1,146 @@
+//! The TGA-GS ablation (paper Tables 3/4) on a dataset with truth: four runs of one base
+//! configuration — thermal-only, joint, joint without the thermal gradient alignment loss,
+//! joint without RGB pre-training — each scored by [`crate::truth::score`], as a table.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::{Dataset, Modality};
+use crate::train::{Backend, Event, Outcome, TrainConfig, TrainError, Trainer};
+use crate::truth::{TruthScore, score};
+
+/// One configuration of the ablation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    ThermalOnly,
+    Joint,
+    JointNoAlign,
+    JointNoPretrain,
+}
+
+impl Variant {
+    pub const ALL: [Variant; 4] = [
+        Variant::ThermalOnly,
+        Variant::Joint,
+        Variant::JointNoAlign,
+        Variant::JointNoPretrain,
+    ];
+
+    /// Folder name of the variant's run.
+    pub fn slug(self) -> &'static str {
+        match self {
+            Variant::ThermalOnly => "thermal-only",
+            Variant::Joint => "joint",
+            Variant::JointNoAlign => "joint-no-align",
+            Variant::JointNoPretrain => "joint-no-pretrain",
+        }
+    }
+
+    /// The variant's configuration derived from the joint base `base`.
+    pub fn config(self, base: &TrainConfig) -> TrainConfig {
+        let mut c = base.clone();
+        match self {
+            Variant::ThermalOnly => {
+                c.load.modality = Modality::Thermal;
+                c.joint.rgb_pretrain = 0;
+                c.joint.thermal_align = None;
+            }
+            Variant::Joint => {}
+            Variant::JointNoAlign => c.joint.thermal_align = Some(0.0),
+            Variant::JointNoPretrain => c.joint.rgb_pretrain = 0,
+        }
+        c
+    }
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AblationRow {
+    pub variant: Variant,
+    pub run_dir: PathBuf,
+    pub iterations: u64,
+    pub train_seconds: f64,
+    pub primitives: usize,
+    pub score: TruthScore,
+}
+
+/// Trains and scores every variant of `base` (whose `data` holds truth) into `out/<slug>`;
+/// `backend` makes each run's backend; `on_event` sees every run's events with its variant.
+pub fn run_ablation<B: Backend>(
+    base: &TrainConfig,
+    out: &Path,
+    backend: &mut dyn FnMut() -> Result<B, TrainError>,
+    stop: &AtomicBool,
+    on_event: &mut dyn FnMut(Variant, &Event),
+) -> Result<Vec<AblationRow>, TrainError> {
+    let mut rows = Vec::new();
+    for v in Variant::ALL {
+        let cfg = v.config(base);
+        let data = Dataset::load(&cfg.data, &cfg.load)?;
+        let dir = out.join(v.slug());
+        let start = Instant::now();
+        let mut t = Trainer::new(cfg, data, backend()?, &dir)?;
+        let outcome = t.run(stop, &mut |e| on_event(v, e))?;
+        if let Outcome::Interrupted { iteration } = outcome {
+            return Err(TrainError::Run {
+                run_dir: dir,
+                reason: format!("interrupted at iteration {iteration}: the table is incomplete"),
+            });
+        }
+        tracing::info!(
+            variant = v.slug(),
+            seconds = start.elapsed().as_secs_f64(),
+            "trained"
+        );
+        let mut b = backend()?;
+        let s = score(&base.data, &t.prims, t.rgb_background(), &mut b)?;
+        rows.push(AblationRow {
+            variant: v,
+            run_dir: dir,
+            iterations: t.iteration,
+            train_seconds: t.train_seconds,
+            primitives: t.prims.len(),
+            score: s,
+        });
+    }
+    Ok(rows)
+}
+
+/// The table as Markdown (paper Tables 3/4's layout, with our columns).
+pub fn markdown(rows: &[AblationRow]) -> String {
+    let k = rows.first().map_or(0, |r| r.score.scale);
+    let mut s = format!(
+        "| run | thermal PSNR / SSIM / MAE (input) | thermal PSNR / SSIM / MAE ({k}×) | \
+         bicubic {k}× PSNR / MAE | RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
+         iterations | primitives |\n|---|---|---|---|---|---|---|---|\n"
+    );
+    for r in rows {
+        let t = &r.score;
+        let rgb = match (t.rgb_psnr, t.rgb_ssim) {
+            (Some(p), Some(q)) => format!("{p:.2} dB / {q:.3}"),
+            _ => "—".into(),
+        };
+        s.push_str(&format!(
+            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} |\n",
+            r.variant.slug(),
+            t.thermal.psnr,
+            t.thermal.ssim,
+            t.thermal.kelvin_mae,
+            t.thermal_sr.psnr,
+            t.thermal_sr.ssim,
+            t.thermal_sr.kelvin_mae,
+            t.bicubic_sr.psnr,
+            t.bicubic_sr.kelvin_mae,
+            rgb,
+            t.depth_rgb.mae_m * 1000.0,
+            t.depth_rgb.coverage * 100.0,
+            r.iterations,
+            r.primitives,
+        ));
+    }
+    s
+}
