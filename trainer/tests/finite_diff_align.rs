@@ -28,11 +28,6 @@ const RTOL: f64 = 1e-6;
 /// difference's rounding error is ~ε·L/h ≈ 1e-11).
 const ATOL: f64 = 1e-9;
 
-fn random_plane(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
-    let mut r = rng(seed);
-    (0..n).map(|_| r.random_range(lo..hi)).collect()
-}
-
 /// Central differences of `f` at `x` vs `analytic`; panics naming the worst mismatch, returns
 /// the worst relative error over entries above the floor.
 fn assert_fd(

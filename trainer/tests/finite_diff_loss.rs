@@ -22,11 +22,6 @@ use s3tir_trainer::render::{GBuffers, RenderSettings, render, render_backward};
 
 const H: f64 = 1e-6;
 
-fn random_plane(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
-    let mut r = rng(seed);
-    (0..n).map(|_| r.random_range(lo..hi)).collect()
-}
-
 /// Central differences of `f` at `x` vs `analytic`; panics naming the first mismatch.
 fn assert_fd(
     name: &str,

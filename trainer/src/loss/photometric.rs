@@ -141,25 +141,20 @@ pub fn l1_dssim<T: Real>(
     scale: T,
     grad: &mut [T],
 ) -> Result<Photometric, TrainerError> {
-    check_len("image", image.len(), w, h)?;
-    check_len("target", target.len(), w, h)?;
-    check_len("grad", grad.len(), w, h)?;
-    let n = (w * h) as f64;
-    let lam = T::from_f64(lambda_dssim);
-    let k1 = scale * (T::ONE - lam) / T::from_f64(n);
-    let mut l1 = 0.0;
-    for ((g, a), b) in grad.iter_mut().zip(image).zip(target) {
-        let d = *a - *b;
-        l1 += d.abs().to_f64();
-        *g += k1 * d.sign0();
-    }
-    let l1 = l1 / n;
-    let s = ssim(image, target, w, h, Some((grad, -scale * lam)));
-    Ok(Photometric {
-        l1,
-        ssim: s,
-        loss: (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s),
-    })
+    residual_dssim(
+        image,
+        target,
+        w,
+        h,
+        lambda_dssim,
+        scale,
+        grad,
+        1.0,
+        |a, b| {
+            let d = a - b;
+            (d.abs(), d.sign0())
+        },
+    )
 }
 
 /// `(1 − λ)·L1-low + λ·(1 − SSIM)` of `image` against `target` (module docs):
@@ -177,24 +172,57 @@ pub fn l1_low_dssim<T: Real>(
     scale: T,
     grad: &mut [T],
 ) -> Result<Photometric, TrainerError> {
+    let n = (w * h).max(1) as f64;
+    let mean = target.iter().map(|v| v.to_f64().max(0.0)).sum::<f64>() / n;
+    let e = T::from_f64(eps);
+    residual_dssim(
+        image,
+        target,
+        w,
+        h,
+        lambda_dssim,
+        scale,
+        grad,
+        mean + eps,
+        |a, b| {
+            let positive = a > T::ZERO;
+            let a_c = if positive { a } else { T::ZERO };
+            let d = (a_c + e).ln() - (b.max(T::ZERO) + e).ln();
+            let slope = if positive {
+                d.sign0() / (a_c + e)
+            } else {
+                T::ZERO
+            };
+            (d.abs(), slope)
+        },
+    )
+}
+
+/// `(1 − λ)·norm·mean ρ(Ĉ, C) + λ·(1 − SSIM)` for a per-pixel residual `ρ` given with its
+/// derivative in Ĉ by `pixel(Ĉ, C) = (ρ, ∂ρ/∂Ĉ)`; adds `scale · dL/dimage` to `grad`.
+#[allow(clippy::too_many_arguments)]
+fn residual_dssim<T: Real>(
+    image: &[T],
+    target: &[T],
+    w: usize,
+    h: usize,
+    lambda_dssim: f64,
+    scale: T,
+    grad: &mut [T],
+    norm: f64,
+    pixel: impl Fn(T, T) -> (T, T),
+) -> Result<Photometric, TrainerError> {
     check_len("image", image.len(), w, h)?;
     check_len("target", target.len(), w, h)?;
     check_len("grad", grad.len(), w, h)?;
     let n = (w * h) as f64;
     let lam = T::from_f64(lambda_dssim);
-    let e = T::from_f64(eps);
-    let mean = target.iter().map(|v| v.to_f64().max(0.0)).sum::<f64>() / n.max(1.0);
-    let norm = mean + eps;
     let k1 = scale * (T::ONE - lam) * T::from_f64(norm / n);
     let mut l1 = 0.0;
     for ((g, a), b) in grad.iter_mut().zip(image).zip(target) {
-        let positive = *a > T::ZERO;
-        let a_c = if positive { *a } else { T::ZERO };
-        let d = (a_c + e).ln() - (b.max(T::ZERO) + e).ln();
-        l1 += d.abs().to_f64();
-        if positive {
-            *g += k1 * d.sign0() / (a_c + e);
-        }
+        let (rho, slope) = pixel(*a, *b);
+        l1 += rho.to_f64();
+        *g += k1 * slope;
     }
     let l1 = norm * l1 / n;
     let s = ssim(image, target, w, h, Some((grad, -scale * lam)));

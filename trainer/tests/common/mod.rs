@@ -13,6 +13,12 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }
 
+/// `n` values drawn uniformly from `[lo, hi)` with `seed` (an image plane or a buffer).
+pub fn random_plane(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+    let mut r = rng(seed);
+    (0..n).map(|_| r.random_range(lo..hi)).collect()
+}
+
 /// Camera at the origin looking down +z (world = camera frame).
 pub fn front_camera(width: usize, height: usize, f_px: f64) -> PinholeCamera {
     PinholeCamera::look_at(
