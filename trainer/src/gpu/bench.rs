@@ -139,11 +139,14 @@ impl BenchReport {
     pub fn joint_line(&self) -> String {
         format!(
             "joint RGB + thermal (half the views RGB, SH degree 0): {:.2} steps/s, {:.2}x the \
-             thermal step (goal <= 1.6); per joint step {:.1} ms in kernels ({:.1} ms of them \
-             colour kernels) and {:.1} ms on the host (losses, Adam, image reads: the host \
-             path); thermal-only step {:.1} ms in kernels, {:.2} steps/s on the host path",
+             thermal step (goal <= 1.6; a joint step trains two images, a view and the other \
+             camera's image of its instant: {:.2}x per image); per joint step {:.1} ms in \
+             kernels ({:.1} ms of them colour kernels) and {:.1} ms on the host (losses, Adam, \
+             image reads: the host path); thermal-only step {:.1} ms in kernels, {:.2} steps/s \
+             on the host path",
             self.joint_steps_per_s,
             self.joint_over_thermal,
+            self.joint_over_thermal / 2.0,
             self.joint_kernel_ms_per_step,
             self.joint_colour_kernel_ms_per_step,
             self.joint_host_ms_per_step,
