@@ -140,8 +140,8 @@ pub const DEFAULT_THERMAL_ALIGN: f64 = 0.05;
 #[serde(default)]
 pub struct Joint {
     /// After the RGB pre-training every step trains a view together with its partner of the
-    /// other modality (the other camera's image of the same instant: the most overlapping
-    /// view; one optimiser step on the sum of both losses, as the paper's end-to-end phase),
+    /// other modality (the other camera's image of the same instant: the nearest overlapping
+    /// camera; one optimiser step on the sum of both losses, as the paper's end-to-end phase),
     /// so a joint iteration supervises both heads. Off: each step trains one drawn view.
     pub pair_steps: bool,
     /// RGB pre-training: the first this-many iterations (of the schedule: a fraction of a

@@ -26,9 +26,10 @@ use crate::primitive::Primitives;
 use crate::real::Real;
 use crate::render::GBuffers;
 
-/// Each training view's partner of the other modality: the training view of the other
-/// modality whose image overlaps it most (≥ half of a 6×6 ray grid cut at the scene centre;
-/// ties: the nearest camera) — on a rig, the other camera's image of the same instant.
+/// Each training view's partner of the other modality: the nearest camera of the other
+/// modality among the training views whose images overlap it (≥ half of a 6×6 ray grid cut at
+/// the scene centre) — on a rig, the other camera's image of the same instant (a few
+/// centimetres away; a neighbouring instant may overlap as much, but is further).
 pub(super) fn modality_partners(data: &Dataset, centre: [f64; 3]) -> Vec<Option<usize>> {
     let mut out = vec![None; data.views.len()];
     if !(data.has_rgb() && data.has_thermal()) {
@@ -37,7 +38,7 @@ pub(super) fn modality_partners(data: &Dataset, centre: [f64; 3]) -> Vec<Option<
     for &i in &data.train {
         let a = &data.views[i];
         let ca = a.camera.centre_world();
-        let mut best: Option<(f64, f64, usize)> = None;
+        let mut best: Option<(f64, usize)> = None;
         for &j in &data.train {
             let b = &data.views[j];
             if b.thermal.is_some() == a.thermal.is_some() {
@@ -49,11 +50,11 @@ pub(super) fn modality_partners(data: &Dataset, centre: [f64; 3]) -> Vec<Option<
             }
             let cb = b.camera.centre_world();
             let d = (0..3).map(|k| (ca[k] - cb[k]).powi(2)).sum::<f64>();
-            if best.is_none_or(|(bo, bd, _)| o > bo || (o == bo && d < bd)) {
-                best = Some((o, d, j));
+            if best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((d, j));
             }
         }
-        out[i] = best.map(|b| b.2);
+        out[i] = best.map(|b| b.1);
     }
     out
 }
@@ -329,6 +330,64 @@ impl Background {
             let mh = *m / (1.0 - B1.powf(t));
             let vh = *v / (1.0 - B2.powf(t));
             *colour = (*colour - BACKGROUND_LR * mh / (vh.sqrt() + 1e-15)).clamp(0.0, 1.0);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::modality_partners;
+    use crate::camera::PinholeCamera;
+    use crate::dataset::{Dataset, View};
+
+    /// A rig on an orbit, its RGB camera 3 cm beside the thermal one, and an extra RGB view
+    /// looking at the scene from a neighbouring spot: every view's partner is the other
+    /// camera's image of its own instant, never a neighbouring instant that overlaps as much.
+    #[test]
+    fn the_partner_is_the_other_camera_of_the_same_instant() {
+        let mut views = Vec::new();
+        for k in 0..6 {
+            let a = k as f64 * 0.35;
+            let eye = [1.6 * a.cos(), 1.6 * a.sin(), 0.9];
+            let beside = [eye[0] - 0.03 * a.sin(), eye[1] + 0.03 * a.cos(), eye[2]];
+            for (name, at, rgb) in [
+                (format!("thermal/{k}"), eye, false),
+                (format!("rgb/{k}"), beside, true),
+            ] {
+                let (w, h) = if rgb { (64, 48) } else { (16, 12) };
+                let camera =
+                    PinholeCamera::look_at(at, [0.0, 0.0, 0.15], [0.0, 0.0, 1.0], w as f64, w, h);
+                views.push(View {
+                    name,
+                    camera,
+                    thermal: (!rgb).then(|| vec![0.5; w * h]),
+                    rgb: rgb.then(|| vec![0.5; 3 * w * h]),
+                });
+            }
+        }
+        let data = Dataset {
+            root: "mem".into(),
+            train: (0..views.len()).collect(),
+            test: Vec::new(),
+            views,
+            range: None,
+            points_m: Vec::new(),
+            point_rgb: Vec::new(),
+            undistorted_models: Vec::new(),
+            fresh_after_ffc: None,
+        };
+        let partners = modality_partners(&data, [0.0, 0.0, 0.15]);
+        for (i, p) in partners.iter().enumerate() {
+            let j = p.unwrap_or_else(|| panic!("{} has no partner", data.views[i].name));
+            assert_eq!(
+                j,
+                i ^ 1,
+                "{} pairs with {}, not its own instant's image",
+                data.views[i].name,
+                data.views[j].name
+            );
         }
     }
 }
