@@ -13,7 +13,9 @@
 //! - [`scene`]: trainer datasets of simple thermal scenes with truth; [`response`]: their
 //!   per-frame automatic gain control (8-bit) and drift between flat-field corrections;
 //!   [`scene_joint`]: the same scenes seen by a thermal + RGB rig (RGB at K× the thermal
-//!   resolution), with high-resolution truth (`scene --rgb-scale K`).
+//!   resolution), with high-resolution truth (`scene --rgb-scale K`); [`scene_truth`]: the
+//!   truth surface both write (`truth/surface.ply`: visible points with their apparent
+//!   temperature, for scoring meshes).
 //! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
 //!   (`run --walk`), with the truth trajectory; [`fiducials`]: the AprilTags on its walls and
 //!   their map (`tags.toml`).
@@ -28,6 +30,7 @@ pub mod response;
 pub mod rig;
 pub mod scene;
 pub mod scene_joint;
+pub mod scene_truth;
 pub mod sensor;
 pub mod serve;
 pub mod walk;

@@ -112,14 +112,15 @@ enum Command {
     /// with an emissivity edge, radiator panel, ground plane, seen from an orbit; --layout wall:
     /// a wall with an emissivity edge and an in-wall heating pipe): COLMAP text model in
     /// DIR/sparse/0/, 16-bit TLinear PNGs in DIR/images/, RGB in DIR/rgb/, ground-truth depth
-    /// and temperature in DIR/depth/ and DIR/temperature/.
+    /// and temperature in DIR/depth/ and DIR/temperature/, and the visible surface with its
+    /// apparent temperature in DIR/truth/surface.ply (for scoring meshes).
     ///
     /// With --rgb-scale K: the joint RGB + thermal layout instead, a thermal camera
     /// (--width × --height) and an RGB camera of K times its resolution, rigidly 3 cm apart:
     /// DIR/images/thermal/NNNN.png and DIR/images/rgb/NNNN.png (both cameras in one COLMAP
     /// model in DIR/sparse/0/), DIR/holdout.txt, and truth in DIR/truth/ (noise-free apparent
     /// temperature at the thermal and at the RGB resolution, depth of both cameras, noise-free
-    /// RGB). See firmware-sim/README.md, `scene`.
+    /// RGB, the visible surface DIR/truth/surface.ply). See firmware-sim/README.md, `scene`.
     Scene {
         /// Output directory (created).
         #[arg(long)]

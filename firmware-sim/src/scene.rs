@@ -3,6 +3,14 @@
 //! The same scenes seen by a thermal + RGB rig, RGB at K× the thermal resolution, with
 //! high-resolution truth: [`crate::scene_joint`] (`scene --rgb-scale K`).
 //!
+//! Truth written beside the images: `depth/` and `temperature/` per view (camera z and true
+//! surface temperature along each pixel-centre ray) and `truth/surface.ply`, the visible
+//! surface of the whole set with its apparent temperature, for scoring meshes
+//! ([`crate::scene_truth`]: the pixel-centre hits of the thermal camera at 2× its resolution
+//! from every view, one point per 4 mm cube, first in view order then row-major; kelvin is
+//! the apparent temperature at emissivity 1, view-independent since every surface is a grey
+//! body reflecting the uniform [`ENV_K`]).
+//!
 //! World frame: x east, y north, z up, metres; the ground is the plane z = 0.
 //!
 //! ## `Objects` layout
@@ -74,6 +82,10 @@ use crate::error::SimError;
 use crate::physics::Radiometry;
 use crate::render::{RayGrid, gaussian_blur};
 use crate::response::{ExportedFrame, ResponseEffects, ResponseSimulator};
+use crate::scene_truth::{
+    SURFACE_TRUTH_FILE, SURFACE_WHAT_DEFAULT, TruthSurfaceJson, surface_camera,
+    write_surface_truth_with,
+};
 use crate::sensor::{
     RgbProfile, ThermalOutput, ThermalProfile, ThermalSensor, expose_rgb_channels,
 };
@@ -197,9 +209,9 @@ fn wall_material(x: f64) -> (f64, [f64; 3]) {
 
 // The radiator stands off the pipe's hot end (plane x = RAD_X, facing +x), clear of the lines
 // of sight of the views from ±y that see the pipe side-on.
-const RAD_X: f64 = -0.9;
-const RAD_Y: (f64, f64) = (-0.45, 0.45);
-const RAD_Z: (f64, f64) = (0.05, 0.65);
+pub(crate) const RAD_X: f64 = -0.9;
+pub(crate) const RAD_Y: (f64, f64) = (-0.45, 0.45);
+pub(crate) const RAD_Z: (f64, f64) = (0.05, 0.65);
 
 fn pipe_temp_k(x: f64) -> f64 {
     let f = ((x - PIPE_X.0) / (PIPE_X.1 - PIPE_X.0)).clamp(0.0, 1.0);
@@ -635,6 +647,9 @@ pub(crate) struct SceneJson {
     /// Only in the joint layout (absent from the default layout's file).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(crate) joint: Option<crate::scene_joint::JointJson>,
+    /// `truth/surface.ply` ([`crate::scene_truth`]): both writers set it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) truth_surface: Option<crate::scene_truth::TruthSurfaceJson>,
 }
 
 impl SceneJson {
@@ -681,6 +696,7 @@ impl SceneJson {
             seed: cfg.seed,
             views: cfg.views,
             joint: None,
+            truth_surface: None,
         }
     }
 }
@@ -1001,7 +1017,10 @@ pub fn write_scene_set_with(
 ) -> Result<(), SimError> {
     check_scene_config(cfg)?;
     let out = &cfg.out_dir;
-    create_dirs(out, &["sparse/0", "images", "rgb", "depth", "temperature"])?;
+    create_dirs(
+        out,
+        &["sparse/0", "images", "rgb", "depth", "temperature", "truth"],
+    )?;
     let cam = scene_camera(cfg.width_px, cfg.height_px);
     let grid = RayGrid::new(&cam);
     let mut sensor = ThermalSensor::new(scene_thermal_profile(cam), cfg.seed);
@@ -1042,7 +1061,20 @@ pub fn write_scene_set_with(
     }
     let points = sample_surface_points(layout, 2000, &mut rng);
     write_colmap_text(&out.join("sparse/0"), &[(1, cam)], &images, &points)?;
-    let meta = SceneJson::new(cfg, layout, cam, effects, "images/", sensor.profile.netd_k);
+    // The visible surface of every view (training and held-out), for scoring meshes.
+    let surface_n = write_surface_truth_with(
+        &out.join(SURFACE_TRUTH_FILE),
+        layout,
+        &cam,
+        &poses,
+        &radiometry,
+    )?;
+    let mut meta = SceneJson::new(cfg, layout, cam, effects, "images/", sensor.profile.netd_k);
+    meta.truth_surface = Some(TruthSurfaceJson::new(
+        surface_n,
+        surface_camera(&cam)?,
+        SURFACE_WHAT_DEFAULT,
+    ));
     write_response_files(out, effects, &response)?;
     write_json(&out.join("scene.json"), &meta, "scene.json")
 }

@@ -29,10 +29,14 @@
 //!   - `depth/thermal/NNNN.png` (`W × H`) and `depth/rgb/NNNN.png` (`K·W × K·H`): camera z
 //!     along the pixel-centre ray, millimetres u16, 0 = no surface;
 //!   - `rgb/rgb/NNNN.png`: the RGB input without blur or noise, at the input's exposure,
-//!     8-bit sRGB (what a perfect model renders).
+//!     8-bit sRGB (what a perfect model renders);
+//!   - `surface.ply`: the visible surface with its apparent temperature (kelvin, emissivity 1),
+//!     traced at every instant's **thermal** pose with the thermal camera at 2× its resolution,
+//!     one point per 4 mm cube ([`crate::scene_truth`]; the same file as the default layout's).
 //! - `sparse/0/points3D.txt` as in the default layout; `scene.json` with a `joint` object
-//!   ([`JointJson`]); `response.json` / `ffc.txt` with the response effects, naming
-//!   `thermal/NNNN.png`.
+//!   ([`JointJson`], whose `truth` lists the per-image truth folders) and, as in the default
+//!   layout, `truth_surface` ([`crate::scene_truth::TruthSurfaceJson`]); `response.json` /
+//!   `ffc.txt` with the response effects, naming `thermal/NNNN.png`.
 //!
 //! The default layout's `images/NNNN.png`, `rgb/`, `depth/` and `temperature/` are not written.
 
@@ -53,6 +57,10 @@ use crate::scene::{
     create_dirs, depth_mm_words, expose_scene_rgb, io, poses, render_scene, sample_surface_points,
     save_exported, save_rgb8, save_u16, scene_camera, scene_thermal_profile, sense_thermal,
     write_colmap_text, write_json, write_response_files,
+};
+use crate::scene_truth::{
+    SURFACE_TRUTH_FILE, SURFACE_WHAT_JOINT, TruthSurfaceJson, surface_camera,
+    write_surface_truth_with,
 };
 use crate::sensor::{RgbProfile, ThermalSensor, expose_rgb_channels_noise_free};
 
@@ -176,7 +184,8 @@ pub struct JointJson {
     /// How images, poses and the hold-out are laid out.
     pub images: &'static str,
     pub holdout: &'static str,
-    /// Each truth folder (relative to the dataset root): camera, size and units.
+    /// Each truth folder (relative to the dataset root): camera, size and units. The truth
+    /// surface (`truth/surface.ply`, no camera of its own) is `scene.json`'s `truth_surface`.
     pub truth: BTreeMap<&'static str, TruthFolder>,
 }
 
@@ -253,6 +262,7 @@ pub fn write_joint_scene_set(
     let images_dir = out.join("images");
     let truth = out.join("truth");
     let mut records = Vec::with_capacity(2 * cfg.views);
+    let mut thermal_poses = Vec::with_capacity(cfg.views);
     let mut holdout = String::new();
     for (k, rgb_from_world) in poses(layout, cfg.views).iter().enumerate() {
         let thermal_from_world = rig.compose(rgb_from_world);
@@ -288,6 +298,7 @@ pub fn write_joint_scene_set(
         if k % HOLDOUT_EVERY == 0 {
             holdout.push_str(&format!("{thermal_name}\n{rgb_name}\n"));
         }
+        thermal_poses.push(thermal_from_world);
         records.push(ColmapImageRecord {
             id: 2 * k + 1,
             cam_from_world: thermal_from_world,
@@ -313,6 +324,15 @@ pub fn write_joint_scene_set(
     )?;
     let p = out.join("holdout.txt");
     std::fs::write(&p, holdout).map_err(io(&p, "write"))?;
+    // The visible surface at every instant's thermal pose, for scoring meshes.
+    let surface_path = out.join(SURFACE_TRUTH_FILE);
+    let surface_n = write_surface_truth_with(
+        &surface_path,
+        layout,
+        &thermal_cam,
+        &thermal_poses,
+        &radiometry,
+    )?;
     write_response_files(out, effects, &response)?;
     let mut meta = SceneJson::new(
         cfg,
@@ -327,6 +347,11 @@ pub fn write_joint_scene_set(
     meta.temperature_units = "not written in the joint layout (no temperature/ folder): \
                               apparent temperatures are in truth/apparent/ and truth/apparent_sr/";
     meta.joint = Some(joint_json(joint, &rig, rgb_cam, (w, h)));
+    meta.truth_surface = Some(TruthSurfaceJson::new(
+        surface_n,
+        surface_camera(&thermal_cam)?,
+        SURFACE_WHAT_JOINT,
+    ));
     write_json(&out.join("scene.json"), &meta, "scene.json")
 }
 

@@ -1,6 +1,10 @@
 //! The TGA-GS ablation (paper Tables 3/4) on a dataset with truth: four runs of one base
 //! configuration — thermal-only, joint, joint without the thermal gradient alignment loss,
-//! joint without RGB pre-training — each scored by [`crate::truth::score`], as a table.
+//! joint without RGB pre-training — each scored by [`crate::truth::score`], as a table. When
+//! the dataset holds a truth surface (`truth/surface.ply`), each model is also meshed
+//! ([`crate::mesh`], default options) through the same cameras — every training camera of
+//! both image sets, whatever the variant trained on, so the meshes differ only by their
+//! geometry — and the mesh scored against it (Chamfer distance, F-score, vertex kelvin MAE).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -8,7 +12,9 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{Dataset, Modality};
+use crate::dataset::{Dataset, LoadOptions, Modality};
+use crate::mesh::run::{MeshOptions, TRUTH_SURFACE, mesh_views};
+use crate::mesh::score::{MeshScore, score as score_mesh};
 use crate::train::{Backend, Event, Outcome, TrainConfig, TrainError, Trainer};
 use crate::truth::{TruthScore, score};
 
@@ -66,6 +72,9 @@ pub struct AblationRow {
     pub train_seconds: f64,
     pub primitives: usize,
     pub score: TruthScore,
+    /// The model's mesh against the truth surface (`None`: the dataset has none).
+    #[serde(default)]
+    pub mesh: Option<MeshScore>,
 }
 
 /// Trains and scores every variant of `base` (whose `data` holds truth) into `out/<slug>`;
@@ -78,6 +87,25 @@ pub fn run_ablation<B: Backend>(
     on_event: &mut dyn FnMut(Variant, &Event),
 ) -> Result<Vec<AblationRow>, TrainError> {
     let mut rows = Vec::new();
+    let truth_surface = base.data.join(TRUTH_SURFACE);
+    let mesh_truth = if truth_surface.is_file() {
+        let bad = |e: crate::mesh::MeshError| TrainError::Config {
+            reason: format!("the truth surface: {e}"),
+        };
+        let truth = crate::mesh::plyio::read_mesh_ply(&truth_surface).map_err(bad)?;
+        let region = crate::mesh::plyio::read_region(&truth_surface).map_err(bad)?;
+        let all = Dataset::load(
+            &base.data,
+            &LoadOptions {
+                modality: Modality::Both,
+                ..base.load.clone()
+            },
+        )?;
+        let cams: Vec<_> = all.train.iter().map(|&i| all.views[i].camera).collect();
+        Some((truth, region, cams, all.range))
+    } else {
+        None
+    };
     for v in Variant::ALL {
         let cfg = v.config(base);
         let data = Dataset::load(&cfg.data, &cfg.load)?;
@@ -98,6 +126,18 @@ pub fn run_ablation<B: Backend>(
         );
         let mut b = backend()?;
         let s = score(&base.data, &t.prims, t.rgb_background(), &mut b)?;
+        let mesh = match (&mesh_truth, &mesh_truth.as_ref().and_then(|m| m.3)) {
+            (Some((truth, region, cams, _)), Some(range)) => {
+                let opts = MeshOptions::default();
+                let (m, _) = mesh_views(&t.prims, cams, range, &opts, &mut b, &mut |_, _, _| {})
+                    .map_err(|e| TrainError::Run {
+                        run_dir: dir.clone(),
+                        reason: format!("meshing the model: {e}"),
+                    })?;
+                Some(score_mesh(&m, truth, opts.tau_m, region.as_ref()))
+            }
+            _ => None,
+        };
         rows.push(AblationRow {
             variant: v,
             run_dir: dir,
@@ -105,6 +145,7 @@ pub fn run_ablation<B: Backend>(
             train_seconds: t.train_seconds,
             primitives: t.prims.len(),
             score: s,
+            mesh,
         });
     }
     Ok(rows)
@@ -116,7 +157,8 @@ pub fn markdown(rows: &[AblationRow]) -> String {
     let mut s = format!(
         "| run | thermal PSNR / SSIM / MAE (input) | thermal PSNR / SSIM / MAE ({k}×) | \
          bicubic {k}× PSNR / MAE | RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
-         iterations | primitives |\n|---|---|---|---|---|---|---|---|\n"
+         mesh Chamfer / F-score / vertex MAE | iterations | primitives |\n\
+         |---|---|---|---|---|---|---|---|---|\n"
     );
     for r in rows {
         let t = &r.score;
@@ -124,8 +166,20 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             (Some(p), Some(q)) => format!("{p:.2} dB / {q:.3}"),
             _ => "—".into(),
         };
+        let mesh = r.mesh.map_or_else(
+            || "—".to_owned(),
+            |m| {
+                format!(
+                    "{:.1} mm / {:.3} at {:.0} mm / {:.3} K",
+                    m.chamfer_m * 1e3,
+                    m.f_score,
+                    m.tau_m * 1e3,
+                    m.kelvin_mae
+                )
+            },
+        );
         s.push_str(&format!(
-            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} |\n",
+            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
             r.variant.slug(),
             t.thermal.psnr,
             t.thermal.ssim,
@@ -138,6 +192,7 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             rgb,
             t.depth_rgb.mae_m * 1000.0,
             t.depth_rgb.coverage * 100.0,
+            mesh,
             r.iterations,
             r.primitives,
         ));

@@ -2,6 +2,8 @@
 //!
 //! - [`gpu`] (feature `vulkan`): Vulkan compute through ash — device discovery and reports,
 //!   the compute context, and the kernels of the on-rig trainer.
+//! - [`mesh`]: thermal mesh extraction — rendered views fused into a sparse TSDF, surface nets,
+//!   a PLY with kelvin per vertex, the score against a simulated scene's truth surface.
 //!
 //! Conventions (frames, units, the paper's kernel without ½) are in `docs/CONVENTIONS.md`.
 
@@ -27,4 +29,5 @@ pub mod train;
 // Joint RGB + thermal (TGA-GS, issue 18): scoring against a simulated scene's truth, and the
 // ablation table.
 pub mod ablation;
+pub mod mesh;
 pub mod truth;

@@ -31,6 +31,9 @@ use s3tir_trainer::train::{
 /// head rendered at the RGB resolution into `renders_sr/`. `ablation` measures the variants on
 /// a simulated joint scene (`s3tir-firmware-sim scene --rgb-scale 4 --low-light`).
 ///
+/// `mesh RUN --out mesh.ply` fuses a run's rendered depth and temperature into a surface mesh
+/// with a float `kelvin` per vertex (binary PLY) and an ironbow-coloured copy.
+///
 /// `devices` lists the Vulkan devices this computer offers and what the trainer needs of them
 /// (storage-buffer range, shared memory, subgroups, float atomics).
 #[derive(Debug, Parser)]
@@ -94,6 +97,13 @@ enum Command {
     /// super-resolved at K× against bicubic upsampling, RGB, depth); the table in
     /// RUN_DIR/ablation.md and ablation.json. Either backend (`--backend`).
     Ablation(Box<TrainArgs>),
+    /// A surface mesh with a temperature per vertex: the run's training views rendered
+    /// (expected depth, kelvin, colour), fused into a sparse truncated signed-distance volume
+    /// and extracted by surface nets, trimmed to where the views saw it. Writes OUT (binary
+    /// PLY: float `kelvin` per vertex, the run's RGB when it has colour) and OUT_thermal.ply
+    /// (coloured by the ironbow palette for viewers that show only RGB); opens in MeshLab,
+    /// Blender, CloudCompare. The voxel follows the scene's extent and --memory-budget-mib.
+    Mesh(MeshArgs),
     /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs).
     Compare {
         /// Run folders.
@@ -354,6 +364,7 @@ fn main() -> Result<()> {
         (Some(Command::Devices { json }), _) => devices(json),
         (Some(Command::Train(a)), _) => train_cmd(*a),
         (None, Some(a)) => train_cmd(a),
+        (Some(Command::Bench(a)), _) if a.mesh => mesh_bench_cmd(&a),
         (Some(Command::Bench(a)), _) => bench_cmd(a),
         (
             Some(Command::Eval {
@@ -372,6 +383,7 @@ fn main() -> Result<()> {
             }
         }
         (Some(Command::Ablation(a)), _) => ablation_cmd(*a),
+        (Some(Command::Mesh(a)), _) => mesh_cmd(&a),
         (Some(Command::Compare { runs, out }), _) => compare_cmd(&runs, &out),
         (
             Some(Command::Synth {
@@ -719,6 +731,55 @@ fn bench_cmd(_: BenchArgs) -> Result<()> {
     )
 }
 
+/// Options of `s3tir-train mesh`.
+#[derive(Debug, Args)]
+struct MeshArgs {
+    /// Run folder written by training (any backend's).
+    run_dir: PathBuf,
+    /// Output mesh (binary PLY); the colour-mapped copy goes beside it as OUT_thermal.ply.
+    #[arg(long, default_value = "mesh.ply")]
+    out: PathBuf,
+    /// Voxel edge in metres [default: the scene's extent / --resolution, grown until the
+    /// volume fits --memory-budget-mib].
+    #[arg(long = "voxel-size-m")]
+    voxel_size_m: Option<f64>,
+    /// Voxels along the scene's longest side when the voxel is automatic.
+    #[arg(long, default_value_t = 512)]
+    resolution: usize,
+    /// Truncation distance of the signed-distance volume, in voxels.
+    #[arg(long, default_value_t = 3.0)]
+    trunc_voxels: f64,
+    /// Memory the volume may use, MiB (the renders kept for fusion come on top: ~3.6 MB per
+    /// 640×512 view with colour).
+    #[arg(long, default_value_t = 1024)]
+    memory_budget_mib: u64,
+    /// Rendered alpha from which a pixel is surface.
+    #[arg(long, default_value_t = 0.5)]
+    min_alpha: f32,
+    /// Observation weight a voxel needs to take part in the surface, in head-on-equivalent
+    /// views: each view counts |cos θ| of the angle between its ray and the surface (a grazing
+    /// view measures distance badly), so 1 is one head-on view or two at 60°.
+    #[arg(long, default_value_t = 1.0)]
+    min_weight: f32,
+    /// Score the mesh against the dataset's truth surface (DATA/truth/surface.ply, written by
+    /// `s3tir-firmware-sim scene`): Chamfer distance, F-score at --tau-m, kelvin MAE.
+    #[arg(long)]
+    truth: bool,
+    /// Distance threshold of the F-score and of the vertices whose kelvin is scored, metres.
+    #[arg(long, default_value_t = 0.02)]
+    tau_m: f64,
+    /// Backend that renders the views.
+    #[arg(long, value_parser = ["cpu", "vulkan"], default_value = "cpu")]
+    backend: String,
+    /// Vulkan device index (see `devices`; default: the best device).
+    #[arg(long)]
+    device_index: Option<usize>,
+    /// Print one JSON object (files, voxel, blocks, vertices, triangles, seconds per stage,
+    /// peak memory, the truth score).
+    #[arg(long)]
+    json: bool,
+}
+
 /// Options of `s3tir-train bench`.
 #[derive(Debug, Args)]
 struct BenchArgs {
@@ -756,6 +817,11 @@ struct BenchArgs {
     /// overrides --width, --height, --views, --primitives and --steps).
     #[arg(long)]
     real_size: bool,
+    /// Benchmark `mesh` instead of training: seconds per stage (render, fuse, extract) and
+    /// peak memory of meshing 100 views of 640×512 with 30 000 primitives on the CPU backend
+    /// (--width, --height, --views, --primitives change it; their small defaults do not apply).
+    #[arg(long)]
+    mesh: bool,
 }
 
 /// The training loop on any backend, with a progress bar and Ctrl-C handling.
@@ -1119,6 +1185,156 @@ fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usiz
         run.mode
     );
     println!("rendered on the {backend} backend");
+    Ok(())
+}
+
+/// `bench --mesh`: the mesh benchmark (see `s3tir_trainer::mesh::bench`).
+fn mesh_bench_cmd(a: &BenchArgs) -> Result<()> {
+    use s3tir_trainer::mesh::bench::{MeshBenchOptions, run};
+    let d = MeshBenchOptions::default();
+    // The training bench's small defaults are not the mesh bench's: only values given differ.
+    let given = |v: usize, small: usize, real: usize| if v == small { real } else { v };
+    let opts = MeshBenchOptions {
+        width: given(a.width, 96, d.width),
+        height: given(a.height, 72, d.height),
+        views: given(a.views, 12, d.views),
+        primitives: given(a.primitives, 2000, d.primitives),
+        ..d
+    };
+    let r = run(&opts, &mut |_, _, _| {}, &mut |line| {
+        eprintln!("bench: {line}")
+    })?;
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+        return Ok(());
+    }
+    let mib = |b: Option<u64>| {
+        b.map_or_else(
+            || "unknown".to_owned(),
+            |b| format!("{:.0} MiB", b as f64 / f64::from(1 << 20)),
+        )
+    };
+    let st = &r.stats;
+    println!(
+        "mesh: {} views of {}x{}, {} primitives, CPU backend on {} threads",
+        st.views_rendered, r.width, r.height, r.primitives, r.threads
+    );
+    println!(
+        "  render {:.1} s, fuse {:.1} s ({:.2}x the render), extract {:.1} s ({:.2}x); total {:.1} s",
+        st.render_s, st.fuse_s, r.fuse_over_render, st.extract_s, r.extract_over_render, r.seconds
+    );
+    println!(
+        "  voxel {:.2} mm, {} blocks: volume {:.0} MiB, renders kept {:.0} MiB; peak memory {} (before meshing {})",
+        st.voxel_m * 1e3,
+        st.blocks,
+        st.volume_bytes as f64 / f64::from(1 << 20),
+        st.renders_bytes as f64 / f64::from(1 << 20),
+        mib(r.peak_rss_bytes),
+        mib(r.rss_before_bytes)
+    );
+    println!("  {} vertices, {} triangles", st.vertices, st.triangles);
+    Ok(())
+}
+
+/// `mesh`: progress bars per stage, the summary as text or JSON.
+fn mesh_cmd(a: &MeshArgs) -> Result<()> {
+    use s3tir_trainer::mesh::run::{MeshOptions, MeshStage, mesh_run};
+    let opts = MeshOptions {
+        voxel_m: a.voxel_size_m,
+        resolution: a.resolution,
+        trunc_voxels: a.trunc_voxels,
+        memory_budget_bytes: a.memory_budget_mib.saturating_mul(1 << 20),
+        min_alpha: a.min_alpha,
+        min_weight: a.min_weight,
+        tau_m: a.tau_m,
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>8} [{bar:40}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut progress = |stage: MeshStage, done: usize, total: usize| {
+        bar.set_message(match stage {
+            MeshStage::Render => "render",
+            MeshStage::Fuse => "fuse",
+            MeshStage::Extract => "extract",
+        });
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let what = || format!("meshing {} into {}", a.run_dir.display(), a.out.display());
+    let s = match a.backend.as_str() {
+        #[cfg(feature = "vulkan")]
+        "vulkan" => {
+            let b = s3tir_trainer::gpu::backend::VulkanBackend::new(
+                &vulkan_options(a.device_index, false),
+                s3tir_trainer::render::RenderSettings::default(),
+            )
+            .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
+            mesh_run(&a.run_dir, &a.out, &opts, a.truth, b, &mut progress).with_context(what)?
+        }
+        #[cfg(not(feature = "vulkan"))]
+        "vulkan" => {
+            bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
+        }
+        _ => mesh_run(
+            &a.run_dir,
+            &a.out,
+            &opts,
+            a.truth,
+            CpuBackend::default(),
+            &mut progress,
+        )
+        .with_context(what)?,
+    };
+    bar.finish_and_clear();
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    let st = &s.stats;
+    println!(
+        "{} vertices, {} triangles from {} of {} views; voxel {:.2} mm, truncation {:.2} mm, {} blocks ({:.1} MiB)",
+        st.vertices,
+        st.triangles,
+        st.views,
+        st.views_rendered,
+        st.voxel_m * 1e3,
+        st.trunc_m * 1e3,
+        st.blocks,
+        st.volume_bytes as f64 / f64::from(1 << 20)
+    );
+    println!(
+        "render {:.1} s, fuse {:.1} s, extract {:.1} s; peak memory {}",
+        st.render_s,
+        st.fuse_s,
+        st.extract_s,
+        s.peak_rss_bytes.map_or_else(
+            || "unknown".to_owned(),
+            |b| format!("{:.0} MiB", b as f64 / f64::from(1 << 20))
+        )
+    );
+    if let Some(t) = &s.truth {
+        println!(
+            "against truth: Chamfer {:.2} mm (accuracy {:.2}, completeness {:.2}), F-score {:.3} at {:.0} mm (precision {:.3}, recall {:.3}), vertex temperature MAE {:.3} K",
+            t.chamfer_m * 1e3,
+            t.accuracy_m * 1e3,
+            t.completeness_m * 1e3,
+            t.f_score,
+            t.tau_m * 1e3,
+            t.precision,
+            t.recall,
+            t.kelvin_mae
+        );
+    }
+    println!(
+        "wrote {} (kelvin{}) and {} (ironbow {:.2}–{:.2} K)",
+        s.out.display(),
+        if s.colour { " and RGB" } else { "" },
+        s.thermal_out.display(),
+        s.kelvin_lo,
+        s.kelvin_hi
+    );
     Ok(())
 }
 

@@ -1,0 +1,953 @@
+//! The mesh as a binary PLY with a temperature per vertex, the reader (meshes and point clouds
+//! such as the simulator's `truth/surface.ply`), and the ironbow colours of the thermal copy.
+//!
+//! Written layout (`format binary_little_endian 1.0`, standard property names, so MeshLab,
+//! Blender and CloudCompare open it):
+//!
+//! ```text
+//! element vertex N
+//! property float x | y | z            world metres
+//! property float nx | ny | nz         unit outward normal
+//! property float kelvin               temperature, kelvin (NaN: none observed)
+//! property uchar red | green | blue   only with colours
+//! element face M
+//! property list uchar int vertex_indices
+//! ```
+//!
+//! The reader takes any binary little-endian PLY whose vertices have `x y z kelvin` (any
+//! numeric type, by name; other properties, lists and other elements are skipped), with
+//! `nx ny nz` and `red green blue` when present and faces optional (polygons are split into
+//! fans). Every count in the header is checked against the bytes really there before it sizes
+//! anything; ASCII and big-endian files are refused with an error naming the file.
+
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use super::error::MeshError;
+use super::extract::Mesh;
+
+/// The first comment of every mesh written.
+pub const MESH_COMMENT: &str =
+    "s3tir mesh: surface nets over a fused truncated signed-distance volume";
+
+/// Longest header read (bytes).
+const MAX_HEADER_BYTES: usize = 1 << 20;
+
+fn ply_err(path: &Path, reason: impl Into<String>) -> MeshError {
+    MeshError::Ply {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+/// `path` + `.tmp` in the same folder.
+fn tmp_path(path: &Path) -> Result<PathBuf, MeshError> {
+    let mut name = path
+        .file_name()
+        .ok_or_else(|| ply_err(path, "not a file path"))?
+        .to_os_string();
+    name.push(".tmp");
+    Ok(path.with_file_name(name))
+}
+
+/// Checks that `mesh` (with `colours` replacing its own) can be written as a consistent PLY.
+fn check_mesh(path: &Path, mesh: &Mesh, colours: Option<&[[u8; 3]]>) -> Result<(), MeshError> {
+    let n = mesh.positions.len();
+    let err = |r: String| Err(ply_err(path, r));
+    if n > i32::MAX as usize {
+        return err(format!(
+            "{n} vertices: more than `int` vertex indices address"
+        ));
+    }
+    if mesh.kelvin.len() != n {
+        return err(format!(
+            "{} temperatures for {n} vertices",
+            mesh.kelvin.len()
+        ));
+    }
+    if !(mesh.normals.is_empty() || mesh.normals.len() == n) {
+        return err(format!("{} normals for {n} vertices", mesh.normals.len()));
+    }
+    if let Some(c) = colours.or(mesh.rgb.as_deref())
+        && c.len() != n
+    {
+        return err(format!("{} colours for {n} vertices", c.len()));
+    }
+    if let Some(i) = mesh
+        .positions
+        .iter()
+        .position(|p| !p.iter().all(|x| x.is_finite()))
+    {
+        return err(format!(
+            "vertex {i}: non-finite position {:?}",
+            mesh.positions[i]
+        ));
+    }
+    if let Some(i) = mesh
+        .normals
+        .iter()
+        .position(|p| !p.iter().all(|x| x.is_finite()))
+    {
+        return err(format!(
+            "vertex {i}: non-finite normal {:?}",
+            mesh.normals[i]
+        ));
+    }
+    if let Some((t, tri)) = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.iter().any(|&i| i as usize >= n))
+    {
+        return err(format!(
+            "triangle {t} {tri:?}: index beyond the {n} vertices"
+        ));
+    }
+    Ok(())
+}
+
+/// Writes `mesh` as a binary little-endian PLY (layout in the module docs), with `colours`
+/// replacing the mesh's own colours when given (the colour-mapped thermal copy) and each line
+/// of `comment` as a header comment. Built beside `path` as `path.tmp` and renamed into place:
+/// a failure leaves an existing `path` as it was.
+pub fn write_mesh_ply(
+    path: &Path,
+    mesh: &Mesh,
+    colours: Option<&[[u8; 3]]>,
+    comment: &str,
+) -> Result<(), MeshError> {
+    check_mesh(path, mesh, colours)?;
+    let colours = colours.or(mesh.rgb.as_deref());
+    let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
+    header.push_str(&format!("comment {MESH_COMMENT}\n"));
+    for line in comment.lines() {
+        let line = line.replace('\r', " ");
+        let line = line.trim();
+        if !line.is_empty() {
+            header.push_str(&format!("comment {line}\n"));
+        }
+    }
+    header.push_str(&format!("element vertex {}\n", mesh.positions.len()));
+    for p in ["x", "y", "z", "nx", "ny", "nz", "kelvin"] {
+        header.push_str(&format!("property float {p}\n"));
+    }
+    if colours.is_some() {
+        for p in ["red", "green", "blue"] {
+            header.push_str(&format!("property uchar {p}\n"));
+        }
+    }
+    header.push_str(&format!("element face {}\n", mesh.triangles.len()));
+    header.push_str("property list uchar int vertex_indices\nend_header\n");
+
+    let tmp = tmp_path(path)?;
+    let io = |source| MeshError::Io {
+        path: tmp.clone(),
+        source,
+    };
+    let file = fs::File::create(&tmp).map_err(io)?;
+    let write = || -> std::io::Result<fs::File> {
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        w.write_all(header.as_bytes())?;
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let nrm = mesh.normals.get(i).copied().unwrap_or([0.0; 3]);
+            for x in p.iter().chain(&nrm).chain(std::iter::once(&mesh.kelvin[i])) {
+                w.write_all(&x.to_le_bytes())?;
+            }
+            if let Some(c) = colours {
+                w.write_all(&c[i])?;
+            }
+        }
+        for t in &mesh.triangles {
+            w.write_all(&[3])?;
+            for &i in t {
+                w.write_all(&(i as i32).to_le_bytes())?;
+            }
+        }
+        let f = w.into_inner().map_err(|e| e.into_error())?;
+        f.sync_all()?;
+        Ok(f)
+    };
+    let done = write().and_then(|f| {
+        drop(f);
+        fs::rename(&tmp, path)
+    });
+    if let Err(source) = done {
+        // best effort: the error to report is the write's
+        let _ = fs::remove_file(&tmp);
+        return Err(MeshError::Io {
+            path: path.to_path_buf(),
+            source,
+        });
+    }
+    Ok(())
+}
+
+/// A scalar type of a PLY property.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Ty {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Ty {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "char" | "int8" => Self::I8,
+            "uchar" | "uint8" => Self::U8,
+            "short" | "int16" => Self::I16,
+            "ushort" | "uint16" => Self::U16,
+            "int" | "int32" => Self::I32,
+            "uint" | "uint32" => Self::U32,
+            "float" | "float32" => Self::F32,
+            "double" | "float64" => Self::F64,
+            _ => return None,
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
+    fn is_float(self) -> bool {
+        matches!(self, Self::F32 | Self::F64)
+    }
+
+    /// The value at the start of `b` (`b.len() ≥ size()`).
+    fn value(self, b: &[u8]) -> f64 {
+        let a = |n: usize| {
+            let mut x = [0u8; 8];
+            x[..n].copy_from_slice(&b[..n]);
+            x
+        };
+        match self {
+            Self::I8 => f64::from(b[0] as i8),
+            Self::U8 => f64::from(b[0]),
+            Self::I16 => f64::from(i16::from_le_bytes([b[0], b[1]])),
+            Self::U16 => f64::from(u16::from_le_bytes([b[0], b[1]])),
+            Self::I32 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Self::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Self::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Self::F64 => f64::from_le_bytes(a(8)),
+        }
+    }
+
+    /// An `f32` property read exactly (no round trip through f64 for NaN payloads).
+    fn value_f32(self, b: &[u8]) -> f32 {
+        match self {
+            Self::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            _ => self.value(b) as f32,
+        }
+    }
+}
+
+#[derive(Debug)]
+enum Prop {
+    Scalar { name: String, ty: Ty },
+    List { name: String, count: Ty, item: Ty },
+}
+
+impl Prop {
+    fn name(&self) -> &str {
+        match self {
+            Self::Scalar { name, .. } | Self::List { name, .. } => name,
+        }
+    }
+
+    /// Fewest bytes one value of the property takes.
+    fn min_bytes(&self) -> usize {
+        match self {
+            Self::Scalar { ty, .. } => ty.size(),
+            Self::List { count, .. } => count.size(),
+        }
+    }
+}
+
+#[derive(Debug)]
+struct Element {
+    name: String,
+    count: usize,
+    props: Vec<Prop>,
+}
+
+/// The header: elements in file order and the offset of the body.
+fn parse_header(path: &Path, data: &[u8]) -> Result<(Vec<Element>, usize), MeshError> {
+    let err = |r: String| ply_err(path, r);
+    let mut pos = 0;
+    let mut elements: Vec<Element> = Vec::new();
+    let mut first = true;
+    let mut format = false;
+    loop {
+        if pos >= data.len().min(MAX_HEADER_BYTES) {
+            return Err(err(format!(
+                "no `end_header` line in the first {} bytes",
+                data.len().min(MAX_HEADER_BYTES)
+            )));
+        }
+        let end = data[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(data.len(), |e| pos + e);
+        let line = std::str::from_utf8(&data[pos..end])
+            .map_err(|_| err(format!("header byte {pos}: not text")))?
+            .trim_end_matches('\r');
+        pos = (end + 1).min(data.len());
+        if first {
+            if line != "ply" {
+                return Err(err("not a PLY file (no `ply` first line)".into()));
+            }
+            first = false;
+            continue;
+        }
+        let t: Vec<&str> = line.split_whitespace().collect();
+        match t.as_slice() {
+            ["end_header"] => break,
+            ["comment", ..] | ["obj_info", ..] | [] => {}
+            ["format", "binary_little_endian", _] => format = true,
+            ["format", f, ..] => {
+                return Err(err(format!(
+                    "format {f}: only binary_little_endian PLY is read (convert the file, \
+                     e.g. in MeshLab or CloudCompare)"
+                )));
+            }
+            ["element", name, n] => {
+                let count = n
+                    .parse::<u64>()
+                    .ok()
+                    .and_then(|c| usize::try_from(c).ok())
+                    .ok_or_else(|| err(format!("element {name}: count `{n}` is not a size")))?;
+                elements.push(Element {
+                    name: (*name).to_owned(),
+                    count,
+                    props: Vec::new(),
+                });
+            }
+            ["property", "list", c, i, name] => {
+                let (Some(count), Some(item)) = (Ty::parse(c), Ty::parse(i)) else {
+                    return Err(err(format!("property list {c} {i} {name}: unknown type")));
+                };
+                if count.is_float() {
+                    return Err(err(format!(
+                        "property list {name}: count type {c} is not an integer"
+                    )));
+                }
+                elements
+                    .last_mut()
+                    .ok_or_else(|| err(format!("property {name} before any element")))?
+                    .props
+                    .push(Prop::List {
+                        name: (*name).to_owned(),
+                        count,
+                        item,
+                    });
+            }
+            ["property", ty, name] => {
+                let ty = Ty::parse(ty)
+                    .ok_or_else(|| err(format!("property {name}: unknown type {ty}")))?;
+                elements
+                    .last_mut()
+                    .ok_or_else(|| err(format!("property {name} before any element")))?
+                    .props
+                    .push(Prop::Scalar {
+                        name: (*name).to_owned(),
+                        ty,
+                    });
+            }
+            _ => return Err(err(format!("header line `{line}` is not PLY"))),
+        }
+    }
+    if !format {
+        return Err(err("no `format` line".into()));
+    }
+    Ok((elements, pos))
+}
+
+/// The body as a cursor.
+struct Body<'a> {
+    data: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Body<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let s = self.data.get(self.pos..self.pos.checked_add(n)?)?;
+        self.pos += n;
+        Some(s)
+    }
+
+    fn remaining(&self) -> usize {
+        self.data.len() - self.pos
+    }
+}
+
+/// An axis-aligned evaluation volume: min and max corners, world metres.
+pub type Region = [[f32; 3]; 2];
+
+/// The evaluation volume a truth surface states in its header (`comment region_m X0 Y0 Z0 X1
+/// Y1 Z1 …`, written by the simulator's `scene_truth`); `None` when it states none.
+pub fn read_region(path: &Path) -> Result<Option<Region>, MeshError> {
+    let data = fs::read(path).map_err(|source| MeshError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (_, start) = parse_header(path, &data)?;
+    let header = String::from_utf8_lossy(&data[..start]);
+    let Some(line) = header
+        .lines()
+        .find_map(|l| l.strip_prefix("comment region_m "))
+    else {
+        return Ok(None);
+    };
+    let v: Vec<f32> = line
+        .split_whitespace()
+        .take(6)
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|e| ply_err(path, format!("region_m comment `{line}`: {e}")))?;
+    match v[..] {
+        [x0, y0, z0, x1, y1, z1] if x0 <= x1 && y0 <= y1 && z0 <= z1 => {
+            Ok(Some([[x0, y0, z0], [x1, y1, z1]]))
+        }
+        _ => Err(ply_err(
+            path,
+            format!("region_m comment `{line}`: expected six numbers, min corner ≤ max corner"),
+        )),
+    }
+}
+
+/// Reads a mesh or a point cloud (module docs for what is read). Errors name the file.
+pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
+    let data = fs::read(path).map_err(|source| MeshError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let err = |r: String| ply_err(path, r);
+    let (elements, start) = parse_header(path, &data)?;
+    let vertex = elements
+        .iter()
+        .find(|e| e.name == "vertex")
+        .ok_or_else(|| err("no `element vertex`".into()))?;
+    let n_vertices = vertex.count;
+    let scalar = |name: &str| -> Result<Option<usize>, MeshError> {
+        match vertex.props.iter().position(|p| p.name() == name) {
+            Some(i) if matches!(vertex.props[i], Prop::List { .. }) => {
+                Err(err(format!("vertex property {name} is a list")))
+            }
+            other => Ok(other),
+        }
+    };
+    let required = |name: &str| {
+        scalar(name)?.ok_or_else(|| {
+            err(format!(
+                "the vertices have no `{name}` property (x, y, z and kelvin are required)"
+            ))
+        })
+    };
+    let xyz = [required("x")?, required("y")?, required("z")?];
+    let kelvin_at = required("kelvin")?;
+    let normal_at = match (scalar("nx")?, scalar("ny")?, scalar("nz")?) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+    let rgb_at = match (scalar("red")?, scalar("green")?, scalar("blue")?) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+
+    let mut body = Body {
+        data: &data[start..],
+        pos: 0,
+    };
+    let mut mesh = Mesh {
+        rgb: rgb_at.map(|_| Vec::new()),
+        ..Mesh::default()
+    };
+    // one row's values of the vertex element (scalars only; lists are skipped)
+    let mut raw: Vec<(Ty, &[u8])> = Vec::new();
+    for el in &elements {
+        let min_row: usize = el.props.iter().map(Prop::min_bytes).sum();
+        if el.count > 0 && min_row == 0 {
+            return Err(err(format!(
+                "element {} has {} rows and no properties",
+                el.name, el.count
+            )));
+        }
+        if el
+            .count
+            .checked_mul(min_row)
+            .is_none_or(|b| b > body.remaining())
+        {
+            return Err(err(format!(
+                "element {}: {} rows of at least {min_row} bytes, but {} bytes of data are left \
+                 (truncated file?)",
+                el.name,
+                el.count,
+                body.remaining()
+            )));
+        }
+        let is_vertex = std::ptr::eq(el, vertex);
+        let is_face = el.name == "face";
+        let face_list = if is_face {
+            Some(
+                el.props
+                    .iter()
+                    .position(|p| {
+                        matches!(
+                            p,
+                            Prop::List { name, .. }
+                                if name == "vertex_indices" || name == "vertex_index"
+                        )
+                    })
+                    .ok_or_else(|| err("faces without a `vertex_indices` list".into()))?,
+            )
+        } else {
+            None
+        };
+        if is_vertex {
+            mesh.positions.reserve_exact(el.count);
+            mesh.kelvin.reserve_exact(el.count);
+        }
+        for row in 0..el.count {
+            raw.clear();
+            for (pi, p) in el.props.iter().enumerate() {
+                let short = || {
+                    err(format!(
+                        "element {} row {row}: the data ends (truncated file?)",
+                        el.name
+                    ))
+                };
+                match *p {
+                    Prop::Scalar { ty, .. } => {
+                        let b = body.take(ty.size()).ok_or_else(short)?;
+                        raw.push((ty, b));
+                    }
+                    Prop::List { count, item, .. } => {
+                        let c = count.value(body.take(count.size()).ok_or_else(short)?);
+                        if c < 0.0 || c.is_nan() {
+                            return Err(err(format!(
+                                "element {} row {row}: list length {c}",
+                                el.name
+                            )));
+                        }
+                        let c = c as usize;
+                        let items = c
+                            .checked_mul(item.size())
+                            .and_then(|b| body.take(b))
+                            .ok_or_else(short)?;
+                        if face_list == Some(pi) {
+                            if item.is_float() {
+                                return Err(err("face vertex indices are not integers".into()));
+                            }
+                            if c < 3 {
+                                return Err(err(format!("face {row}: {c} vertices")));
+                            }
+                            let idx = |k: usize| -> Result<u32, MeshError> {
+                                let v = item.value(&items[k * item.size()..]);
+                                if v >= 0.0 && v < n_vertices as f64 {
+                                    Ok(v as u32)
+                                } else {
+                                    Err(err(format!(
+                                        "face {row}: vertex index {v} outside the {n_vertices} vertices"
+                                    )))
+                                }
+                            };
+                            let first = idx(0)?;
+                            for k in 1..c - 1 {
+                                mesh.triangles.push([first, idx(k)?, idx(k + 1)?]);
+                            }
+                        }
+                        raw.push((item, &[]));
+                    }
+                }
+            }
+            if !is_vertex {
+                continue;
+            }
+            let f = |i: usize| raw[i].0.value_f32(raw[i].1);
+            let p = xyz.map(f);
+            if !p.iter().all(|x| x.is_finite()) {
+                return Err(err(format!("vertex {row}: non-finite position {p:?}")));
+            }
+            mesh.positions.push(p);
+            mesh.kelvin.push(f(kelvin_at));
+            if let Some(nrm) = normal_at {
+                mesh.normals.push(nrm.map(f));
+            }
+            if let (Some(at), Some(rgb)) = (rgb_at, mesh.rgb.as_mut()) {
+                rgb.push(at.map(|i| {
+                    let (ty, b) = raw[i];
+                    let x = ty.value(b);
+                    let x = if ty.is_float() { x * 255.0 } else { x };
+                    x.round().clamp(0.0, 255.0) as u8
+                }));
+            }
+        }
+    }
+    if body.remaining() != 0 {
+        return Err(err(format!(
+            "{} bytes after the last element (the header does not describe the data)",
+            body.remaining()
+        )));
+    }
+    Ok(mesh)
+}
+
+/// Ironbow colours of `kelvin` over its 1st–99th percentile range (nearest rank on the
+/// finite values; NaN temperatures are mid grey), and that range `(lo, hi)` in kelvin (NaN
+/// when no temperature is finite).
+pub fn thermal_colours(kelvin: &[f32]) -> (Vec<[u8; 3]>, f32, f32) {
+    let lut = crate::dataset::images::ironbow();
+    let mut finite: Vec<f32> = kelvin.iter().copied().filter(|k| k.is_finite()).collect();
+    if finite.is_empty() {
+        return (vec![[128; 3]; kelvin.len()], f32::NAN, f32::NAN);
+    }
+    finite.sort_unstable_by(f32::total_cmp);
+    let rank = |q: f64| finite[((finite.len() - 1) as f64 * q).round() as usize];
+    let (lo, hi) = (rank(0.01), rank(0.99));
+    let span = hi - lo;
+    let colours = kelvin
+        .iter()
+        .map(|&k| {
+            if !k.is_finite() {
+                return [128; 3];
+            }
+            let t = if span > 0.0 { (k - lo) / span } else { 0.5 };
+            lut[(t.clamp(0.0, 1.0) * 255.0).round() as usize]
+        })
+        .collect();
+    (colours, lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use proptest::prelude::*;
+
+    use super::*;
+
+    fn mesh(colour: bool) -> Mesh {
+        Mesh {
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.5, 0.5, 1.0],
+            ],
+            normals: vec![
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.6, 0.8],
+            ],
+            kelvin: vec![290.0, 291.5, 300.25, f32::NAN],
+            rgb: colour.then(|| vec![[1, 2, 3], [255, 0, 7], [9, 9, 9], [0, 0, 0]]),
+            triangles: vec![[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 3, 2]],
+        }
+    }
+
+    /// Equality with NaN temperatures compared by bits.
+    fn same(a: &Mesh, b: &Mesh) -> bool {
+        let bits = |m: &Mesh| m.kelvin.iter().map(|k| k.to_bits()).collect::<Vec<_>>();
+        a.positions == b.positions
+            && a.normals == b.normals
+            && bits(a) == bits(b)
+            && a.rgb == b.rgb
+            && a.triangles == b.triangles
+    }
+
+    #[test]
+    fn meshes_round_trip_with_and_without_colour() {
+        let dir = tempfile::tempdir().unwrap();
+        for colour in [false, true] {
+            let m = mesh(colour);
+            let path = dir.path().join(format!("m{colour}.ply"));
+            write_mesh_ply(&path, &m, None, "kelvin: test\nsecond line").unwrap();
+            let back = read_mesh_ply(&path).unwrap();
+            assert!(
+                same(&m, &back),
+                "round trip (colour {colour}): wrote {m:?}, read {back:?}"
+            );
+            let text = fs::read(&path).unwrap();
+            let header = String::from_utf8_lossy(
+                &text[..text.windows(10).position(|w| w == b"end_header").unwrap()],
+            )
+            .into_owned();
+            assert!(
+                header.contains("comment kelvin: test\ncomment second line\n"),
+                "{header}"
+            );
+            assert!(
+                header.contains("property list uchar int vertex_indices"),
+                "{header}"
+            );
+            assert_eq!(header.contains("property uchar red"), colour, "{header}");
+            assert!(
+                !dir.path().join(format!("m{colour}.ply.tmp")).exists(),
+                "tmp file renamed"
+            );
+        }
+    }
+
+    #[test]
+    fn the_colour_mapped_copy_carries_the_palette() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = mesh(false);
+        let (colours, lo, hi) = thermal_colours(&m.kelvin);
+        assert_eq!(
+            (lo, hi),
+            (290.0, 300.25),
+            "1st and 99th percentile of 3 finite values"
+        );
+        let lut = crate::dataset::images::ironbow();
+        assert_eq!(
+            colours[0], lut[0],
+            "the coldest is the palette's first colour"
+        );
+        assert_eq!(colours[2], lut[255], "the hottest the last");
+        assert_eq!(
+            colours[1], lut[37],
+            "291.5 K is 0.146 of the range: entry 37"
+        );
+        assert_eq!(colours[3], [128; 3], "no temperature: grey");
+        let path = dir.path().join("t.ply");
+        write_mesh_ply(&path, &m, Some(&colours), "thermal").unwrap();
+        let back = read_mesh_ply(&path).unwrap();
+        assert_eq!(
+            back.rgb.as_deref(),
+            Some(&colours[..]),
+            "the palette colours are written"
+        );
+        assert!(
+            same(&Mesh { rgb: None, ..back }, &m),
+            "geometry and kelvin unchanged"
+        );
+        // colours of the wrong length are refused
+        let e = write_mesh_ply(&path, &m, Some(&colours[..2]), "").unwrap_err();
+        assert!(matches!(e, MeshError::Ply { .. }), "{e}");
+    }
+
+    fn truth_bytes(points: &[[f32; 7]]) -> Vec<u8> {
+        let mut out = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment s3tir truth surface: test\n\
+             element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+             property float nx\nproperty float ny\nproperty float nz\nproperty float kelvin\n\
+             end_header\n",
+            points.len()
+        )
+        .into_bytes();
+        for p in points {
+            for x in p {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_simulator_truth_surface_reads_as_a_point_cloud() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("surface.ply");
+        let pts = [
+            [0.1, 0.2, 0.3, 0.0, 0.0, 1.0, 295.5],
+            [1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 310.0],
+        ];
+        fs::write(&path, truth_bytes(&pts)).unwrap();
+        let m = read_mesh_ply(&path).unwrap();
+        assert_eq!(m.positions, vec![[0.1, 0.2, 0.3], [1.0, 2.0, 3.0]]);
+        assert_eq!(m.normals, vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]);
+        assert_eq!(m.kelvin, vec![295.5, 310.0]);
+        assert!(m.triangles.is_empty() && m.rgb.is_none());
+    }
+
+    #[test]
+    fn other_layouts_read_by_name() {
+        // doubles, an extra property and a list on the vertices, a quad face, an extra element
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("q.ply");
+        let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\n\
+            property double kelvin\nproperty float confidence\nproperty list uchar float junk\n\
+            property double z\nproperty double y\nproperty double x\n\
+            element face 1\nproperty uchar flags\nproperty list uchar uint vertex_indices\n\
+            element edge 1\nproperty int a\nproperty int b\nend_header\n"
+            .to_vec();
+        for i in 0..4 {
+            b.extend_from_slice(&(300.0 + f64::from(i)).to_le_bytes());
+            b.extend_from_slice(&1.0f32.to_le_bytes());
+            b.push(1);
+            b.extend_from_slice(&7.0f32.to_le_bytes());
+            for x in [0.0f64, f64::from(i), 2.0 * f64::from(i)] {
+                b.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        b.push(0);
+        b.push(4);
+        for i in [0u32, 1, 2, 3] {
+            b.extend_from_slice(&i.to_le_bytes());
+        }
+        b.extend_from_slice(&[0; 8]);
+        fs::write(&path, &b).unwrap();
+        let m = read_mesh_ply(&path).unwrap();
+        assert_eq!(
+            m.positions[3],
+            [6.0, 3.0, 0.0],
+            "x y z by name, whatever the order"
+        );
+        assert_eq!(m.kelvin, vec![300.0, 301.0, 302.0, 303.0]);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]], "the quad as a fan");
+        assert!(m.normals.is_empty(), "no normals in the file");
+    }
+
+    fn expect_ply_error(path: &Path, bytes: &[u8], want: &str) {
+        fs::write(path, bytes).unwrap();
+        match read_mesh_ply(path) {
+            Err(e @ MeshError::Ply { .. }) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains(&path.display().to_string()),
+                    "the error names the file: {msg}"
+                );
+                assert!(msg.contains(want), "expected `{want}` in: {msg}");
+            }
+            other => panic!("expected MeshError::Ply containing `{want}`, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn malformed_files_are_refused_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.ply");
+        let good = {
+            write_mesh_ply(&path, &mesh(true), None, "").unwrap();
+            fs::read(&path).unwrap()
+        };
+        expect_ply_error(&path, &good[..good.len() - 5], "truncated");
+        expect_ply_error(&path, &good[..good.len() - 60], "truncated");
+        let mut longer = good.clone();
+        longer.push(0);
+        expect_ply_error(&path, &longer, "1 bytes after the last element");
+        let pts = [[0.0; 7]];
+        let t = String::from_utf8_lossy(&truth_bytes(&pts)).into_owned();
+        let no_kelvin = truth_bytes(&pts);
+        let cut = t.find("property float kelvin\n").unwrap();
+        let mut nk = no_kelvin[..cut].to_vec();
+        nk.extend_from_slice(
+            &no_kelvin[cut + "property float kelvin\n".len()..no_kelvin.len() - 4],
+        );
+        expect_ply_error(&path, &nk, "no `kelvin` property");
+        expect_ply_error(
+            &path,
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n\
+              property float z\nproperty float kelvin\nend_header\n0 0 0 300\n",
+            "format ascii",
+        );
+        let be = t.replace("binary_little_endian", "binary_big_endian");
+        expect_ply_error(&path, be.as_bytes(), "format binary_big_endian");
+        expect_ply_error(&path, b"PK\x03\x04 zip", "not a PLY file");
+        expect_ply_error(
+            &path,
+            b"ply\nformat binary_little_endian 1.0\n",
+            "no `end_header`",
+        );
+        let huge = t.replace("element vertex 1", "element vertex 18446744073709551615");
+        expect_ply_error(&path, huge.as_bytes(), "truncated");
+        let huge = t.replace("element vertex 1", "element vertex 99999999999999999999999");
+        expect_ply_error(&path, huge.as_bytes(), "is not a size");
+        // a face index beyond the vertices
+        let mut m = mesh(false);
+        m.triangles.push([0, 1, 9]);
+        let e = write_mesh_ply(&path, &m, None, "").unwrap_err();
+        assert!(e.to_string().contains("index beyond"), "{e}");
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_existing_file_untouched() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("keep.ply");
+        fs::write(&path, b"earlier result").unwrap();
+        // the temporary file cannot be created (a folder is in its way)
+        fs::create_dir(dir.path().join("keep.ply.tmp")).unwrap();
+        let e = write_mesh_ply(&path, &mesh(false), None, "").unwrap_err();
+        assert!(matches!(e, MeshError::Io { .. }), "expected Io, got {e}");
+        assert_eq!(
+            fs::read(&path).unwrap(),
+            b"earlier result",
+            "the existing file is untouched"
+        );
+        // a missing folder
+        let missing = dir.path().join("no/such/dir/m.ply");
+        let e = write_mesh_ply(&missing, &mesh(false), None, "").unwrap_err();
+        assert!(
+            matches!(&e, MeshError::Io { path, .. } if path.starts_with(dir.path().join("no"))),
+            "{e}"
+        );
+        assert!(!dir.path().join("no").exists());
+        // an invalid mesh is refused before anything is written
+        let mut bad = mesh(false);
+        bad.positions[1][0] = f32::NAN;
+        let e = write_mesh_ply(&path, &bad, None, "").unwrap_err();
+        assert!(
+            e.to_string().contains("vertex 1: non-finite position"),
+            "{e}"
+        );
+        assert_eq!(fs::read(&path).unwrap(), b"earlier result");
+    }
+
+    fn valid_mesh_bytes() -> &'static Vec<u8> {
+        static V: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+        V.get_or_init(|| {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("v.ply");
+            write_mesh_ply(&path, &mesh(true), None, "hostile").unwrap();
+            fs::read(&path).unwrap()
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(
+            std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+        ))]
+
+        /// Random byte edits (half of them in the header) and cuts of a valid file: the reader
+        /// reads or refuses, never panics nor allocates from a hostile count.
+        #[test]
+        fn edited_mesh_files_read_or_fail(
+            edits in proptest::collection::vec(
+                (any::<proptest::sample::Index>(), any::<bool>(), any::<u8>()),
+                1..6,
+            ),
+            cut in proptest::option::of(any::<proptest::sample::Index>()),
+        ) {
+            let mut b = valid_mesh_bytes().clone();
+            let header = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+            for (at, in_header, byte) in &edits {
+                let i = at.index(if *in_header { header } else { b.len() });
+                // in the header, half the edits write digits, spaces and line ends
+                b[i] = if *in_header && byte % 2 == 0 {
+                    b"0123456789 \n"[usize::from(*byte) % 12]
+                } else {
+                    *byte
+                };
+            }
+            if let Some(c) = cut {
+                let i = c.index(b.len() + 1);
+                b.truncate(i);
+            }
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("e.ply");
+            fs::write(&path, &b).unwrap();
+            let _ = read_mesh_ply(&path);
+        }
+    }
+}
