@@ -156,9 +156,9 @@ pub fn markdown(rows: &[AblationRow]) -> String {
     let k = rows.first().map_or(0, |r| r.score.scale);
     let mut s = format!(
         "| run | thermal PSNR / SSIM / MAE (input) | thermal PSNR / SSIM / MAE ({k}×) | \
-         bicubic {k}× PSNR / MAE | RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
+         bicubic {k}× PSNR / SSIM / MAE | fused {k}× PSNR / SSIM / MAE | RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
          mesh Chamfer / F-score / vertex MAE | iterations | primitives |\n\
-         |---|---|---|---|---|---|---|---|---|\n"
+         |---|---|---|---|---|---|---|---|---|---|\n"
     );
     for r in rows {
         let t = &r.score;
@@ -179,7 +179,7 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             },
         );
         s.push_str(&format!(
-            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
+            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
             r.variant.slug(),
             t.thermal.psnr,
             t.thermal.ssim,
@@ -188,7 +188,11 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             t.thermal_sr.ssim,
             t.thermal_sr.kelvin_mae,
             t.bicubic_sr.psnr,
+            t.bicubic_sr.ssim,
             t.bicubic_sr.kelvin_mae,
+            t.fused_sr.psnr,
+            t.fused_sr.ssim,
+            t.fused_sr.kelvin_mae,
             rgb,
             t.depth_rgb.mae_m * 1000.0,
             t.depth_rgb.coverage * 100.0,

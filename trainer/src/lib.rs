@@ -4,6 +4,8 @@
 //!   the compute context, and the kernels of the on-rig trainer.
 //! - [`mesh`]: thermal mesh extraction — rendered views fused into a sparse TSDF, surface nets,
 //!   a PLY with kelvin per vertex, the score against a simulated scene's truth surface.
+//! - [`superres`]: super-resolved thermal — the K× render fused with the recorded image by
+//!   back-projection.
 //!
 //! Conventions (frames, units, the paper's kernel without ½) are in `docs/CONVENTIONS.md`.
 
@@ -26,8 +28,9 @@ pub mod ply;
 pub mod report;
 pub mod train;
 
-// Joint RGB + thermal (TGA-GS, issue 18): scoring against a simulated scene's truth, and the
-// ablation table.
+// Joint RGB + thermal (TGA-GS): super-resolved thermal, scoring against a simulated scene's
+// truth, the ablation table; thermal meshes.
 pub mod ablation;
 pub mod mesh;
+pub mod superres;
 pub mod truth;

@@ -308,8 +308,10 @@ struct TrainArgs {
     thermal_align: Option<f64>,
     /// Joint: also render the held-out thermal views at K× their resolution into
     /// RUN_DIR/renders_sr/ (super-resolved thermal: the shared geometry carries the RGB views'
-    /// edges into the thermal head) [default: the RGB over the thermal resolution in a joint
-    /// run; 1: none].
+    /// edges into the thermal head), and that render fused with each view's recorded image
+    /// (back-projection: its K×K averages match the recorded pixels) into
+    /// RUN_DIR/renders_sr_fused/ [default: the RGB over the thermal resolution in a joint run;
+    /// 1: none].
     #[arg(long)]
     sr_scale: Option<usize>,
     /// Degree of the SH colour of runs with RGB views (0–3).
@@ -1034,6 +1036,11 @@ fn truth_cmd(run_dir: &Path, json: bool) -> Result<()> {
         "thermal, bicubic {}× of input:   {}",
         s.scale,
         t(&s.bicubic_sr)
+    );
+    println!(
+        "thermal, {}× fused with input:   {}  (renders_sr_fused/: the render back-projected onto the recorded image)",
+        s.scale,
+        t(&s.fused_sr)
     );
     if let (Some(p), Some(q)) = (s.rgb_psnr, s.rgb_ssim) {
         println!("RGB:                            PSNR {p:6.2} dB  SSIM {q:.4}");

@@ -1,7 +1,8 @@
 //! Scoring a run against a simulated scene's truth (`s3tir-firmware-sim scene --rgb-scale K`
 //! writes it under `DATA/truth/`, mirroring the image names): the thermal head at the input
-//! resolution and super-resolved at K× against bicubic upsampling of the recorded thermal
-//! image, the colour head, and the geometry (expected depth) against the true depth.
+//! resolution and super-resolved at K× (the render alone, and fused with the recorded image:
+//! [`crate::superres`]) against bicubic upsampling of the recorded thermal image, the colour
+//! head, and the geometry (expected depth) against the true depth.
 //!
 //! Truth files (`DATA/truth/…/<image name>`): `apparent/` noise-free apparent temperature at
 //! the thermal camera (16-bit centikelvin), `apparent_sr/` the same at K× through the same
@@ -21,6 +22,7 @@ use crate::camera::PinholeCamera;
 use crate::dataset::{Dataset, Modality, ThermalRange};
 use crate::metrics::{rgb_metrics, view_metrics};
 use crate::primitive::Primitives;
+use crate::superres::{back_project, bicubic_upsample};
 use crate::train::{Backend, TrainError, composite_background};
 
 /// The truth folder of a dataset.
@@ -58,6 +60,9 @@ pub struct TruthScore {
     pub thermal_sr: ThermalScore,
     /// Bicubic (Catmull-Rom) K× upsampling of the recorded held-out thermal image.
     pub bicubic_sr: ThermalScore,
+    /// The K× render fused with the recorded held-out thermal image by back-projection
+    /// ([`crate::superres`]): what `renders_sr_fused/` holds.
+    pub fused_sr: ThermalScore,
     /// The colour head on the held-out RGB views (`None`: the run has no colour).
     pub rgb_psnr: Option<f64>,
     pub rgb_ssim: Option<f64>,
@@ -130,25 +135,6 @@ fn thermal_score(
     }
 }
 
-/// Bicubic (Catmull-Rom) upsampling of a normalised plane by `k`, pixel centres aligned
-/// (the `image` crate's resampling maps output centre `(x + ½)/k − ½` to the input).
-pub fn bicubic_upsample(plane: &[f32], w: usize, h: usize, k: usize) -> Vec<f32> {
-    let Some(img) = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
-        w as u32,
-        h as u32,
-        plane.to_vec(),
-    ) else {
-        return vec![0.0; w * h * k * k];
-    };
-    image::imageops::resize(
-        &img,
-        (w * k) as u32,
-        (h * k) as u32,
-        image::imageops::FilterType::CatmullRom,
-    )
-    .into_raw()
-}
-
 /// Depth error sums of one rendered view against truth millimetres.
 fn depth_sums(depth: &[f32], alpha: &[f32], truth_mm: &[u16]) -> (f64, usize, usize) {
     let (mut err, mut covered, mut surface) = (0.0, 0, 0);
@@ -210,7 +196,7 @@ pub fn score<B: Backend>(
         .filter(ThermalRange::radiometric)
         .ok_or_else(|| truth_err(&truth, "the dataset's thermal images are not centikelvin"))?;
     let has_colour = !prims.sh.is_empty();
-    let (mut th, mut sr, mut bi) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut th, mut sr, mut bi, mut fu) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut rgb_p, mut rgb_s) = (Vec::new(), Vec::new());
     let mut d_rgb = (0.0, 0, 0);
     let mut d_th = (0.0, 0, 0);
@@ -259,6 +245,8 @@ pub fn score<B: Backend>(
         sr.push(thermal_score(&gb_k.thermal, &t_sr, w * k, h * k, &range));
         let up = bicubic_upsample(input, w, h, k);
         bi.push(thermal_score(&up, &t_sr, w * k, h * k, &range));
+        let fused = back_project(&gb_k.thermal, input, w, h, k);
+        fu.push(thermal_score(&fused, &t_sr, w * k, h * k, &range));
         // Geometry and colour at the RGB camera.
         let rc = rgb_view.camera;
         let gb_r = backend.render(prims, &rc)?;
@@ -286,6 +274,7 @@ pub fn score<B: Backend>(
         thermal: mean_score(&th),
         thermal_sr: mean_score(&sr),
         bicubic_sr: mean_score(&bi),
+        fused_sr: mean_score(&fu),
         rgb_psnr: mean(&rgb_p),
         rgb_ssim: mean(&rgb_s),
         depth_rgb: depth(d_rgb),

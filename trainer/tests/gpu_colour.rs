@@ -15,8 +15,14 @@
 //!   - backward, relative L2 error ‖g_gpu − g_ref‖ / ‖g_ref‖ per group against the CPU
 //!     reference (f32 and f64), every group (SH coefficients and means included) ≤ 1e-4, for
 //!     float atomics and the compare-and-swap fallback, with and without subgroup sums.
-//!     Measured: SH 1.4e-6, means 1.1e-5, quaternions 1.3e-5, the rest ≤ 6.9e-6 (these scenes
-//!     have no needle primitives, whose f32 conditioning needs `gpu_raster.rs`'s 3e-2);
+//!     Measured: SH 1.4e-6, means 1.1e-5, quaternions 1.3e-5, the rest ≤ 6.9e-6;
+//!   - the same with `gpu_raster.rs`'s stiff cases and colour (SH degree 3; β = 64, opacity
+//!     0.999, needles with one scale 1e-3): SH and every group but means and quaternions
+//!     ≤ 1e-4; means and quaternions no further from the reference than 5× the CPU reference's
+//!     own f32-vs-f64 error on the same scene (needles make them ill-conditioned in f32; the
+//!     colour does not — without it the CPU's f32 error is the same, 1.38e-2 / 8.08e-2).
+//!     Measured: SH 1.5e-6, log-scales 2.7e-5, means 5.0e-2 and quaternions 1.7e-1, against
+//!     the CPU's own f32 error of 1.4e-2 and 8.2e-2 (3.6× and 2.1×);
 //!   - joint training, 16 steps on the Vulkan backend (host path: render and backward on the
 //!     GPU, losses and Adam on the host) against the CPU backend: every step's loss within
 //!     1e-3 relative. Measured: 1.1e-4 to 3.2e-4 (float atomics and compare-and-swap).
@@ -72,34 +78,49 @@ const SETTINGS: RenderSettings = RenderSettings {
 
 /// A random scene in front of [`camera`] with `bands` bands and an SH colour of `degree`
 /// (`None`: no colour). Degree-0 coefficients in ±2.5 put some colours below zero (the ReLU).
-fn random_scene(seed: u64, n: usize, bands: usize, degree: Option<usize>) -> Primitives<f64> {
+/// Random coloured primitives; `stiff` adds `gpu_raster.rs`'s stiff cases: β = 64, opacity
+/// 0.999 (the α clamp), needles (one scale 1e-3).
+fn random_scene(
+    seed: u64,
+    n: usize,
+    bands: usize,
+    degree: Option<usize>,
+    stiff: bool,
+) -> Primitives<f64> {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     let mut prims = Primitives::new(bands, degree);
     let k = prims.sh_k();
     for i in 0..n {
         let beta = if i % 5 == 0 {
             2.0
+        } else if stiff && i % 5 == 1 {
+            64.0
         } else {
             r.random_range(2.0..8.0)
         };
+        let mut scale_m = [
+            r.random_range(0.05..0.5),
+            r.random_range(0.05..0.5),
+            r.random_range(0.05..0.5),
+        ];
+        if stiff && i % 11 == 0 {
+            scale_m[r.random_range(0..3)] = 1e-3; // needle / pancake
+        }
+        let opacity = r.random_range(0.05..0.9);
         prims.push(&PrimitiveInit {
             mean_m: [
                 r.random_range(-1.5..1.5),
                 r.random_range(-1.2..1.2),
                 r.random_range(1.0..5.0),
             ],
-            scale_m: [
-                r.random_range(0.05..0.5),
-                r.random_range(0.05..0.5),
-                r.random_range(0.05..0.5),
-            ],
+            scale_m,
             quat: [
                 r.random_range(-1.0..1.0),
                 r.random_range(-1.0..1.0),
                 r.random_range(-1.0..1.0),
                 r.random_range(-1.0..1.0),
             ],
-            opacity: r.random_range(0.05..0.9),
+            opacity: if stiff && i % 7 == 0 { 0.999 } else { opacity },
             beta,
             omega_low: r.random_range(0.0..1.0),
             bands: (0..bands)
@@ -198,7 +219,7 @@ fn rgb_planes_match_cpu_reference() {
     .into_iter()
     .enumerate()
     {
-        let prims = random_scene(100 + seed as u64, n, bands, Some(degree));
+        let prims = random_scene(100 + seed as u64, n, bands, Some(degree), false);
         let prims32 = prims.cast::<f32>();
         let cam = camera(w, h);
         let gpu = raster
@@ -259,6 +280,7 @@ fn relative_l2(
     label: &str,
     gpu: &Primitives<f32>,
     reference: &Primitives<f64>,
+    bound: &dyn Fn(&str) -> f64,
 ) -> Vec<(String, f64)> {
     let mut out = Vec::new();
     for ((name, g), (_, r)) in gpu.groups().iter().zip(reference.groups().iter()) {
@@ -281,7 +303,7 @@ fn relative_l2(
             );
             continue;
         }
-        let bound = 1e-4;
+        let bound = bound(name);
         assert!(
             err / norm <= bound,
             "{label}/{name}: relative L2 error {:.3e} > {bound:.0e} (|ref| = {norm:.3e})",
@@ -307,16 +329,19 @@ fn colour_gradients_match_cpu_reference_with_and_without_float_atomics() {
             let raster = GpuRasterizer::with_reduction(&ctx, variant, subgroup_reduce).unwrap();
             // Scene 3: an RGB view's upstream (no thermal: the view renders its G-buffers and
             // colour only when it is not kept, the colour kernels with the thermal flag off).
+            // Scene 4: the stiff cases with colour.
             for (seed, (n, bands, degree, w, h)) in [
                 (120usize, 4usize, 0usize, 48usize, 40usize),
                 (120, 2, 3, 48, 40),
                 (150, 0, 1, 37, 29),
                 (120, 2, 3, 48, 40),
+                (150, 2, 3, 48, 40),
             ]
             .into_iter()
             .enumerate()
             {
-                let prims = random_scene(200 + seed as u64, n, bands, Some(degree));
+                let stiff = seed == 4;
+                let prims = random_scene(200 + seed as u64, n, bands, Some(degree), stiff);
                 let cam = camera(w, h);
                 let mut up = random_upstream(seed as u64, w, h);
                 if seed == 3 {
@@ -332,6 +357,32 @@ fn colour_gradients_match_cpu_reference_with_and_without_float_atomics() {
                     want64.sh.iter().any(|g| *g != 0.0),
                     "the colour must get gradient"
                 );
+                // The stiff scene's own f32 conditioning: how far the CPU reference run in
+                // f32 is from f64, per group (needles make means and quaternions
+                // ill-conditioned; the colour does not: the same scene without it is as far).
+                let cpu_f32_err: std::collections::BTreeMap<String, f64> = if stiff {
+                    relative_l2("CPU f32 vs f64", &want32.cast::<f32>(), &want64, &|_| {
+                        f64::INFINITY
+                    })
+                    .into_iter()
+                    .collect()
+                } else {
+                    Default::default()
+                };
+                let bound = |name: &str| {
+                    if stiff && matches!(name, "means" | "quats") {
+                        // No further from the reference than 5× the CPU's own f32 rounding.
+                        (5.0 * cpu_f32_err.get(name).copied().unwrap_or(0.0)).max(1e-4)
+                    } else {
+                        1e-4
+                    }
+                };
+                for (g, e) in &cpu_f32_err {
+                    let w = worst
+                        .entry(format!("stiff: {g}, CPU f32 vs f64"))
+                        .or_default();
+                    *w = w.max(*e);
+                }
                 // Rendered first (the training step's order: the backward pass reuses the
                 // view), and from scratch.
                 for rendered_first in [true, false] {
@@ -347,8 +398,10 @@ fn colour_gradients_match_cpu_reference_with_and_without_float_atomics() {
                         "{variant:?}, subgroup reduce {subgroup_reduce}, scene {seed} (degree {degree}), rendered first {rendered_first}"
                     );
                     for (who, want) in [("f32", &want32), ("f64", &want64)] {
-                        for (g, e) in relative_l2(&format!("{label} vs {who}"), &got, want) {
-                            let w = worst.entry(format!("{g} vs {who}")).or_default();
+                        for (g, e) in relative_l2(&format!("{label} vs {who}"), &got, want, &bound)
+                        {
+                            let case = if stiff { "stiff" } else { "mild" };
+                            let w = worst.entry(format!("{case}: {g} vs {who}")).or_default();
                             *w = w.max(e);
                         }
                     }
@@ -378,7 +431,7 @@ fn thermal_only_scenes_run_the_thermal_kernels_only() {
         GpuRasterizer::new(&ctx, AccumulateVariant::best_for(ctx.capabilities())).unwrap();
     raster.set_profiling(true);
     let cam = camera(64, 48);
-    let coloured = random_scene(7, 200, 4, Some(2)).cast::<f32>();
+    let coloured = random_scene(7, 200, 4, Some(2), false).cast::<f32>();
     let thermal = without_colour(&coloured);
     let mut up = cast_buffers(&random_upstream(3, 64, 48));
     up.rgb.clear();
@@ -442,7 +495,7 @@ fn thermal_only_scenes_run_the_thermal_kernels_only() {
 fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths() {
     let mut vk = VulkanBackend::new(&options(false), SETTINGS).expect("lavapipe must be available");
     let mut cpu = CpuBackend { settings: SETTINGS };
-    let coloured = random_scene(11, 150, 2, Some(1)).cast::<f32>();
+    let coloured = random_scene(11, 150, 2, Some(1), false).cast::<f32>();
     let cam = camera(48, 40);
     let (g_vk, g_cpu) = (
         vk.render(&coloured, &cam).unwrap(),
@@ -457,7 +510,7 @@ fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths()
     let up = cast_buffers(&random_upstream(5, 48, 40));
     let d_vk = vk.backward(&coloured, &cam, &up).unwrap();
     let d_cpu = cpu.backward(&coloured, &cam, &up).unwrap().cast::<f64>();
-    relative_l2("backend", &d_vk, &d_cpu);
+    relative_l2("backend", &d_vk, &d_cpu, &|_| 1e-4);
 
     let npix = cam.width * cam.height;
     let target = vec![0.5f32; npix];

@@ -116,6 +116,9 @@ pub mod files {
     pub const RENDERS: &str = "renders";
     /// Super-resolved thermal renders of the held-out thermal views (joint runs, `--sr-scale`).
     pub const RENDERS_SR: &str = "renders_sr";
+    /// The same fused with the recorded held-out thermal image by back-projection
+    /// ([`crate::superres`]).
+    pub const RENDERS_SR_FUSED: &str = "renders_sr_fused";
     pub const GBUFFERS: &str = "gbuffers";
     /// The RGB background colour (runs with RGB views).
     pub const BACKGROUND: &str = "rgb_background.json";

@@ -93,8 +93,10 @@ impl<B: Backend> Trainer<B> {
         std::fs::create_dir_all(&gbuf).map_err(io_err(&gbuf))?;
         let sr = self.sr_scale();
         let renders_sr = dir.join(files::RENDERS_SR);
+        let renders_fused = dir.join(files::RENDERS_SR_FUSED);
         if sr.is_some() {
             std::fs::create_dir_all(&renders_sr).map_err(io_err(&renders_sr))?;
+            std::fs::create_dir_all(&renders_fused).map_err(io_err(&renders_fused))?;
         }
         for &i in &self.data.test {
             let v = &self.data.views[i];
@@ -124,6 +126,22 @@ impl<B: Backend> Trainer<B> {
                             gk.height,
                             range,
                         )?;
+                        if let Some(recorded) = &v.thermal {
+                            let fused = crate::superres::back_project(
+                                &gk.thermal,
+                                recorded,
+                                gb.width,
+                                gb.height,
+                                k,
+                            );
+                            report::write_thermal_png16(
+                                &renders_fused.join(format!("{stem}.png")),
+                                &fused,
+                                gk.width,
+                                gk.height,
+                                range,
+                            )?;
+                        }
                     }
                 }
                 _ => {}
