@@ -29,7 +29,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use s3tir_tests::{bin, run_ok};
+use s3tir_tests::{bin, json_f64 as f, run_ok};
 use s3tir_trainer::dataset::{Dataset, LoadOptions, Modality};
 use serde_json::Value;
 
@@ -46,15 +46,6 @@ fn score<'a>(rows: &'a [Value], variant: &str) -> &'a Value {
         .iter()
         .find(|r| r["variant"] == variant)
         .unwrap_or_else(|| panic!("ablation.json has no {variant} row"))["score"]
-}
-
-fn f(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for p in path {
-        x = &x[*p];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{} is not a number in {v}", path.join(".")))
 }
 
 #[test]

@@ -25,7 +25,7 @@ use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
 
-use s3tir_tests::{bin, run_ok};
+use s3tir_tests::{bin, json_f64 as f, run_ok};
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
 use s3tir_trainer::mesh::plyio::{read_mesh_ply, read_region};
 use s3tir_trainer::mesh::score::score;
@@ -52,15 +52,6 @@ fn mesh_json(run_dir: &Path, out: &Path, extra: &[&str]) -> Value {
         "s3tir-train mesh",
     );
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("mesh --json printed {text}: {e}"))
-}
-
-fn f(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for p in path {
-        x = &x[*p];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{} is not a number in {v}", path.join(".")))
 }
 
 /// A view as fused: camera, depth (metres, NaN: none), kelvin.

@@ -91,6 +91,22 @@ pub struct SynthConfig {
     pub seed: u64,
 }
 
+impl SynthConfig {
+    /// The benchmarks' scene (`s3tir-train bench`, `bench --mesh`): `views` of
+    /// `width × height` with a 0.85·width focal length and `points` sparse points (the
+    /// primitives a run initialises).
+    pub fn bench(width: usize, height: usize, views: usize, points: usize) -> Self {
+        Self {
+            views,
+            width,
+            height,
+            f_px: 0.85 * width as f64,
+            points,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for SynthConfig {
     fn default() -> Self {
         Self {

@@ -351,14 +351,7 @@ fn run_in(
     progress: &mut dyn FnMut(&str),
 ) -> Result<BenchReport, BenchError> {
     let data_dir = root.join("scene");
-    let scene = SynthConfig {
-        views: opts.views,
-        width: opts.width,
-        height: opts.height,
-        f_px: 0.85 * opts.width as f64,
-        points: opts.primitives,
-        ..SynthConfig::default()
-    };
+    let scene = SynthConfig::bench(opts.width, opts.height, opts.views, opts.primitives);
     progress(&format!(
         "scene: {} views of {}x{}, {} primitives",
         opts.views, opts.width, opts.height, opts.primitives

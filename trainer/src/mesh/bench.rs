@@ -76,14 +76,7 @@ fn run_in(
     log: &mut dyn FnMut(&str),
 ) -> Result<MeshBenchReport, MeshError> {
     let data_dir = root.join("scene");
-    let scene = SynthConfig {
-        views: opts.views,
-        width: opts.width,
-        height: opts.height,
-        f_px: 0.85 * opts.width as f64,
-        points: opts.primitives,
-        ..SynthConfig::default()
-    };
+    let scene = SynthConfig::bench(opts.width, opts.height, opts.views, opts.primitives);
     log(&format!(
         "scene: {} views of {}x{}, {} primitives",
         opts.views, opts.width, opts.height, opts.primitives
