@@ -118,8 +118,13 @@ pub struct BenchReport {
     /// thermal alignment term) and Adam on the host.
     pub joint_steps_per_s: f64,
     /// `s3tir_steps_per_s / joint_steps_per_s`: the time of a joint step over a thermal-only
-    /// step's (goal ≤ 1.6).
+    /// step's (goal ≤ 1.6). A joint step trains two images (pair steps: the drawn view and
+    /// the other camera's image of its instant).
     pub joint_over_thermal: f64,
+    /// The joint run with one image per step (`--no-pair-steps`): a thermal or an RGB view.
+    pub joint_single_steps_per_s: f64,
+    /// `s3tir_steps_per_s / joint_single_steps_per_s`.
+    pub joint_single_over_thermal: f64,
     /// Vulkan backend, s3tir mode, the thermal-only scene on the host path (device losses off):
     /// the joint steps' path without the colour or RGB views.
     pub thermal_host_path_steps_per_s: f64,
@@ -140,13 +145,16 @@ impl BenchReport {
         format!(
             "joint RGB + thermal (half the views RGB, SH degree 0): {:.2} steps/s, {:.2}x the \
              thermal step (goal <= 1.6; a joint step trains two images, a view and the other \
-             camera's image of its instant: {:.2}x per image); per joint step {:.1} ms in \
+             camera's image of its instant: {:.2}x per image; with one image per step, \
+             --no-pair-steps: {:.2} steps/s, {:.2}x); per joint step {:.1} ms in \
              kernels ({:.1} ms of them colour kernels) and {:.1} ms on the host (losses, Adam, \
              image reads: the host path); thermal-only step {:.1} ms in kernels, {:.2} steps/s \
              on the host path",
             self.joint_steps_per_s,
             self.joint_over_thermal,
             self.joint_over_thermal / 2.0,
+            self.joint_single_steps_per_s,
+            self.joint_single_over_thermal,
             self.joint_kernel_ms_per_step,
             self.joint_colour_kernel_ms_per_step,
             self.joint_host_ms_per_step,
@@ -204,6 +212,8 @@ enum Scene {
     /// The same scene with every second view's image an RGB image of the same size (three
     /// planes made from its thermal image): a joint RGB + thermal run, with colour.
     Joint,
+    /// The joint scene trained one image per step (`--no-pair-steps`).
+    JointSingle,
 }
 
 /// Turns every second view of `data` into an RGB view (see [`Scene::Joint`]).
@@ -265,16 +275,12 @@ impl<B: Backend> Timed<B> {
                 source,
             }
         })?;
-        if scene == Scene::Joint {
+        let mut cfg = config(data_dir, mode, partner, opts);
+        if scene != Scene::Thermal {
             make_joint(&mut data);
+            cfg.joint.pair_steps = scene == Scene::Joint;
         }
-        let mut trainer = Trainer::new(
-            config(data_dir, mode, partner, opts),
-            data,
-            backend,
-            run_dir,
-        )
-        .map_err(train)?;
+        let mut trainer = Trainer::new(cfg, data, backend, run_dir).map_err(train)?;
         for _ in 0..opts.warmup_steps {
             trainer.step().map_err(train)?;
         }
@@ -442,6 +448,17 @@ fn run_in(
         &mut |_| {},
         &vulkan_traffic,
     )?;
+    progress("Vulkan backend, s3tir mode, joint scene, one image per step: warm-up");
+    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
+    let mut joint_single = Timed::start(
+        &data_dir,
+        &root.join("vk-joint-single"),
+        (Mode::S3tir, ConsistPartner::default(), Scene::JointSingle),
+        opts,
+        vk,
+        &mut |_| {},
+        &vulkan_traffic,
+    )?;
     progress("Vulkan backend, s3tir mode, host path (device losses off): warm-up");
     let mut vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
     vk.set_device_losses(false);
@@ -469,6 +486,7 @@ fn run_in(
         s3tir.round(n)?;
         rendered.round(n)?;
         joint.round(n)?;
+        joint_single.round(n)?;
         host_path.round(n)?;
     }
     let cpu = cpu.finish(&no_traffic)?;
@@ -477,11 +495,13 @@ fn run_in(
     let s3tir = s3tir.finish(&vulkan_traffic)?;
     let rendered = rendered.finish(&vulkan_traffic)?;
     let joint = joint.finish(&vulkan_traffic)?;
+    let joint_single = joint_single.finish(&vulkan_traffic)?;
     let host_path = host_path.finish(&vulkan_traffic)?;
     drop(gaussian.backend);
     drop(s3tir.backend);
     drop(rendered.backend);
     drop(joint.backend);
+    drop(joint_single.backend);
     drop(host_path.backend);
 
     // Timestamps add work of their own: time the kernels in separate passes.
@@ -577,6 +597,8 @@ fn run_in(
         submissions_per_step: per_step(s3tir.traffic.2),
         joint_steps_per_s: joint.steps_per_s,
         joint_over_thermal: s3tir.steps_per_s / joint.steps_per_s,
+        joint_single_steps_per_s: joint_single.steps_per_s,
+        joint_single_over_thermal: s3tir.steps_per_s / joint_single.steps_per_s,
         thermal_host_path_steps_per_s: host_path.steps_per_s,
         thermal_kernel_ms_per_step: ms_per_step(&s3tir_kernels, false),
         joint_kernel_ms_per_step: joint_kernel_ms,
@@ -603,6 +625,7 @@ fn profile(
     let name = match scene {
         Scene::Thermal => mode.to_string(),
         Scene::Joint => format!("{mode}-joint"),
+        Scene::JointSingle => format!("{mode}-joint-single"),
     };
     progress(&format!(
         "Vulkan backend, {name} mode: per-kernel timestamps"
