@@ -329,7 +329,10 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
     // 2. COLMAP's model of run 1 as the user's model, the scale from the calibration board
     //    standing in the room this time.
     let ds2 = tmp.path().join("walk-dataset-user-model");
-    let sparse = ds.join("colmap/sparse/0");
+    // The stage keeps COLMAP's largest reconstruction; the mapper sometimes also writes a
+    // small one first (`sparse/0` with 10 images, `sparse/1` with all of them: this test
+    // failed once taking `sparse/0`).
+    let sparse = largest_model(&ds.join("colmap/sparse"));
     let board = tmp.path().join("walk-truth/board.toml");
     let report2 = poses(
         &session,
@@ -574,4 +577,25 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
         psnr_est > psnr_truth - 1.5,
         "recovered poses {psnr_est:.2} dB must be within 1.5 dB of truth poses {psnr_truth:.2} dB"
     );
+}
+
+/// The folder of the reconstruction with the most images under COLMAP's `sparse/`.
+fn largest_model(sparse: &Path) -> PathBuf {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(sparse)
+        .unwrap_or_else(|e| panic!("{}: {e}", sparse.display()))
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    // As the stage picks: the first of the largest.
+    let mut best: Option<(usize, PathBuf)> = None;
+    for d in dirs {
+        let n = read_model(&d).map_or(0, |m| m.images.len());
+        if best.as_ref().is_none_or(|b| n > b.0) {
+            best = Some((n, d));
+        }
+    }
+    best.unwrap_or_else(|| panic!("no reconstruction under {}", sparse.display()))
+        .1
 }
