@@ -14,7 +14,7 @@
 //!    it) over `--resolution`, but not finer than the median pixel footprint (depth / focal
 //!    length) of the views: finer, the volume resolves only the renders' depth noise; then the blocks the surfaces touch are counted, and while they would
 //!    exceed `--memory-budget` the voxel grows (block count falls with the voxel's square on
-//!    surfaces). An explicit `--voxel-size` that does not fit is an error, not a silent change.
+//!    surfaces). An explicit `--voxel-size-m` that does not fit is an error, not a silent change.
 //! 3. **Fuse** each view into the sparse TSDF (truncation `--trunc` voxels), then **extract**.
 //! 4. **Write** `OUT` (kelvin per vertex, the run's colour when it has one) and
 //!    `OUT_thermal.ply` (the same mesh coloured by the ironbow palette over the 1st–99th
@@ -322,7 +322,7 @@ pub fn mesh_views<B: Backend>(
         Some(v) if v.is_finite() && v > 0.0 => (v, true),
         Some(v) => {
             return Err(MeshError::Run {
-                reason: format!("--voxel-size {v} m: expected a positive length"),
+                reason: format!("--voxel-size-m {v}: expected a positive length in metres"),
             });
         }
         None => {
