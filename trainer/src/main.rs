@@ -94,8 +94,10 @@ enum Command {
     /// four runs with the training options given — thermal-only, joint, joint without the
     /// thermal gradient alignment loss, joint without RGB pre-training — into
     /// RUN_DIR/<variant>/, each scored against DATA/truth (thermal at the input resolution and
-    /// super-resolved at K× against bicubic upsampling, RGB, depth); the table in
-    /// RUN_DIR/ablation.md and ablation.json. Either backend (`--backend`).
+    /// super-resolved at K× against bicubic upsampling and fused with the recorded image, RGB,
+    /// depth) and, when the scene has a truth surface, meshed and the mesh scored (Chamfer,
+    /// F-score, vertex kelvin); the table in RUN_DIR/ablation.md and ablation.json. Either
+    /// backend (`--backend`).
     Ablation(Box<TrainArgs>),
     /// A surface mesh with a temperature per vertex: the run's training views rendered
     /// (expected depth, kelvin, colour), fused into a sparse truncated signed-distance volume
