@@ -647,7 +647,13 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     let (width, height, views, primitives, steps) = if a.real_size {
         (320, 256, 24, 30_000, 10)
     } else {
-        (a.width, a.height, a.views, a.primitives, a.steps)
+        (
+            a.width.unwrap_or(96),
+            a.height.unwrap_or(72),
+            a.views.unwrap_or(12),
+            a.primitives.unwrap_or(2000),
+            a.steps,
+        )
     };
     let opts = BenchOptions {
         width,
@@ -791,18 +797,18 @@ struct BenchArgs {
     /// `gaussian_steps_per_s`, `device`, ratios, `kernels`).
     #[arg(long)]
     json: bool,
-    /// Image width of the benchmark scene.
-    #[arg(long, default_value_t = 96)]
-    width: usize,
-    /// Image height of the benchmark scene.
-    #[arg(long, default_value_t = 72)]
-    height: usize,
-    /// Views of the benchmark scene.
-    #[arg(long, default_value_t = 12)]
-    views: usize,
-    /// Primitives (constant: densification off).
-    #[arg(long, default_value_t = 2000)]
-    primitives: usize,
+    /// Image width of the benchmark scene [default: 96; --mesh: 640].
+    #[arg(long)]
+    width: Option<usize>,
+    /// Image height of the benchmark scene [default: 72; --mesh: 512].
+    #[arg(long)]
+    height: Option<usize>,
+    /// Views of the benchmark scene [default: 12; --mesh: 100].
+    #[arg(long)]
+    views: Option<usize>,
+    /// Primitives (constant: densification off) [default: 2000; --mesh: 30000].
+    #[arg(long)]
+    primitives: Option<usize>,
     /// Timed training steps per configuration. They run in rounds of at most 5 steps, the
     /// configurations taking turns, so a slow spell of the machine falls on all of them alike.
     #[arg(long, default_value_t = 20)]
@@ -823,7 +829,7 @@ struct BenchArgs {
     real_size: bool,
     /// Benchmark `mesh` instead of training: seconds per stage (render, fuse, extract) and
     /// peak memory of meshing 100 views of 640×512 with 30 000 primitives on the CPU backend
-    /// (--width, --height, --views, --primitives change it; their small defaults do not apply).
+    /// (--width, --height, --views, --primitives change it).
     #[arg(long)]
     mesh: bool,
 }
@@ -1201,13 +1207,11 @@ fn eval_cmd(run_dir: &Path, json: bool, backend: &str, device_index: Option<usiz
 fn mesh_bench_cmd(a: &BenchArgs) -> Result<()> {
     use s3tir_trainer::mesh::bench::{MeshBenchOptions, run};
     let d = MeshBenchOptions::default();
-    // The training bench's small defaults are not the mesh bench's: only values given differ.
-    let given = |v: usize, small: usize, real: usize| if v == small { real } else { v };
     let opts = MeshBenchOptions {
-        width: given(a.width, 96, d.width),
-        height: given(a.height, 72, d.height),
-        views: given(a.views, 12, d.views),
-        primitives: given(a.primitives, 2000, d.primitives),
+        width: a.width.unwrap_or(d.width),
+        height: a.height.unwrap_or(d.height),
+        views: a.views.unwrap_or(d.views),
+        primitives: a.primitives.unwrap_or(d.primitives),
         ..d
     };
     let r = run(&opts, &mut |_, _, _| {}, &mut |line| {

@@ -250,3 +250,44 @@ fn devices_subcommand_still_parses() {
         assert!(help.contains(s), "--help lacks {s}");
     }
 }
+
+/// `bench --mesh` at a small size: the scene-size flags it is given are the ones it uses (not
+/// the training bench's), and it reports the stages, the mesh and the peak memory.
+#[test]
+fn bench_mesh_reports_seconds_memory_and_the_mesh_at_the_size_given() {
+    let out = bin()
+        .args([
+            "bench",
+            "--mesh",
+            "--json",
+            "--width",
+            "96",
+            "--height",
+            "72",
+            "--views",
+            "4",
+            "--primitives",
+            "400",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "bench --mesh failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (
+            v["width"].as_u64(),
+            v["height"].as_u64(),
+            v["views_rendered"].as_u64()
+        ),
+        (Some(96), Some(72), Some(4)),
+        "the mesh bench should use the size given, even the training bench's defaults: {v}"
+    );
+    assert!(
+        v["triangles"].as_u64().unwrap_or(0) > 0 && v["peak_rss_bytes"].as_u64().unwrap_or(0) > 0,
+        "the mesh bench should mesh the wall and report the peak memory: {v}"
+    );
+}
