@@ -2,7 +2,8 @@
 # Enforces the dependency directions of ARCHITECTURE.md with `cargo tree`:
 # - no crate depends on a crate of a higher layer (capture < calib < firmware-sim, trainer);
 # - slim builds stay slim: capture without OpenCV/Vulkan, calib and trainer without OpenCV
-#   when their default features are off, trainer never pulls OpenCV in.
+#   when their default features are off, trainer never pulls OpenCV in, and without its
+#   defaults (no `session`) neither tokio, MCAP nor a serial port.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 fail=0
@@ -22,11 +23,12 @@ forbid() {  # label, list, forbidden crate names...
 }
 
 forbid "s3tir-capture" "$(deps_of s3tir-capture)" s3tir-calib s3tir-trainer s3tir-firmware-sim opencv ash
-forbid "s3tir-capture --no-default-features" "$(deps_of s3tir-capture --no-default-features)" v4l
+forbid "s3tir-capture --no-default-features" "$(deps_of s3tir-capture --no-default-features)" tokio mcap serialport nix v4l lz4
+forbid "s3tir-capture --no-default-features --features session" "$(deps_of s3tir-capture --no-default-features --features session)" tokio serialport nix v4l
 forbid "s3tir-calib" "$(deps_of s3tir-calib)" s3tir-trainer s3tir-firmware-sim ash
 forbid "s3tir-calib --no-default-features" "$(deps_of s3tir-calib --no-default-features)" opencv
 forbid "s3tir-trainer" "$(deps_of s3tir-trainer)" s3tir-firmware-sim opencv
-forbid "s3tir-trainer --no-default-features" "$(deps_of s3tir-trainer --no-default-features)" ash gpu-allocator opencv
+forbid "s3tir-trainer --no-default-features" "$(deps_of s3tir-trainer --no-default-features)" ash gpu-allocator opencv tokio mcap serialport
 forbid "s3tir-firmware-sim" "$(deps_of s3tir-firmware-sim)" s3tir-trainer opencv ash
 
 if [ $fail -eq 0 ]; then echo "check-deps: dependency directions and slim builds OK"; fi

@@ -26,11 +26,12 @@ use opencv::calib3d;
 
 use crate::board::{BoardSpec, Camera, list_views};
 use crate::detect::{classic_sub_pix, mat_from_luma, read_grey};
-use crate::error::CalibError;
-use crate::frontend::{BoardDetection, detect_board, load_scalar};
+use crate::error::{CalibError, cv};
+use crate::frontend::{BoardDetection, detect_board};
 use crate::pipeline::{
     PipelineOptions, ViewCorners, calibrate_detections, cv_points, detect_folder, model_from_opencv,
 };
+use crate::scalar::load_scalar;
 use crate::synth::{self, SynthOptions};
 use crate::views::DetectedSet;
 
@@ -101,10 +102,6 @@ impl fmt::Display for BenchFigures {
             self.joint_stage_ratio()
         )
     }
-}
-
-fn cv(operation: &'static str) -> impl FnOnce(opencv::Error) -> CalibError {
-    move |source| CalibError::OpenCv { operation, source }
 }
 
 /// Runs the benchmark in `dir` (created; images written there); `apriltags` prints tags on the

@@ -25,8 +25,8 @@
 //! squares only. RGB sees the tags; a thermal camera usually does not (printer ink and paper
 //! emit alike), so tags there are used only where they are found.
 //!
-//! Where a board carries tags, calibration uses them ([`crate::tagboard`]): they fix the
-//! corner order and the board's identity without relying on square colour (a colour-symmetric
+//! Where a board carries tags, board detection uses them (the tag board, `tagboard`): they fix
+//! the corner order and the board's identity without relying on square colour (a colour-symmetric
 //! board gets the same order in both cameras), and they let a partly visible board give the
 //! corners around them.
 
@@ -37,7 +37,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::CalibError;
-use crate::frontend::{Palette, ThermalPolarity};
+use crate::scalar::Palette;
 
 /// Contents of `board.toml`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -67,6 +67,20 @@ pub struct BoardSpec {
     /// Tag side (outer black border) over square side.
     #[serde(default = "default_apriltag_ratio")]
     pub apriltag_ratio: f64,
+}
+
+/// How the coated squares appear in thermal images (image values, after palette inversion).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThermalPolarity {
+    /// Decided per session by a vote over the thermal/RGB pairs, where the thermal corner
+    /// order is made to agree with RGB (`views`).
+    #[default]
+    Auto,
+    /// Coated squares have the lower values.
+    CoatedDark,
+    /// Coated squares have the higher values.
+    CoatedBright,
 }
 
 /// Default [`BoardSpec::apriltag_ratio`]: the quiet zone between tag and square edge is 0.15 of
@@ -213,14 +227,15 @@ impl BoardSpec {
 
     /// Reads and validates `board.toml`.
     pub fn load(path: &Path) -> Result<Self, CalibError> {
-        let text = std::fs::read_to_string(path).map_err(|e| CalibError::BoardFile {
+        let text = std::fs::read_to_string(path).map_err(|source| CalibError::BoardFileRead {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
-        let file: BoardFile = toml::from_str(&text).map_err(|e| CalibError::BoardFile {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
+        let file: BoardFile =
+            toml::from_str(&text).map_err(|source| CalibError::BoardFileSyntax {
+                path: path.to_path_buf(),
+                source,
+            })?;
         file.board.validate(path)?;
         Ok(file.board)
     }
@@ -298,9 +313,9 @@ pub fn list_views(dir: &Path) -> Result<(Vec<ViewFiles>, Vec<FileProblem>), Cali
         if !sub.is_dir() {
             continue;
         }
-        let entries = std::fs::read_dir(&sub).map_err(|e| CalibError::BoardFolder {
+        let entries = std::fs::read_dir(&sub).map_err(|source| CalibError::BoardFolderRead {
             path: sub.clone(),
-            reason: e.to_string(),
+            source,
         })?;
         let mut files: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
         files.sort();

@@ -30,8 +30,15 @@ pub enum CalFileError {
         #[source]
         source: std::io::Error,
     },
-    #[error("calibration file {path} is not YAML: {reason}")]
-    Syntax { path: PathBuf, reason: String },
+    #[error("calibration file {path} is not YAML: {source}")]
+    Syntax {
+        path: PathBuf,
+        #[source]
+        source: yaml_rust2::ScanError,
+    },
+    /// YAML that holds no document.
+    #[error("calibration file {path} is not YAML: the file is empty")]
+    Empty { path: PathBuf },
     #[error(
         "calibration file {path}: format is {found:?}, expected \"{FORMAT}\" (written by s3tir-calib --out calibration.yaml)"
     )]
@@ -42,11 +49,12 @@ pub enum CalFileError {
         key: String,
         reason: String,
     },
-    #[error("calibration file {path}: camera {camera} is not a valid model: {reason}")]
+    #[error("calibration file {path}: camera {camera} is not a valid model: {source}")]
     Model {
         path: PathBuf,
         camera: &'static str,
-        reason: String,
+        #[source]
+        source: Box<crate::error::CalibError>,
     },
 }
 
@@ -134,7 +142,7 @@ fn camera(path: &Path, name: &'static str, y: &Yaml) -> Result<CameraModel, CalF
     model.validate().map_err(|e| CalFileError::Model {
         path: path.to_path_buf(),
         camera: name,
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     Ok(model)
 }
@@ -206,14 +214,13 @@ impl CalibrationFile {
 
     /// Parses the text of a calibration file; `path` only names it in errors.
     pub fn parse(path: &Path, text: &str) -> Result<Self, CalFileError> {
-        let docs = YamlLoader::load_from_str(text).map_err(|e| CalFileError::Syntax {
+        let docs = YamlLoader::load_from_str(text).map_err(|source| CalFileError::Syntax {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
         let Some(root) = docs.first() else {
-            return Err(CalFileError::Syntax {
+            return Err(CalFileError::Empty {
                 path: path.to_path_buf(),
-                reason: "the file is empty".into(),
             });
         };
         let format = root["format"].as_str().unwrap_or_default();

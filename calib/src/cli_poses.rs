@@ -6,10 +6,11 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use s3tir_calib::board::BoardSpec;
 use s3tir_calib::calfile::CalibrationFile;
-use s3tir_calib::frontend::{detect_board, load_scalar};
+use s3tir_calib::frontend::detect_board;
 use s3tir_calib::poses::board::BoardFiducial;
 use s3tir_calib::poses::frames::Stream;
 use s3tir_calib::poses::{self, Matcher, PosesOptions};
+use s3tir_calib::scalar::load_scalar;
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum MatcherArg {
@@ -135,12 +136,12 @@ fn fraction(s: &str) -> Result<f64, String> {
 fn board_fiducial(path: &std::path::Path) -> Result<BoardFiducial> {
     let spec = BoardSpec::load(path)?;
     let (cols, rows, square_m) = (spec.cols(), spec.rows(), spec.square_m());
+    type FindError = Box<dyn std::error::Error + Send + Sync>;
     let find = std::sync::Arc::new(move |image: &std::path::Path, stream: Stream| {
         let thermal = stream == Stream::Thermal;
-        let scalar =
-            load_scalar(image, thermal, spec.thermal_palette).map_err(|e| e.to_string())?;
+        let scalar = load_scalar(image, thermal, spec.thermal_palette).map_err(FindError::from)?;
         Ok(
-            match detect_board(&scalar, &spec).map_err(|e| e.to_string())? {
+            match detect_board(&scalar, &spec).map_err(FindError::from)? {
                 Ok(found) => found.corner_ids.into_iter().zip(found.corners_px).collect(),
                 Err(_) => Vec::new(),
             },

@@ -41,6 +41,13 @@ pub enum ColmapError {
         line: usize,
         reason: String,
     },
+    /// The camera's parameters do not make a valid camera model.
+    #[error("{path}: {source}")]
+    InvalidCamera {
+        path: PathBuf,
+        #[source]
+        source: Box<crate::error::CalibError>,
+    },
     #[error(
         "{path}: camera model {model} is not supported (supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0)"
     )]
@@ -236,7 +243,10 @@ fn camera_model(
         },
         distortion: dist,
     };
-    model.validate().map_err(|e| bad(e.to_string()))?;
+    model.validate().map_err(|e| ColmapError::InvalidCamera {
+        path: file.to_path_buf(),
+        source: Box::new(e),
+    })?;
     Ok(model)
 }
 

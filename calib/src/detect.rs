@@ -3,8 +3,7 @@
 //! Tries OpenCV's sector-based detector (`findChessboardCornersSB`, accurate and robust to blur)
 //! first and the classic detector with `cornerSubPix` refinement second. The thermal-specific
 //! front end (percentile stretch of 16-bit data, pseudo-colour to scalar, both polarities) builds
-//! on these in the calibration pipeline. [`Homography`] and [`planar_fit_rms`] (board plane →
-//! image) are shared by the front end's refinement ranking and the tag board ([`crate::tagboard`]).
+//! on these in the calibration pipeline.
 
 use std::path::Path;
 
@@ -13,7 +12,7 @@ use opencv::core::{CV_8UC1, Mat, Point2f, Scalar, Size, TermCriteria, TermCriter
 use opencv::prelude::*;
 use opencv::{calib3d, imgproc};
 
-use crate::error::CalibError;
+use crate::error::{CalibError, cv};
 
 /// Which OpenCV detector found a board.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,10 +31,6 @@ pub struct Detection {
     pub detector: Detector,
 }
 
-fn cv(operation: &'static str) -> impl FnOnce(opencv::Error) -> CalibError {
-    move |source| CalibError::OpenCv { operation, source }
-}
-
 /// Copies an 8-bit grey image into an OpenCV matrix.
 pub fn mat_from_luma(img: &image::GrayImage) -> Result<Mat, CalibError> {
     let (w, h) = img.dimensions();
@@ -51,9 +46,9 @@ pub fn mat_from_luma(img: &image::GrayImage) -> Result<Mat, CalibError> {
 pub fn read_grey(path: &Path) -> Result<image::GrayImage, CalibError> {
     image::open(path)
         .map(|i| i.to_luma8())
-        .map_err(|e| CalibError::Image {
+        .map_err(|source| CalibError::ImageFile {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })
 }
 
@@ -112,61 +107,4 @@ fn to_dvec(corners: &Vector<Point2f>) -> Vec<DVec2> {
         .iter()
         .map(|p| DVec2::new(f64::from(p.x), f64::from(p.y)))
         .collect()
-}
-
-/// A plane-to-image homography (row-major 3×3), e.g. board squares → pixels.
-#[derive(Debug, Clone, Copy)]
-pub struct Homography([[f64; 3]; 3]);
-
-impl Homography {
-    /// Least-squares homography `src → dst` (OpenCV `findHomography` over all points);
-    /// `None` with fewer than 4 pairs or when degenerate.
-    pub fn fit(src: &[DVec2], dst: &[DVec2]) -> Result<Option<Self>, CalibError> {
-        if src.len() < 4 || src.len() != dst.len() {
-            return Ok(None);
-        }
-        let to_cv = |v: &[DVec2]| -> Vector<Point2f> {
-            v.iter()
-                .map(|p| Point2f::new(p.x as f32, p.y as f32))
-                .collect()
-        };
-        let h = calib3d::find_homography(&to_cv(src), &to_cv(dst), &mut Mat::default(), 0, 3.0)
-            .map_err(cv("findHomography"))?;
-        if h.empty() {
-            return Ok(None);
-        }
-        let mut m = [[0.0; 3]; 3];
-        for (r, row) in m.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = *h
-                    .at_2d::<f64>(r as i32, c as i32)
-                    .map_err(cv("homography"))?;
-            }
-        }
-        Ok(m.iter().flatten().all(|v| v.is_finite()).then_some(Self(m)))
-    }
-
-    pub fn apply(&self, p: DVec2) -> DVec2 {
-        let m = &self.0;
-        let w = m[2][0] * p.x + m[2][1] * p.y + m[2][2];
-        DVec2::new(
-            (m[0][0] * p.x + m[0][1] * p.y + m[0][2]) / w,
-            (m[1][0] * p.x + m[1][1] * p.y + m[1][2]) / w,
-        )
-    }
-}
-
-/// RMS distance (px) of `image` points from the best homography of their `board` positions:
-/// how well they fit one plane seen through a pinhole; infinite when no homography fits.
-pub fn planar_fit_rms(board: &[DVec2], image: &[DVec2]) -> Result<f64, CalibError> {
-    let Some(h) = Homography::fit(board, image)? else {
-        return Ok(f64::INFINITY);
-    };
-    let ss: f64 = board
-        .iter()
-        .zip(image)
-        .map(|(b, p)| (h.apply(*b) - *p).length_squared())
-        .sum();
-    let fit = (ss / image.len().max(1) as f64).sqrt();
-    Ok(if fit.is_finite() { fit } else { f64::INFINITY })
 }

@@ -332,9 +332,9 @@ pub fn ros_camera_info(r: &CameraResult) -> String {
 }
 
 fn write(path: &Path, text: &str) -> Result<PathBuf, CalibError> {
-    std::fs::write(path, text).map_err(|e| CalibError::Output {
+    std::fs::write(path, text).map_err(|e| CalibError::Write {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     Ok(path.to_path_buf())
 }
@@ -347,9 +347,9 @@ pub fn write_all(c: &Calibration, out: &Path) -> Result<Vec<PathBuf>, CalibError
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(|e| CalibError::Output {
+    std::fs::create_dir_all(dir).map_err(|e| CalibError::Write {
         path: dir.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     let stem = out
         .file_stem()
@@ -385,9 +385,9 @@ pub fn write_all(c: &Calibration, out: &Path) -> Result<Vec<PathBuf>, CalibError
 
 /// Writes the summary JSON.
 pub fn write_summary(c: &Calibration, path: &Path) -> Result<(), CalibError> {
-    let text = serde_json::to_string_pretty(&summary_json(c)).map_err(|e| CalibError::Output {
+    let text = serde_json::to_string_pretty(&summary_json(c)).map_err(|e| CalibError::Write {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     write(path, &text).map(|_| ())
 }

@@ -8,7 +8,7 @@
 //! the thermal camera alone reaches 0.46 px). Two tests, each with a stated threshold:
 //!
 //! 1. **Transfer consensus, before the joint solve.** Each camera is first calibrated alone
-//!    ([`crate::pipeline`]'s mono solves); each pair then gives its own extrinsic
+//!    (the calibration pipeline's mono solves); each pair then gives its own extrinsic
 //!    `E_i = rgb_from_board_i ∘ thermal_from_board_i⁻¹`. A candidate extrinsic `E` *transfers*
 //!    pair i's RGB board pose into the thermal camera (`E⁻¹ ∘ rgb_from_board_i`) and projects
 //!    the board through the thermal mono model; the pair agrees with `E` when that transfer

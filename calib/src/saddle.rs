@@ -1,5 +1,5 @@
 //! Sub-pixel chessboard corners by fitting a blurred-saddle model to the pixels around each
-//! corner (the "saddle-point fit" of issue 5).
+//! corner (the saddle-point fit).
 //!
 //! # Model
 //! Near an inner corner the board shows two straight edges crossing at the corner (a

@@ -34,7 +34,7 @@ use s3tir_capture::session::{
 
 use crate::board::{Camera, FileProblem, ViewFiles};
 use crate::error::CalibError;
-use crate::frontend::{ScalarImage, SourceKind, luminance};
+use crate::scalar::{ScalarImage, SourceKind, luminance};
 
 /// How frames are taken from a session.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -119,10 +119,10 @@ fn spread<T>(items: Vec<T>, max: usize, notes: &mut Vec<String>) -> Vec<T> {
         .collect()
 }
 
-fn capture_err(path: &Path, e: s3tir_capture::CaptureError) -> CalibError {
+fn capture_err(path: &Path, source: s3tir_capture::CaptureError) -> CalibError {
     CalibError::Session {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     }
 }
 
@@ -322,7 +322,10 @@ impl SessionImages {
             (Some(Stored::Rgb(r)), Camera::Rgb) => {
                 let rgb = r
                     .to_rgb8(&self.path.display().to_string())
-                    .map_err(|e| bad(e.to_string()))?;
+                    .map_err(|source| CalibError::Frame {
+                        path: name.to_path_buf(),
+                        source,
+                    })?;
                 let n = (r.width as usize) * (r.height as usize);
                 if rgb.len() != 3 * n {
                     return Err(bad(format!(

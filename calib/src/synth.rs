@@ -13,11 +13,11 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::board::BoardSpec;
+use crate::board::{BoardSpec, ThermalPolarity};
 use crate::camera::{BrownConrady, CameraModel, Intrinsics};
 use crate::error::CalibError;
-use crate::frontend::{Palette, ThermalPolarity, palette_lut};
 use crate::geometry::Rigid3;
+use crate::scalar::{Palette, palette_lut};
 
 /// A synthetic rig: two cameras and the extrinsic between them.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -423,16 +423,16 @@ pub fn render(
 }
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> CalibError + '_ {
-    move |e| CalibError::Image {
+    move |e| CalibError::Write {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     }
 }
 
 fn img_err(path: &Path) -> impl Fn(image::ImageError) -> CalibError + '_ {
-    move |e| CalibError::Image {
+    move |source| CalibError::ImageFile {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     }
 }
 

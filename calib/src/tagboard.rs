@@ -9,7 +9,7 @@
 //!   top-left. Tags inside the board that are not in `apriltag_ids` (another board), or
 //!   tags of this board that sit in neither place (a different layout or `apriltag_ratio`),
 //!   reject the detection with that reason.
-//! - **Boards from tags** ([`partial_from_tags`]; `frontend` runs it first wherever a tag of
+//! - **Boards from tags** ([`partial_from_tags`]; the detection front end runs it first wherever a tag of
 //!   the board is decoded, whole board or not): each decoded tag of the board gives the four
 //!   inner corners around its square; the board then grows corner
 //!   by corner: a candidate next to accepted corners is predicted by the homography of the
@@ -37,8 +37,8 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use crate::board::BoardSpec;
-use crate::detect::{Homography, planar_fit_rms};
-use crate::error::CalibError;
+use crate::error::{CalibError, cv};
+use crate::homography::{Homography, planar_fit_rms};
 use crate::tags::{TagConfig, TagDetection, TagDetector, tag36h11_cells};
 
 /// A decoded tag matches its square when its centre maps within this many squares of the
@@ -49,10 +49,6 @@ pub const TAG_MATCH_SQ: f64 = 0.3;
 pub const MAX_MOVE_SQ: f64 = 0.2;
 /// Fewest corners a partial board is used with (a board pose from fewer is weak).
 pub const MIN_PARTIAL_CORNERS: usize = 8;
-
-fn cv(operation: &'static str) -> impl FnOnce(opencv::Error) -> CalibError {
-    move |source| CalibError::OpenCv { operation, source }
-}
 
 thread_local! {
     /// One tag detector per rayon worker (the C detector is not `Send`).
@@ -67,9 +63,7 @@ thread_local! {
 /// 0.07 to 0.27 px.
 pub fn find_tags(grey: &image::GrayImage) -> Result<Vec<TagDetection>, CalibError> {
     let image = Path::new("board image");
-    let err = |e: crate::tags::TagError| CalibError::Tags {
-        reason: e.to_string(),
-    };
+    let err = |source: crate::tags::TagError| CalibError::Tags { source };
     DETECTOR.with(|cell| {
         let mut slot = cell.borrow_mut();
         if slot.is_none() {
@@ -491,7 +485,7 @@ impl Grow<'_> {
             .iter()
             .map(|d| (hm.apply(at + *d) - predicted).length())
             .fold(f64::INFINITY, f64::min);
-        // The window and criteria of the whole-board refinement (`frontend`): the tags are masked.
+        // The window and criteria of the whole-board refinement (the detection front end's): the tags are masked.
         let half = (0.4 * spacing).floor();
         if !(predicted.is_finite() && spacing.is_finite()) || half < 2.0 {
             return Ok(Err("squares under 5 px"));

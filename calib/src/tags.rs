@@ -39,7 +39,7 @@ pub const APRILTAG_TO_OURS_PX: f64 = -0.5;
 pub const MAX_SIDE_PX: u32 = 32767;
 
 /// Errors of tag detection. Each variant names the image (or the parameter) it is about.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 pub enum TagError {
     /// A detector setting out of range.
     #[error("AprilTag detector: {parameter} = {value} is not valid ({why})")]
@@ -49,15 +49,27 @@ pub enum TagError {
         why: &'static str,
     },
     /// The C detector could not be created.
-    #[error("AprilTag detector could not be created: {reason}")]
-    Detector { reason: String },
-    /// The image cannot be handed to the detector (empty, too large, allocation failed).
+    #[error("AprilTag detector could not be created: {source}")]
+    Detector {
+        #[source]
+        source: apriltag::Error,
+    },
+    /// The image cannot be handed to the detector (empty, too large).
     #[error("AprilTag detection in {image} ({width}x{height} px): {reason}")]
     Image {
         image: PathBuf,
         width: u32,
         height: u32,
         reason: String,
+    },
+    /// The detector's image buffer could not be allocated.
+    #[error("AprilTag detection in {image} ({width}x{height} px): {source}")]
+    Buffer {
+        image: PathBuf,
+        width: u32,
+        height: u32,
+        #[source]
+        source: apriltag::Error,
     },
     /// The detector returned something that does not fit the typed result.
     #[error("AprilTag detection in {image}: {reason}")]
@@ -196,9 +208,7 @@ impl TagDetector {
         let mut inner = Detector::builder()
             .add_family_bits(Family::tag_36h11(), usize::from(config.max_bits_corrected))
             .build()
-            .map_err(|e| TagError::Detector {
-                reason: e.to_string(),
-            })?;
+            .map_err(|source| TagError::Detector { source })?;
         inner.set_thread_number(1);
         inner.set_decimation(config.quad_decimate);
         inner.set_refine_edges(config.refine_edges);
@@ -236,7 +246,12 @@ impl TagDetector {
         let w = width as usize;
         let h = height as usize;
         let mut buf = Image::zeros_with_alignment(w, h, apriltag::image_buf::DEFAULT_ALIGNMENT_U8)
-            .map_err(|e| image_err(e.to_string()))?;
+            .map_err(|source| TagError::Buffer {
+                image: image.to_path_buf(),
+                width,
+                height,
+                source,
+            })?;
         let stride = buf.stride();
         let dst = buf.as_slice_mut();
         for (row, src) in grey.as_raw().chunks_exact(w).enumerate() {

@@ -1,7 +1,8 @@
 //! Board detection over a whole board folder or recorded session: every image decoded and
 //! searched (in parallel), the outcomes collected in listing order with a stated reason for
 //! every image that gives no board, and the thermal corner order made to agree with RGB.
-//! Single-image detection is [`crate::frontend`]; solving is [`crate::pipeline`].
+//! Single-image detection is [`crate::frontend`]; the calibration pipeline solves from the
+//! [`DetectedSet`].
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -10,12 +11,11 @@ use glam::DVec2;
 
 use rayon::prelude::*;
 
+use crate::board::ThermalPolarity;
 use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
 use crate::error::CalibError;
-use crate::frontend::{
-    BoardDetection, BoardOrder, DetectFailure, ScalarImage, SourceKind, ThermalPolarity,
-    detect_board, load_scalar, rotate_180,
-};
+use crate::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board, rotate_180};
+use crate::scalar::{ScalarImage, SourceKind, load_scalar};
 use crate::session::{SessionOptions, SessionViews};
 
 /// One view's files and detections.

@@ -1,4 +1,4 @@
-//! AprilTags in the calibration (issue 20): a board that carries tag36h11 tags in its
+//! AprilTags in the calibration: a board that carries tag36h11 tags in its
 //! uncoated squares (layout in `board.rs`) rendered through the synthetic rig.
 //!
 //! - RGB views whose board is half out of the image still give the corners around the visible
@@ -16,10 +16,9 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use s3tir_calib::Rigid3;
 use s3tir_calib::board::{BoardSpec, Camera};
-use s3tir_calib::frontend::{
-    BoardDetection, BoardOrder, DetectFailure, ScalarImage, SourceKind, detect_board,
-};
+use s3tir_calib::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board};
 use s3tir_calib::pipeline::{PipelineOptions, calibrate_detections};
+use s3tir_calib::scalar::{ScalarImage, SourceKind};
 use s3tir_calib::synth::{self, Shades, SynthOptions, SynthRig, SynthTruth};
 use s3tir_calib::views::{DetectedSet, detect_folder};
 

@@ -1,5 +1,5 @@
 //! Proves the `s3tir-calib BOARD_DIR --out … --report … --summary-json …` command line works
-//! end to end on OpenCV's stereo samples: exit status 0, the summary JSON carries the issue's
+//! end to end on OpenCV's stereo samples: exit status 0, the summary JSON carries its
 //! keys with finite values, calibration.yaml and every export are written, the report has its
 //! markdown, PNG plots and a self-contained `report.html` (the 8 plots embedded and linked, the
 //! per-view, rejected-corner, warning and bad-input sections); `.mcap` input without `--board`

@@ -1,7 +1,7 @@
 //! Proves the full pipeline on real images: OpenCV's stereo samples (13 pairs, 640×480,
 //! 9×6 inner corners, 25 mm) laid out as a board folder (left → thermal/, right → rgb/, stems
 //! `01`…`14`) must give all 13 pairs and per-camera and joint RMS no worse than OpenCV's own
-//! SB-detector figures in `shared/data/README.md` (left 0.235, right 0.236, stereo 0.257 px)
+//! SB-detector figures on the same images (left 0.235, right 0.236, stereo 0.257 px)
 //! plus a stated margin of 0.01 px. RMS is over inlier corners; the test also bounds the number
 //! of corners the 4σ test rejected (≤ 1 %), so the comparison is not won by discarding data.
 //! Does NOT prove thermal-specific detection (these are visible-light images).

@@ -14,10 +14,10 @@ use std::collections::BTreeSet;
 
 use s3tir_calib::board::Camera;
 use s3tir_calib::session::{SessionOptions, read_views};
-use s3tir_capture::pairing::PairingMode;
-use s3tir_capture::pipeline::Pipeline;
+use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
+use s3tir_capture::session::pairing::PairingMode;
+use s3tir_capture::session::pipeline::Pipeline;
 use s3tir_capture::session::{SessionInfo, SessionItem, SessionWriter, read_session};
-use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
 
 /// Writes a session whose devices are reopened after 900 buffers (600 thermal, 300 RGB: more
 /// than the 512-frame windows) and number from 0 again for 150 more.

@@ -9,8 +9,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use s3tir_calib::CalibError;
-use s3tir_calib::frontend::{Palette, SourceKind};
 use s3tir_calib::pipeline::{Calibration, PipelineOptions, calibrate_folder, detect_folder};
+use s3tir_calib::scalar::{Palette, SourceKind};
 use s3tir_calib::synth::{self, SynthOptions, ThermalFormat};
 
 fn small_rig() -> synth::SynthRig {

@@ -1,16 +1,18 @@
-//! The real sun-board set (`shared/data/sun-board/`: 47 thermal + RGB pairs of a sun-heated
+//! The real sun-board set (`sun-board/` in the shared data folder, `$S3TIR_SHARED_DIR/data`: 47 thermal + RGB pairs of a sun-heated
 //! checkerboard from a hand-held DJI dual camera, thermal polarity inverted, 6×5 inner corners,
 //! 100 mm squares) through the whole pipeline, with thresholds from OpenCV on the same images
 //! (`findChessboardCornersSB` on plain grey + `calibrateCamera`: 47/47 thermal boards, thermal
 //! RMS 0.456 px over every corner, fx 656.9):
-//! - every thermal and RGB board is found (before issue 20: 36/47 thermal);
+//! - every thermal and RGB board is found (36/47 thermal while the SB detector ran with
+//!   OpenCV's histogram normalisation);
 //! - the thermal camera calibrated alone reaches OpenCV's RMS over every corner (≤ 0.46 px),
 //!   and its focal length agrees with OpenCV's within 1 %;
 //! - the pairs that are not one rigid instant are identified. This set's two cameras did not
 //!   expose together: OpenCV's own `stereoCalibrate` with fixed intrinsics leaves 4.7 px RMS,
 //!   and pairs such as Img16 and Img31 show the board at visibly different in-plane angles in
 //!   the two images. Those two must be flagged, and the pairs kept must be consistent: joint
-//!   thermal RMS close to the thermal camera alone (the joint RMS before issue 20 was 5.16 px);
+//!   thermal RMS close to the thermal camera alone (5.16 px joint RMS before the pair
+//!   consistency tests);
 //! - the extrinsic comes from the consistent pairs with a finite, stated uncertainty.
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]

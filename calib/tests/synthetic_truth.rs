@@ -2,7 +2,7 @@
 //! OpenCV init, joint LM, covariance) recovers a known rig: synthetic board sets rendered
 //! through `CameraModel` (Lepton 160×120-like and Boson 640×512-like thermal cores beside a
 //! 1280×720-like RGB camera, 40 (Lepton) and 30 (Boson) views with tilts up to ±45°, both thermal polarities) must come
-//! back within the bounds: focal < 0.2 %, principal point < 0.5 px, extrinsic rotation
+//! back within the accuracy bounds: focal < 0.2 %, principal point < 0.5 px, extrinsic rotation
 //! < 0.1°, translation < 1 % of the baseline, and the truth inside the reported 3σ.
 //! Does NOT prove accuracy on real optics (blur, non-uniformity): the renderer is an ideal
 //! box-filtered chessboard with Gaussian noise; `s3tir-firmware-sim board` output is the

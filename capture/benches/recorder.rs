@@ -4,11 +4,11 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::frame::StreamKind;
-use s3tir_capture::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
-use s3tir_capture::pipeline::Pipeline;
+use s3tir_capture::session::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
+use s3tir_capture::session::pipeline::Pipeline;
 use s3tir_capture::session::{SessionInfo, SessionWriter};
-use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
 
 fn recorder(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();

@@ -19,12 +19,13 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::backend::stamp::wall_now_ns;
+use crate::backend::synth::{Script, SynthRig, ThermalSynth};
 use crate::error::CaptureError;
 use crate::frame::{RawFrame, StreamKind};
-use crate::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
-use crate::pipeline::Pipeline;
+use crate::session::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
+use crate::session::pipeline::Pipeline;
 use crate::session::{SessionInfo, SessionWriter};
-use crate::synth::{Script, SynthRig, ThermalSynth, wall_now_ns};
 
 /// Result of one bench run.
 #[derive(Debug, Clone, PartialEq, Serialize)]

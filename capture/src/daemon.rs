@@ -10,8 +10,8 @@
 //! - Stall watchdog: a device that stays open but delivers nothing for
 //!   [`DaemonConfig::stall_timeout`] (UVC bridges such as the PureThermal are known to stall
 //!   this way; V4L2 only times out) is closed and reopened, counted in `stalls`. Frames lost
-//!   across a reopen are counted as drops by time ([`crate::pairing::SeqTracker`]): a reopened
-//!   V4L2 device restarts its sequence numbers.
+//!   across a reopen are counted as drops by time ([`crate::session::pairing::SeqTracker`]): a
+//!   reopened V4L2 device restarts its sequence numbers.
 //! - Shutdown: SIGINT/SIGTERM or the end of `--duration` stop the readers, drain the queue,
 //!   decide pending pairs, and finish the file (summary + footer).
 
@@ -22,15 +22,15 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 
-use crate::clock_sync::ClockMap;
-use crate::device::FrameSource;
+use crate::backend::FrameSource;
+use crate::backend::stamp::wall_now_ns;
 use crate::error::CaptureError;
 use crate::frame::{FfcState, RawFrame, StreamKind};
-use crate::pairing::PairingMode;
-use crate::pipeline::{Pipeline, StreamCounts};
-use crate::rig_protocol::{MAX_TRIGGER_EVENTS, TriggerEvent};
+use crate::session::clock_sync::ClockMap;
+use crate::session::pairing::PairingMode;
+use crate::session::pipeline::{Pipeline, StreamCounts};
 use crate::session::{SessionInfo, SessionRecord, SessionWriter, StatusRecord, TriggerRecord};
-use crate::synth::wall_now_ns;
+use crate::wire::rig_protocol::{MAX_TRIGGER_EVENTS, TriggerEvent};
 
 /// Opens (and reopens) a device.
 pub type SourceFactory =
@@ -75,7 +75,7 @@ pub struct DaemonConfig {
     pub ffc_poll: Option<FfcPoller>,
     /// Polls the rig controller for trigger pulses after the given count (every 100 ms, in
     /// its own thread); with `rough_clock`, frames are paired by pulse
-    /// ([`crate::clock_sync`]).
+    /// ([`crate::session::clock_sync`]).
     pub trigger_poll: Option<TriggerPoller>,
     /// Controller → camera clock map from a status exchange before the trigger started, and
     /// the controller's pulse count then.
@@ -163,8 +163,8 @@ impl Counters {
     }
 }
 
-/// What a finished recording did.
-#[derive(Debug, Clone, PartialEq)]
+/// What a finished recording did (`s3tir-capture --json` prints it).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct DaemonReport {
     pub thermal: StreamCounts,
     pub rgb: StreamCounts,
@@ -435,7 +435,7 @@ async fn run_async(
     let (pipe, bytes_written) = writer_task.await.map_err(|e| CaptureError::SessionIo {
         path: cfg.out.clone(),
         what: "writer task",
-        source: std::io::Error::other(e.to_string()),
+        source: std::io::Error::other(e),
     })??;
     if let Some(b) = bar {
         b.finish_and_clear();

@@ -141,19 +141,6 @@ pub struct DeviceInfo {
     pub role: Role,
 }
 
-/// A source of device buffers: a V4L2 node, the simulated rig's socket, or a test fake. The
-/// daemon runs one reader thread per source and reopens it through its factory when it fails.
-pub trait FrameSource: Send {
-    /// Name used in logs and errors (device path, socket path).
-    fn name(&self) -> &str;
-    /// Blocks for the next buffer, at most `timeout`: `Ok(None)` on timeout. An error means
-    /// the device is gone (unplugged, rig stopped); the caller reopens it.
-    fn next_frame(
-        &mut self,
-        timeout: std::time::Duration,
-    ) -> Result<Option<crate::frame::RawFrame>, CaptureError>;
-}
-
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]

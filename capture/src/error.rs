@@ -2,6 +2,10 @@
 
 use std::path::PathBuf;
 
+/// The cause of an error whose type varies with the device or codec (I/O, image, nokhwa, wire
+/// codec errors).
+pub type BoxedCause = Box<dyn std::error::Error + Send + Sync>;
+
 /// Errors raised by the capture library.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
@@ -36,6 +40,16 @@ pub enum CaptureError {
         sequence: u32,
         reason: String,
     },
+    /// A buffer that failed to decode or encode (MJPEG, telemetry rows): like
+    /// [`CaptureError::CorruptBuffer`], with the codec's error as the cause.
+    #[error("{device}: frame {sequence} is corrupt: {what}: {source}")]
+    UndecodableBuffer {
+        device: String,
+        sequence: u32,
+        what: &'static str,
+        #[source]
+        source: BoxedCause,
+    },
     /// A session would be written over an existing file.
     #[error(
         "session {path} already exists: refusing to overwrite it (it may be a recording); \
@@ -51,12 +65,22 @@ pub enum CaptureError {
         source: std::io::Error,
     },
     /// The MCAP layer refused a record.
+    #[cfg(feature = "session")]
     #[error("session {path}: {what}: {source}")]
     Mcap {
         path: PathBuf,
         what: &'static str,
         #[source]
         source: mcap::McapError,
+    },
+    /// A JSON message in a session does not parse.
+    #[error("session {path}: message on {topic} (sequence {sequence}): {source}")]
+    SessionJson {
+        path: PathBuf,
+        topic: String,
+        sequence: u32,
+        #[source]
+        source: serde_json::Error,
     },
     /// A message in a session does not decode as its channel says.
     #[error("session {path}: message on {topic} (sequence {sequence}): {reason}")]
@@ -69,6 +93,15 @@ pub enum CaptureError {
     /// A device (V4L2 node, simulated rig socket) stopped delivering or cannot be used.
     #[error("device {device}: {reason}")]
     DeviceUnavailable { device: String, reason: String },
+    /// A device (simulated rig socket, nokhwa camera, simulator process) failed with an error of
+    /// its own: like [`CaptureError::DeviceUnavailable`], with that error as the cause.
+    #[error("device {device}: {what}: {source}")]
+    DeviceFailed {
+        device: String,
+        what: String,
+        #[source]
+        source: BoxedCause,
+    },
     /// The device cannot deliver any format the role needs.
     #[error("device {device}: no usable format for {role}: offers [{offered}], wants [{wanted}]")]
     NoUsableFormat {
@@ -84,9 +117,26 @@ pub enum CaptureError {
         command: String,
         reason: String,
     },
-    /// Writing an exported image failed.
+    /// A serial port failed (open, write, read) or a request did not encode.
+    #[error("serial {port}: {command}: {what}: {source}")]
+    SerialIo {
+        port: String,
+        command: String,
+        what: &'static str,
+        #[source]
+        source: BoxedCause,
+    },
+    /// An exported image does not fit its recorded size.
     #[error("export {path}: {reason}")]
     Export { path: PathBuf, reason: String },
+    /// Writing an exported image or its folder failed.
+    #[error("export {path}: {what}: {source}")]
+    ExportWrite {
+        path: PathBuf,
+        what: &'static str,
+        #[source]
+        source: BoxedCause,
+    },
     /// The rig controller's clock could not be mapped to the camera clock.
     #[error("rig controller clock → camera clock fit: {reason}")]
     ClockFit { reason: String },

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::device::FourCc;
 use crate::error::CaptureError;
-use crate::telemetry::{self, LeptonTelemetry};
+use crate::telemetry::{self, LeptonTelemetry, TelemetryFfc};
 
 /// What the 16-bit words of a thermal frame mean.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -32,6 +32,18 @@ pub enum FfcState {
     InProgress,
     /// Not reported by the device.
     Unknown,
+}
+
+impl From<TelemetryFfc> for FfcState {
+    /// The frame-level FFC state the telemetry status bits mean: only "in progress" freezes
+    /// the frame.
+    fn from(t: TelemetryFfc) -> Self {
+        match t {
+            TelemetryFfc::Imminent => FfcState::Imminent,
+            TelemetryFfc::InProgress => FfcState::InProgress,
+            TelemetryFfc::NeverCommanded | TelemetryFfc::Complete => FfcState::Idle,
+        }
+    }
 }
 
 /// Capture timestamps of one frame. See `docs/CONVENTIONS.md` ("Clocks").
@@ -156,17 +168,20 @@ impl ThermalFrame {
     }
 }
 
+#[cfg(feature = "session")]
 impl RgbFrame {
     /// Decodes the payload to packed 8-bit RGB (`width * height * 3` bytes). Only consumers
-    /// that need pixels (export, calibration) call this; recording never does.
+    /// that need pixels (export, calibration) call this; recording never does. Feature
+    /// `session` (the JPEG decoder comes with it).
     pub fn to_rgb8(&self, device: &str) -> Result<Vec<u8>, CaptureError> {
         match &self.payload {
             RgbPayload::Mjpeg(bytes) => {
                 let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
-                    .map_err(|e| CaptureError::CorruptBuffer {
+                    .map_err(|e| CaptureError::UndecodableBuffer {
                         device: device.to_owned(),
                         sequence: self.time.sequence,
-                        reason: format!("MJPEG does not decode: {e}"),
+                        what: "MJPEG does not decode",
+                        source: e.into(),
                     })?;
                 Ok(img.to_rgb8().into_raw())
             }
@@ -300,10 +315,16 @@ impl CapturedFrame {
                 f.height = image_rows;
                 f.ffc = raw.ffc_hint;
                 if raw.telemetry_rows > 0 {
-                    let t = telemetry::decode(&f.telemetry_words)
-                        .map_err(|e| corrupt(e.to_string()))?;
+                    let t = telemetry::decode(&f.telemetry_words).map_err(|e| {
+                        CaptureError::UndecodableBuffer {
+                            device: device.to_owned(),
+                            sequence: raw.sequence,
+                            what: "telemetry rows",
+                            source: e.into(),
+                        }
+                    })?;
                     if raw.ffc_hint != FfcState::InProgress {
-                        f.ffc = t.ffc.frame_state();
+                        f.ffc = FfcState::from(t.ffc);
                     }
                     f.telemetry = Some(t);
                 }

@@ -1,52 +1,48 @@
 //! s3tir-capture: the bottom layer of s3tir.
 //!
-//! It owns what every other crate agrees on about data coming off a rig:
+//! It owns what every other crate agrees on about data coming off a rig. Modules by layer
+//! (features in `README.md`, "Features"):
+//!
+//! Leaf types, always built (no tokio, MCAP, serial port or V4L2):
 //! - [`frame`]: the frame model (raw 16-bit thermal data kept untouched, RGB kept as delivered),
 //! - [`device`]: V4L2-style pixel formats, device descriptions and the role guess
 //!   (thermal vs RGB) used by `s3tir-capture list`,
-//! - [`v4l2`] (feature `v4l`): enumeration of real V4L2 devices.
+//! - [`telemetry`]: Lepton telemetry rows (160×122 mode) decoding,
+//! - [`error`]: the error type ([`CaptureError`]),
+//! - [`skip`]: how the workspace's tests skip what a machine lacks (and fail where it must not),
+//! - [`wire`]: the wire codecs shared with the simulated rig (FSLP, rig controller protocol,
+//!   simwire); its serial clients need feature `rig`.
+//!
+//! Feature `session`:
+//! - [`session`]: MCAP sessions (records, writer, crash-tolerant reader) and the frame path
+//!   that fills them (pairing, clock sync, pipeline).
+//!
+//! Feature `rig` (the recorder and its binary):
+//! - [`backend`]: device backends behind one `FrameSource` trait (V4L2, nokhwa, simulated rig,
+//!   synthetic buffers),
+//! - [`daemon`]: the capture daemon (tokio, bounded queue, reconnect, clean shutdown),
+//! - [`tools`]: `info`, `replay`, `export` over recorded sessions,
+//! - [`bench`](mod@bench): recorder throughput benchmark (`s3tir-capture bench`).
 //!
 //! Conventions (timestamps, units) are in `docs/CONVENTIONS.md`.
 
 pub mod device;
 pub mod error;
 pub mod frame;
-/// Boson FSLP serial codec (shared with the simulated rig).
-pub mod fslp;
-/// Rig controller serial protocol codec (shared with the simulated rig).
-pub mod rig_protocol;
-/// V4L2-shaped frames over a local socket (simulated rig -> capture).
-pub mod simwire;
-#[cfg(feature = "v4l")]
-pub mod v4l2;
+pub mod skip;
+pub mod telemetry;
+pub mod wire;
+
+#[cfg(feature = "session")]
+pub mod session;
+
+#[cfg(feature = "rig")]
+pub mod backend;
+#[cfg(feature = "rig")]
+pub mod bench;
+#[cfg(feature = "rig")]
+pub mod daemon;
+#[cfg(feature = "rig")]
+pub mod tools;
 
 pub use error::CaptureError;
-/// Recorder throughput benchmark (`s3tir-capture bench`).
-pub mod bench;
-/// Rig-controller clock → camera clock: robust linear fit over matched trigger pulses.
-pub mod clock_sync;
-/// The capture daemon (tokio, bounded queue, reconnect, clean shutdown).
-pub mod daemon;
-/// RGB cameras through nokhwa (feature `nokhwa`; format mapping always built and tested).
-pub mod nokhwa_backend;
-/// Thermal↔RGB pairing, drop detection, sync statistics.
-pub mod pairing;
-/// Parse → drop detection → pairing: the path of every frame, live or replayed.
-pub mod pipeline;
-/// Serial clients: FLIR Boson (FSLP) and rig controller.
-pub mod serial;
-/// MCAP sessions: writer and crash-tolerant reader.
-pub mod session;
-/// Simulated-rig backend (`--device sim`) and an in-process fake rig.
-pub mod sim_backend;
-/// Deterministic synthetic device buffers (bench load, test fakes).
-pub mod synth;
-/// Lepton telemetry rows (160×122 mode) decoding.
-pub mod telemetry;
-/// `info`, `replay`, `export` over recorded sessions.
-pub mod tools;
-/// V4L2 format negotiation and buffer interpretation (pure; tested without a camera).
-pub mod v4l2_negotiate;
-/// V4L2 mmap streaming with poll + timeout (feature `v4l`).
-#[cfg(feature = "v4l")]
-pub mod v4l2_stream;

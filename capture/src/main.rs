@@ -7,13 +7,15 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
+use s3tir_capture::backend::FrameSource;
+use s3tir_capture::backend::sim_backend::{self, SimSource, SimSpec};
 use s3tir_capture::daemon::{self, Counters, DaemonConfig, SourceSpec};
-use s3tir_capture::device::{FrameSource, Role};
+use s3tir_capture::device::Role;
 use s3tir_capture::frame::ThermalUnits;
-use s3tir_capture::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
-use s3tir_capture::session::SessionInfo;
-use s3tir_capture::sim_backend::{self, SimSource, SimSpec};
-use s3tir_capture::{serial, tools};
+use s3tir_capture::session::pairing::{DEFAULT_TOLERANCE_NS, PairingMode};
+use s3tir_capture::session::{SessionInfo, SessionRecord};
+use s3tir_capture::tools;
+use s3tir_capture::wire::serial;
 
 /// Capture radiometric thermal (Y16) and RGB video from a rig's cameras over V4L2 (or the
 /// simulated rig) into a crash-safe MCAP session; inspect, replay and export sessions.
@@ -108,6 +110,11 @@ struct RecordArgs {
     /// stage (`export --dataset`, `s3tir-train SESSION.mcap`) finds it without --calibration.
     #[arg(long)]
     calibration: Option<PathBuf>,
+    /// Print the recording's summary as one JSON object on stdout (the session path, counts per
+    /// stream, pairs, status counters, bytes, seconds, the last clock map) instead of the
+    /// summary lines on stderr.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -178,6 +185,10 @@ enum Command {
         /// --with-rgb); an error on a session without RGB.
         #[arg(long, requires = "dataset")]
         with_rgb: bool,
+        /// Print one JSON object (pairs exported, the dataset folder and its poses.json);
+        /// s3tir-calib poses' own output then goes to stderr.
+        #[arg(long)]
+        json: bool,
     },
     /// Measure the recorder's sustained throughput on Boson 640×512 Y16 @ 60 Hz + RGB 1080p
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time, and what the writer's
@@ -221,21 +232,38 @@ fn main() -> Result<()> {
             board,
             no_tag_poses,
             with_rgb,
+            json,
         }) => {
+            let mut summary = serde_json::json!({ "session": file });
             if let Some(out) = out {
-                let n = tools::export(&file, &out)?;
-                println!("exported {n} pairs to {}", out.display());
+                let bar = progress_spinner("exported {pos} pairs");
+                let n = tools::export_with_progress(&file, &out, |k| bar.set_position(k))?;
+                bar.finish_and_clear();
+                if json {
+                    summary["board_folder"] = serde_json::json!({ "dir": out, "pairs": n });
+                } else {
+                    println!("exported {n} pairs to {}", out.display());
+                }
             }
             if let Some(dataset) = dataset {
-                export_dataset(
-                    &file,
-                    &dataset,
-                    calibration.as_deref(),
-                    tags.as_deref(),
-                    board.as_deref(),
+                let opts = PosesOptions {
+                    calibration: calibration.as_deref(),
+                    tags: tags.as_deref(),
+                    board: board.as_deref(),
                     no_tag_poses,
                     with_rgb,
-                )?;
+                    json,
+                };
+                export_dataset(&file, &dataset, &opts)?;
+                if json {
+                    summary["dataset"] = serde_json::json!({
+                        "dir": dataset,
+                        "report": dataset.join("poses.json"),
+                    });
+                }
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
             }
             Ok(())
         }
@@ -285,17 +313,32 @@ fn watch_walk_end(
     });
 }
 
+/// The `export --dataset` options passed on to `s3tir-calib poses`.
+struct PosesOptions<'a> {
+    calibration: Option<&'a std::path::Path>,
+    tags: Option<&'a std::path::Path>,
+    board: Option<&'a std::path::Path>,
+    no_tag_poses: bool,
+    with_rgb: bool,
+    /// Our stdout carries one JSON object: the child's stdout goes to stderr.
+    json: bool,
+}
+
 /// `export --dataset`: capture sits below calib (ARCHITECTURE.md), so the poses stage runs as
 /// the `s3tir-calib poses` process installed beside this program.
 fn export_dataset(
     session: &std::path::Path,
     dataset: &std::path::Path,
-    calibration: Option<&std::path::Path>,
-    tags: Option<&std::path::Path>,
-    board: Option<&std::path::Path>,
-    no_tag_poses: bool,
-    with_rgb: bool,
+    opts: &PosesOptions<'_>,
 ) -> Result<()> {
+    let PosesOptions {
+        calibration,
+        tags,
+        board,
+        no_tag_poses,
+        with_rgb,
+        json,
+    } = *opts;
     let exe_dir = std::env::current_exe()
         .ok()
         .and_then(|p| p.parent().map(std::path::Path::to_path_buf))
@@ -323,6 +366,9 @@ fn export_dataset(
     }
     if with_rgb {
         cmd.arg("--with-rgb");
+    }
+    if json {
+        cmd.stdout(std::io::stderr());
     }
     let status = cmd
         .status()
@@ -400,8 +446,26 @@ fn info(file: &std::path::Path, json: bool) -> Result<()> {
     damaged(&s)
 }
 
+/// A spinner on stderr with the elapsed time and `msg` (an indicatif template: `{pos}` is the
+/// count); drawn only when stderr is a terminal, like the recorder's status line.
+fn progress_spinner(msg: &str) -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new_spinner();
+    b.set_style(
+        indicatif::ProgressStyle::with_template(&format!("{{spinner}} {{elapsed}} {msg}"))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+    );
+    b
+}
+
 fn replay(file: &std::path::Path, realtime: bool, out: Option<PathBuf>, json: bool) -> Result<()> {
-    let r = tools::replay(file, out.as_deref(), realtime, None, |_| {})?;
+    let bar = progress_spinner("replayed {pos} frames");
+    let r = tools::replay(file, out.as_deref(), realtime, None, |rec| {
+        if matches!(rec, SessionRecord::Frame { .. }) {
+            bar.inc(1);
+        }
+    });
+    bar.finish_and_clear();
+    let r = r?;
     if json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -584,7 +648,7 @@ fn record(a: RecordArgs) -> Result<()> {
         sources.push(v4l2_source(&device, Role::Thermal, None, units)?);
         if let Some(r) = &a.rgb {
             let max = parse_size(&a.rgb_max_size)?;
-            match s3tir_capture::nokhwa_backend::parse_spec(r) {
+            match s3tir_capture::backend::nokhwa_backend::parse_spec(r) {
                 Some(index) => sources.push(nokhwa_source(index, max)?),
                 None => sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?),
             }
@@ -610,7 +674,7 @@ fn record(a: RecordArgs) -> Result<()> {
                 info.thermal_serial = Some(sn.to_string());
                 ffc_poll = Some(Box::new(move || {
                     use s3tir_capture::frame::FfcState;
-                    use s3tir_capture::fslp::FfcStateCode;
+                    use s3tir_capture::wire::fslp::FfcStateCode;
                     Ok(match c.ffc_state()? {
                         FfcStateCode::InProgress => FfcState::InProgress,
                         FfcStateCode::Imminent => FfcState::Imminent,
@@ -645,11 +709,13 @@ fn record(a: RecordArgs) -> Result<()> {
         if let Some(hz) = a.trigger_rate {
             // Rough controller → camera clock map: the controller's clock at the midpoint of
             // one status exchange (error ≤ half the round trip).
-            let t0 = s3tir_capture::synth::monotonic_now_ns();
+            let t0 = s3tir_capture::backend::stamp::monotonic_now_ns();
             let st = lock(&c).status()?;
-            let t1 = s3tir_capture::synth::monotonic_now_ns();
-            let rough =
-                s3tir_capture::clock_sync::ClockMap::rough(st.uptime_ns, t0 + (t1 - t0) / 2);
+            let t1 = s3tir_capture::backend::stamp::monotonic_now_ns();
+            let rough = s3tir_capture::session::clock_sync::ClockMap::rough(
+                st.uptime_ns,
+                t0 + (t1 - t0) / 2,
+            );
             tracing::info!(
                 "rig controller clock {} ns at camera clock {} ns (status round trip {:.2} ms)",
                 st.uptime_ns,
@@ -712,6 +778,20 @@ fn record(a: RecordArgs) -> Result<()> {
     {
         tracing::warn!("could not stop the trigger: {e}");
     }
+    if a.json {
+        #[derive(serde::Serialize)]
+        struct RecordSummary<'a> {
+            session: &'a std::path::Path,
+            #[serde(flatten)]
+            report: &'a daemon::DaemonReport,
+        }
+        let summary = RecordSummary {
+            session: &out,
+            report: &report,
+        };
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+        return Ok(());
+    }
     eprintln!(
         "recorded {}: thermal {} frames ({} drops, {} FFC, {} rejected), rgb {} frames ({} drops, {} rejected), {} pairs, {} queue drops, {} reconnects, {} stalls, {:.1} MB in {:.1} s",
         out.display(),
@@ -753,7 +833,7 @@ fn v4l2_source(
     Ok(SourceSpec {
         name: path.to_owned(),
         open: Box::new(move || {
-            s3tir_capture::v4l2_stream::V4l2Source::open(&p, role, max_size, units)
+            s3tir_capture::backend::v4l2_stream::V4l2Source::open(&p, role, max_size, units)
                 .map(|s| Box::new(s) as Box<dyn FrameSource>)
         }),
     })
@@ -774,7 +854,7 @@ fn nokhwa_source(index: u32, max: (u32, u32)) -> Result<SourceSpec> {
     Ok(SourceSpec {
         name: format!("nokhwa:{index}"),
         open: Box::new(move || {
-            s3tir_capture::nokhwa_backend::NokhwaSource::open(index, Some(max))
+            s3tir_capture::backend::nokhwa_backend::NokhwaSource::open(index, Some(max))
                 .map(|s| Box::new(s) as Box<dyn FrameSource>)
         }),
     })
@@ -791,7 +871,7 @@ fn nokhwa_source(index: u32, _max: (u32, u32)) -> Result<SourceSpec> {
 #[cfg(feature = "v4l")]
 fn list(json: bool) -> Result<()> {
     let mut devices = Vec::new();
-    for entry in s3tir_capture::v4l2::list_devices() {
+    for entry in s3tir_capture::backend::v4l2::list_devices() {
         match entry {
             Ok(d) => devices.push(d),
             // Reported, not fatal: one unreadable node must not hide the others.

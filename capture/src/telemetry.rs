@@ -7,7 +7,7 @@
 //!   bits 4–5 of word 3 are the FFC state), words 20–21 frame counter, word 24 FPA temperature
 //!   in kelvin × 100 (centikelvin), words 30–31 time counter at the last FFC.
 //! - **s3tir synthetic layout** (revision word `0x5333`, "S3"; what `firmware-sim` wrote before
-//!   it switched to FLIR's layout, and what [`crate::synth`] still writes, e.g. in the
+//!   it switched to FLIR's layout, and what s3tir's synthetic buffers still write, e.g. in the
 //!   committed test session): words 1–2 uptime ms (most significant word first),
 //!   word 3 status (bits 4–5 FFC state), words 4–5 frame counter, word 6 FPA centikelvin,
 //!   word 7 TLinear flag, words 8–9 ms since the last FFC.
@@ -16,8 +16,6 @@
 //! 11 complete. The raw telemetry words are always kept next to the decoded values.
 
 use serde::{Deserialize, Serialize};
-
-use crate::frame::FfcState;
 
 /// Revision word the simulated rig writes (ASCII "S3").
 pub const SIM_TELEMETRY_REVISION: u16 = 0x5333;
@@ -40,15 +38,6 @@ impl TelemetryFfc {
             1 => Self::Imminent,
             2 => Self::InProgress,
             _ => Self::Complete,
-        }
-    }
-
-    /// The frame-level FFC state: only "in progress" freezes the frame.
-    pub fn frame_state(self) -> FfcState {
-        match self {
-            Self::Imminent => FfcState::Imminent,
-            Self::InProgress => FfcState::InProgress,
-            Self::NeverCommanded | Self::Complete => FfcState::Idle,
         }
     }
 }
@@ -130,6 +119,7 @@ mod tests {
     //! buffer captured from hardware (none available here).
     #![allow(clippy::unwrap_used)]
     use super::*;
+    use crate::frame::FfcState;
 
     #[test]
     fn lepton_row_a_decodes_status_counter_and_fpa() {
@@ -144,7 +134,7 @@ mod tests {
         let t = decode(&row).unwrap();
         assert_eq!(t.layout, TelemetryLayout::Lepton3);
         assert_eq!(t.ffc, TelemetryFfc::InProgress);
-        assert_eq!(t.ffc.frame_state(), FfcState::InProgress);
+        assert_eq!(FfcState::from(t.ffc), FfcState::InProgress);
         assert_eq!(t.frame_counter, 0x0001_0002, "frame counter LSW first");
         assert_eq!(t.uptime_ms, 0x0001_5678);
         assert_eq!(t.fpa_temp_ck, 30_815);
@@ -167,7 +157,7 @@ mod tests {
         let t = decode(&row).unwrap();
         assert_eq!(t.layout, TelemetryLayout::SimRig);
         assert_eq!(t.ffc, TelemetryFfc::Complete);
-        assert_eq!(t.ffc.frame_state(), FfcState::Idle);
+        assert_eq!(FfcState::from(t.ffc), FfcState::Idle);
         assert_eq!(t.frame_counter, 0x0001_0003);
         assert_eq!(t.fpa_temp_ck, 30_515);
         assert_eq!(t.uptime_ms, 1234);

@@ -8,8 +8,8 @@ use serde::Serialize;
 
 use crate::error::CaptureError;
 use crate::frame::{CapturedFrame, StreamKind};
-use crate::pairing::{PairingMode, SyncAccumulator, SyncStats};
-use crate::pipeline::Pipeline;
+use crate::session::pairing::{PairingMode, SyncAccumulator, SyncStats};
+use crate::session::pipeline::Pipeline;
 use crate::session::{
     FrameWindow, PairRecord, SessionItem, SessionRecord, SessionWriter, StatusRecord, read_session,
 };
@@ -102,7 +102,7 @@ pub struct SessionSummary {
     pub triggers: u64,
     /// The last controller → camera clock map fitted over matched pulses (`null` when the
     /// rig controller did not trigger): drift, and the sync residual of the pulses.
-    pub clock: Option<crate::clock_sync::ClockMap>,
+    pub clock: Option<crate::session::clock_sync::ClockMap>,
 }
 
 /// 64-bit FNV-1a.
@@ -257,7 +257,7 @@ pub fn replay(
     let pairing = pairing
         .or_else(|| serde_json::from_str(&read_info.info.pairing).ok())
         .unwrap_or(PairingMode::Nearest {
-            tolerance_ns: crate::pairing::DEFAULT_TOLERANCE_NS,
+            tolerance_ns: crate::session::pairing::DEFAULT_TOLERANCE_NS,
         });
     let mut pipe = Pipeline::new(pairing);
     let mut report = ReplayReport::default();
@@ -351,10 +351,21 @@ pub fn replay(
 /// (16-bit grey, words untouched) and `rgb/NNNN.png` (8-bit RGB), pair `k` under the same name.
 /// Returns the number of pairs written.
 pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
+    export_with_progress(path, dir, |_| {})
+}
+
+/// [`export`], calling `on_pair` with the number of pairs written so far after each pair (the
+/// CLI's progress line).
+pub fn export_with_progress(
+    path: &Path,
+    dir: &Path,
+    mut on_pair: impl FnMut(u64),
+) -> Result<u64, CaptureError> {
     let mk = |d: PathBuf| {
-        std::fs::create_dir_all(&d).map_err(|e| CaptureError::Export {
+        std::fs::create_dir_all(&d).map_err(|e| CaptureError::ExportWrite {
             path: d.clone(),
-            reason: e.to_string(),
+            what: "create folder",
+            source: e.into(),
         })
     };
     mk(dir.join("thermal"))?;
@@ -389,9 +400,10 @@ pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
                     path: tp.clone(),
                     reason: "pixel count does not match size".into(),
                 })?;
-                img.save(&tp).map_err(|e| CaptureError::Export {
+                img.save(&tp).map_err(|e| CaptureError::ExportWrite {
                     path: tp.clone(),
-                    reason: e.to_string(),
+                    what: "write PNG",
+                    source: e.into(),
                 })?;
                 let rp = dir.join(format!("rgb/{k:04}.png"));
                 let px = r.to_rgb8(&path.display().to_string())?;
@@ -401,11 +413,13 @@ pub fn export(path: &Path, dir: &Path) -> Result<u64, CaptureError> {
                         reason: "decoded size does not match the recorded size".into(),
                     }
                 })?;
-                img.save(&rp).map_err(|e| CaptureError::Export {
+                img.save(&rp).map_err(|e| CaptureError::ExportWrite {
                     path: rp.clone(),
-                    reason: e.to_string(),
+                    what: "write PNG",
+                    source: e.into(),
                 })?;
                 k += 1;
+                on_pair(k);
             }
             _ => {}
         }

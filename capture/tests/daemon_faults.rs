@@ -17,13 +17,13 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Duration;
 
 use s3tir_capture::CaptureError;
+use s3tir_capture::backend::FrameSource;
+use s3tir_capture::backend::sim_backend::{FakeRig, FakeRigConfig, SimSource};
+use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::daemon::{self, Counters, DaemonConfig, SourceSpec};
-use s3tir_capture::device::FrameSource;
 use s3tir_capture::frame::RawFrame;
-use s3tir_capture::pairing::PairingMode;
 use s3tir_capture::session::SessionInfo;
-use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig, SimSource};
-use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
+use s3tir_capture::session::pairing::PairingMode;
 use s3tir_capture::tools;
 
 fn config(socket: &std::path::Path, out: &std::path::Path, secs: f64) -> DaemonConfig {
@@ -254,8 +254,7 @@ fn slow_disk_becomes_counted_queue_drops() {
 #[test]
 fn a_full_disk_is_an_error_naming_the_file_not_a_hang() {
     if !std::path::Path::new("/dev/full").exists() {
-        use std::io::Write;
-        let _ = std::io::stderr().write_all(b"SKIPPED: no /dev/full on this machine\n");
+        s3tir_capture::skip::skip("dev-full", "no /dev/full on this machine");
         return;
     }
     let dir = tempfile::tempdir().unwrap();

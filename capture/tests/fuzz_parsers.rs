@@ -13,15 +13,15 @@ use std::io::Cursor;
 use std::sync::OnceLock;
 
 use proptest::prelude::*;
+use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::device::FourCc;
 use s3tir_capture::frame::{CapturedFrame, FfcState, RawFrame, StreamKind, ThermalUnits};
-use s3tir_capture::pairing::PairingMode;
-use s3tir_capture::pipeline::Pipeline;
+use s3tir_capture::session::pairing::PairingMode;
+use s3tir_capture::session::pipeline::Pipeline;
 use s3tir_capture::session::{
     RecordedFrame, SessionInfo, SessionItem, SessionWriter, decode_chunk, read_session, split_chunk,
 };
-use s3tir_capture::simwire::WireFrame;
-use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
+use s3tir_capture::wire::simwire::WireFrame;
 
 const FUZZ_CASES: u32 = 256;
 

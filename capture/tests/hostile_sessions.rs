@@ -4,7 +4,7 @@
 //! the byte offset of the damaged record, and keeps every frame before it; a zero-filled tail
 //! (what a power cut can leave) is a cut, not damage; `s3tir-capture info` on a damaged file
 //! exits non-zero naming the file and the offset. Does not fuzz (the proptest in
-//! `src/session.rs` does).
+//! `tests/fuzz_parsers.rs` does).
 #![allow(clippy::unwrap_used)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -13,10 +13,10 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use s3tir_capture::pairing::PairingMode;
-use s3tir_capture::pipeline::Pipeline;
+use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
+use s3tir_capture::session::pairing::PairingMode;
+use s3tir_capture::session::pipeline::Pipeline;
 use s3tir_capture::session::{ReadOutcome, SessionInfo, SessionItem, SessionWriter, read_session};
-use s3tir_capture::synth::{Script, SynthRig, ThermalSynth};
 
 /// Counts live heap bytes and their peak, so a test can bound what a read allocates.
 struct Counting;

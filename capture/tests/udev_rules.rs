@@ -278,7 +278,7 @@ fn systemd_analyze_verifies_the_unit() {
     {
         Ok(o) => o,
         Err(e) => {
-            println!("SKIPPED: no systemd-analyze ({e})");
+            s3tir_capture::skip::skip("systemd-analyze", &format!("no systemd-analyze ({e})"));
             return;
         }
     };

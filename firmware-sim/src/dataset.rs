@@ -134,9 +134,10 @@ pub fn write_board_set(
             value: format!("{k}"),
             why: "buffer does not match the image size",
         })?;
-        img.save(&tpath).map_err(|e| SimError::Encode {
+        img.save(&tpath).map_err(|source| SimError::Image {
+            path: tpath.clone(),
             what: "thermal PNG",
-            reason: format!("{}: {e}", tpath.display()),
+            source: Box::new(source),
         })?;
         let rgb_from_board = cfg.rig.rgb_from_thermal.compose(&view.thermal_from_board);
         let rgb = render_rgb_board(
@@ -157,9 +158,10 @@ pub fn write_board_set(
             value: format!("{k}"),
             why: "buffer does not match the image size",
         })?;
-        img.save(&rpath).map_err(|e| SimError::Encode {
+        img.save(&rpath).map_err(|source| SimError::Image {
+            path: rpath.clone(),
             what: "RGB PNG",
-            reason: format!("{}: {e}", rpath.display()),
+            source: Box::new(source),
         })?;
         views_json.push(ViewJson {
             index: k,
@@ -185,9 +187,9 @@ pub fn write_board_set(
         views: views_json,
     };
     let path = out.join("truth.json");
-    let text = serde_json::to_string_pretty(&truth).map_err(|e| SimError::Encode {
+    let text = serde_json::to_string_pretty(&truth).map_err(|source| SimError::Json {
         what: "truth.json",
-        reason: e.to_string(),
+        source,
     })?;
     fs::write(&path, text + "\n").map_err(io(&path, "write"))?;
     let path = out.join("board.toml");

@@ -1,4 +1,5 @@
-//! Errors of the simulated rig. Every variant names the file, profile or parameter it is about.
+//! Errors of the simulated rig. Every variant names the file, profile or parameter it is about,
+//! and keeps the underlying error (if any) as its source.
 
 use std::path::PathBuf;
 
@@ -14,8 +15,37 @@ pub enum SimError {
         #[source]
         source: std::io::Error,
     },
+    /// Something could not be encoded and no library error says why (a validation).
     #[error("encoding {what}: {reason}")]
     Encode { what: &'static str, reason: String },
+    /// An image file (PNG) could not be encoded or written (boxed: the error is large).
+    #[error("{path}: writing {what}: {source}")]
+    Image {
+        path: PathBuf,
+        what: &'static str,
+        #[source]
+        source: Box<image::ImageError>,
+    },
+    /// An in-memory frame (JPEG) could not be encoded.
+    #[error("encoding {what}: {source}")]
+    Frame {
+        what: &'static str,
+        #[source]
+        source: Box<image::ImageError>,
+    },
+    /// A JSON document could not be serialised.
+    #[error("encoding {what}: {source}")]
+    Json {
+        what: &'static str,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// The COLMAP text model could not be written.
+    #[error("writing the COLMAP model: {source}")]
+    Colmap {
+        #[source]
+        source: Box<s3tir_calib::colmap::ColmapError>,
+    },
     #[error("invalid parameter {parameter} = {value}: {why}")]
     InvalidParameter {
         parameter: &'static str,

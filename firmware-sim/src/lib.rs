@@ -10,27 +10,22 @@
 //! - [`sensor`]: thermal core and RGB camera sensor models and profiles.
 //! - [`rig`]: the thermal + RGB rig geometry and board trajectories.
 //! - [`dataset`]: the `board` calibration set writer.
-//! - [`scene`]: trainer datasets of simple thermal scenes with truth; [`response`]: their
-//!   per-frame automatic gain control (8-bit) and drift between flat-field corrections;
-//!   [`scene_joint`]: the same scenes seen by a thermal + RGB rig (RGB at K× the thermal
-//!   resolution), with high-resolution truth (`scene --rgb-scale K`); [`scene_truth`]: the
-//!   truth surface both write (`truth/surface.ply`: visible points with their apparent
-//!   temperature, for scoring meshes).
-//! - [`serve`]: the live rig (`run`); [`walk`]: the rig walking through a textured scene
-//!   (`run --walk`), with the truth trajectory; [`fiducials`]: the AprilTags on its walls and
-//!   their map (`tags.toml`).
+//! - [`scene`]: trainer datasets of simple thermal scenes with truth (`scene`): their objects,
+//!   camera paths, rendering, sensors, per-frame response effects ([`scene::response`]), truth
+//!   surface ([`scene::truth`]), dataset writers (COLMAP model through `s3tir_calib::colmap`)
+//!   and the joint thermal + RGB layout ([`scene::joint`], `scene --rgb-scale K`).
+//! - [`serve`]: the live rig (`run`).
+//! - [`walk`]: the rig walking through a textured room (`run --walk`), with the truth
+//!   trajectory and the AprilTags on its walls ([`walk::fiducials`], `tags.toml`).
+//! - [`error`]: the library's error type, [`SimError`].
 
 pub mod board;
 pub mod dataset;
 pub mod error;
-pub mod fiducials;
 pub mod physics;
 pub mod render;
-pub mod response;
 pub mod rig;
 pub mod scene;
-pub mod scene_joint;
-pub mod scene_truth;
 pub mod sensor;
 pub mod serve;
 pub mod walk;

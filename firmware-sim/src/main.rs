@@ -1,6 +1,6 @@
 //! `s3tir-firmware-sim`: the simulated s3tir rig.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -8,14 +8,15 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use s3tir_firmware_sim::board::BoardSpec;
 use s3tir_firmware_sim::dataset::{BoardSetConfig, Polarity, write_board_set};
-use s3tir_firmware_sim::fiducials::TagInk;
-use s3tir_firmware_sim::response::ResponseEffects;
 use s3tir_firmware_sim::rig::Rig;
+use s3tir_firmware_sim::scene::joint::{JointOptions, write_joint_scene_set};
+use s3tir_firmware_sim::scene::response::ResponseEffects;
+use s3tir_firmware_sim::scene::truth::SURFACE_TRUTH_FILE;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, write_scene_set_with};
-use s3tir_firmware_sim::scene_joint::{JointOptions, write_joint_scene_set};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::serve::{RgbFormat, ServeConfig, serve};
-use s3tir_firmware_sim::walk::{WalkKind, WalkRig, WalkRoom, WalkSpec, serve_walk};
+use s3tir_firmware_sim::walk::{TagInk, WalkKind, WalkRig, WalkRoom, WalkSpec, serve_walk};
+use serde::Serialize;
 
 /// The simulated s3tir rig: a thermal core, an RGB camera and the rig controller firmware,
 /// producing physically plausible frames and ground truth when no hardware is attached.
@@ -107,6 +108,10 @@ enum Command {
         /// default: calibrate with this size to pose the live rig's sessions).
         #[arg(long, value_enum, default_value = "1280x720")]
         rgb_size: RgbSizeArg,
+        /// Print one JSON object on stdout when done: what was written (paths, view counts,
+        /// image sizes, files and bytes).
+        #[arg(long)]
+        json: bool,
     },
     /// Write a small thermal scene dataset for the trainer (--layout objects: heated pipe, box
     /// with an emissivity edge, radiator panel, ground plane, seen from an orbit; --layout wall:
@@ -168,6 +173,10 @@ enum Command {
         /// the noise.
         #[arg(long)]
         low_light: bool,
+        /// Print one JSON object on stdout when done: what was written (paths, view counts,
+        /// image sizes, files and bytes).
+        #[arg(long)]
+        json: bool,
     },
     /// Run the simulated rig in real time: frames over a Unix socket (simwire), the Boson FSLP
     /// firmware and the rig controller on pseudo-terminals. Prints `key: value` lines
@@ -243,6 +252,163 @@ enum WalkArg {
     Board,
 }
 
+/// `board --json`: what the board set holds.
+#[derive(Debug, Serialize)]
+struct BoardSummary {
+    command: &'static str,
+    out: PathBuf,
+    views: usize,
+    profile: &'static str,
+    polarity: &'static str,
+    seed: u64,
+    thermal: ImageSet,
+    rgb: ImageSet,
+    board_toml: PathBuf,
+    truth: PathBuf,
+    #[serde(flatten)]
+    written: Written,
+    seconds: f64,
+}
+
+/// `scene --json`: what the scene dataset holds.
+#[derive(Debug, Serialize)]
+struct SceneSummary {
+    command: &'static str,
+    out: PathBuf,
+    layout: &'static str,
+    views: usize,
+    seed: u64,
+    /// `{rgb_scale, low_light}` of the joint layout (`--rgb-scale K`), or null.
+    joint: Option<JointSummary>,
+    /// The thermal images (16-bit centikelvin, or 8-bit grey with `--agc`).
+    thermal: ImageSet,
+    rgb: ImageSet,
+    colmap_model: PathBuf,
+    colmap_images: usize,
+    scene_json: PathBuf,
+    truth_surface: PathBuf,
+    /// `holdout.txt` (joint layout only).
+    holdout: Option<PathBuf>,
+    /// `response.json` (with `--agc` or `--drift-k`).
+    response: Option<PathBuf>,
+    #[serde(flatten)]
+    written: Written,
+    seconds: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct JointSummary {
+    rgb_scale: u32,
+    low_light: bool,
+}
+
+/// One folder of images: where, how many, their size.
+#[derive(Debug, Serialize)]
+struct ImageSet {
+    dir: PathBuf,
+    images: usize,
+    width_px: u32,
+    height_px: u32,
+}
+
+impl ImageSet {
+    fn new(dir: PathBuf, images: usize, (width_px, height_px): (u32, u32)) -> Self {
+        Self {
+            dir,
+            images,
+            width_px,
+            height_px,
+        }
+    }
+}
+
+/// Files and bytes under an output folder.
+#[derive(Debug, Default, Serialize)]
+struct Written {
+    files: u64,
+    bytes: u64,
+}
+
+impl Written {
+    fn of(dir: &Path) -> Result<Self> {
+        let mut w = Self::default();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for entry in
+                std::fs::read_dir(&d).with_context(|| format!("listing {}", d.display()))?
+            {
+                let entry = entry.with_context(|| format!("listing {}", d.display()))?;
+                let meta = entry
+                    .metadata()
+                    .with_context(|| format!("reading {}", entry.path().display()))?;
+                if meta.is_dir() {
+                    stack.push(entry.path());
+                } else {
+                    w.files += 1;
+                    w.bytes += meta.len();
+                }
+            }
+        }
+        Ok(w)
+    }
+}
+
+fn scene_summary(
+    cfg: &SceneConfig,
+    layout: SceneLayout,
+    effects: ResponseEffects,
+    joint: Option<JointOptions>,
+    seconds: f64,
+) -> Result<SceneSummary> {
+    let out = &cfg.out_dir;
+    let size = (cfg.width_px, cfg.height_px);
+    let (thermal, rgb) = match &joint {
+        None => (
+            ImageSet::new(out.join("images"), cfg.views, size),
+            ImageSet::new(out.join("rgb"), cfg.views, size),
+        ),
+        Some(j) => {
+            let rgb = j.rgb_camera(cfg.width_px, cfg.height_px)?;
+            (
+                ImageSet::new(out.join("images/thermal"), cfg.views, size),
+                ImageSet::new(
+                    out.join("images/rgb"),
+                    cfg.views,
+                    (rgb.width_px, rgb.height_px),
+                ),
+            )
+        }
+    };
+    Ok(SceneSummary {
+        command: "scene",
+        out: out.clone(),
+        layout: match layout {
+            SceneLayout::Objects => "objects",
+            SceneLayout::Wall => "wall",
+        },
+        views: cfg.views,
+        seed: cfg.seed,
+        joint: joint.map(|j| JointSummary {
+            rgb_scale: j.rgb_scale,
+            low_light: j.low_light,
+        }),
+        thermal,
+        rgb,
+        colmap_model: out.join("sparse/0"),
+        colmap_images: if joint.is_some() {
+            2 * cfg.views
+        } else {
+            cfg.views
+        },
+        scene_json: out.join("scene.json"),
+        truth_surface: out.join(SURFACE_TRUTH_FILE),
+        holdout: joint.map(|_| out.join("holdout.txt")),
+        response: effects.any().then(|| out.join("response.json")),
+        written: Written::of(out)?,
+        seconds,
+    })
+}
+
 fn progress_bar(total: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(total as u64);
     if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}") {
@@ -267,6 +433,7 @@ fn main() -> Result<()> {
             polarity,
             seed,
             rgb_size,
+            json,
         } => {
             let start = Instant::now();
             let rgb = match rgb_size {
@@ -290,12 +457,37 @@ fn main() -> Result<()> {
             write_board_set(&cfg, &mut |done, _| bar.set_position(done as u64))
                 .with_context(|| format!("writing the board set to {}", out.display()))?;
             bar.finish();
-            tracing::info!(
-                views,
-                seconds = start.elapsed().as_secs_f64(),
-                "board set written to {}",
-                out.display()
-            );
+            let seconds = start.elapsed().as_secs_f64();
+            tracing::info!(views, seconds, "board set written to {}", out.display());
+            if json {
+                let thermal = cfg.rig.thermal;
+                let summary = BoardSummary {
+                    command: "board",
+                    out: out.clone(),
+                    views,
+                    profile: thermal.name,
+                    polarity: match cfg.polarity {
+                        Polarity::Cooled => "cooled",
+                        Polarity::Heated => "heated",
+                    },
+                    seed,
+                    thermal: ImageSet::new(
+                        out.join("thermal"),
+                        views,
+                        (thermal.camera.width_px, thermal.camera.height_px),
+                    ),
+                    rgb: ImageSet::new(
+                        out.join("rgb"),
+                        views,
+                        (cfg.rig.rgb.camera.width_px, cfg.rig.rgb.camera.height_px),
+                    ),
+                    board_toml: out.join("board.toml"),
+                    truth: out.join("truth.json"),
+                    written: Written::of(&out)?,
+                    seconds,
+                };
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            }
             Ok(())
         }
         Command::Scene {
@@ -310,6 +502,7 @@ fn main() -> Result<()> {
             ffc_every,
             rgb_scale,
             low_light,
+            json,
         } => {
             if !(drift_k >= 0.0 && drift_k.is_finite()) {
                 anyhow::bail!("--drift-k must be a finite number ≥ 0, got {drift_k}");
@@ -341,12 +534,12 @@ fn main() -> Result<()> {
             }
             .with_context(|| format!("writing the scene set to {}", out.display()))?;
             bar.finish();
-            tracing::info!(
-                views,
-                seconds = start.elapsed().as_secs_f64(),
-                "scene set written to {}",
-                out.display()
-            );
+            let seconds = start.elapsed().as_secs_f64();
+            tracing::info!(views, seconds, "scene set written to {}", out.display());
+            if json {
+                let summary = scene_summary(&cfg, layout, effects, joint, seconds)?;
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            }
             Ok(())
         }
         Command::Run {

@@ -719,9 +719,9 @@ pub fn rgb_to_jpeg(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, SimEr
     let mut out = Vec::new();
     let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 85);
     enc.encode(rgb, width, height, image::ExtendedColorType::Rgb8)
-        .map_err(|e| SimError::Encode {
+        .map_err(|source| SimError::Frame {
             what: "MJPEG frame",
-            reason: e.to_string(),
+            source: Box::new(source),
         })?;
     Ok(out)
 }

@@ -5,16 +5,16 @@
 //! camera's depth truth to the thermal camera's; low light darkens the RGB input and makes it
 //! noisier against its noise-free truth; bad flags are refused.
 //! Does not prove the trainer can use the layout, nor the physics of the images (tests/sensor.rs,
-//! tests/scene_set.rs and scene.rs's tests cover those for the shared renderer).
+//! tests/scene_set.rs and src/scene/mod.rs's tests cover those for the shared renderer).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::Path;
 
 use glam::DVec3;
 use s3tir_calib::colmap::read_model;
-use s3tir_firmware_sim::response::ResponseEffects;
+use s3tir_firmware_sim::scene::joint::{JointOptions, write_joint_scene_set};
+use s3tir_firmware_sim::scene::response::ResponseEffects;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, scene_camera};
-use s3tir_firmware_sim::scene_joint::{JointOptions, write_joint_scene_set};
 
 const W: u32 = 40;
 const H: u32 = 30;

@@ -9,7 +9,7 @@
 use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
-use s3tir_capture::simwire::{self, StreamId, WireFrame};
+use s3tir_capture::wire::simwire::{self, StreamId, WireFrame};
 use s3tir_firmware_sim::sensor::{RgbProfile, ThermalProfile};
 use s3tir_firmware_sim::walk::{
     TruthFrame, WALK_TARGET, WalkKind, WalkPath, WalkRig, WalkSpec, run_walk,
@@ -169,7 +169,7 @@ fn same_seed_same_frames_and_the_walks_ffc_is_flagged() {
 #[test]
 fn the_walk_board_and_heated_tags_are_where_their_files_say() {
     use s3tir_firmware_sim::board::{BoardMaterial, BoardSpec};
-    use s3tir_firmware_sim::fiducials::{FOIL_EMISSIVITY, HEATED_TAG_K, TagInk, room_tags};
+    use s3tir_firmware_sim::walk::fiducials::{FOIL_EMISSIVITY, HEATED_TAG_K, TagInk, room_tags};
     use s3tir_firmware_sim::walk::{WALK_BOARD_K, WalkRoom, trace_walk, walk_board_pose};
 
     let board = BoardSpec::default();

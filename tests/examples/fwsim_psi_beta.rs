@@ -1,4 +1,4 @@
-//! Study tool for issue 7's Ψ_β criterion: reads the exact Ψ_β / alpha G-buffers
+//! Study tool for the capacity stage's Ψ_β criterion: reads the exact Ψ_β / alpha G-buffers
 //! (`gbuffers/<view>_{psi_beta,alpha}.npy`) a `s3tir-train` run wrote for the held-out views of a
 //! `s3tir-firmware-sim scene` dataset and prints the mean Ψ_β over the same ground-truth masks
 //! as `tests/tests/train_fwsim.rs` (box emissivity edge, pipe interior, floor stripe), plus the

@@ -9,7 +9,7 @@
 //! (true 147.0), cx 79.56 (79.6), RGB fx 456.99 (457.0),
 //! translation (−0.0650, −0.0023, 0.0022) m (true (−0.0650, −0.0024, 0.0024)), joint RMS 0.022 px.
 //!
-//! Does NOT test detection on real boards (issue 20) nor the walk's poses (walk_to_model.rs).
+//! Does NOT test detection on real boards (calib/tests/sun_board.rs) nor the walk's poses (walk_to_model.rs).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::process::Command;

@@ -1,4 +1,4 @@
-//! Calibration against simulated truth (issue 5, first "Done when").
+//! Calibration against simulated truth (the calibration's accuracy claim).
 //!
 //! Proves: for the simulated rig's board sets (`s3tir-firmware-sim board`, 30 views, fixed
 //! seeds) of the Lepton 3.5 and Boson 640 profiles with a cooled and a heated board,
@@ -28,7 +28,7 @@ use std::process::Command;
 
 use serde_json::Value;
 
-/// Issue 5's bounds.
+/// The calibration's stated accuracy bounds.
 const FOCAL_REL_BOUND: f64 = 0.002;
 const PRINCIPAL_BOUND_PX: f64 = 0.5;
 const ROTATION_BOUND_DEG: f64 = 0.1;

@@ -10,7 +10,7 @@
 #![allow(clippy::unwrap_used)]
 
 use std::path::PathBuf;
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 use s3tir_tests::bin;
 use serde_json::Value;
@@ -109,49 +109,4 @@ fn committed_session_replays_through_info_replay_and_export() {
         (160, 120, 8, 2),
         "rgb: 8-bit RGB"
     );
-}
-
-/// Regenerates the committed file: `cargo test -p s3tir-tests --test
-/// capture_committed_session -- --ignored regenerate`, then update the constants above from
-/// `s3tir-capture info --json tests/data/sim_lepton_rgb.mcap`.
-#[test]
-#[ignore = "rewrites tests/data/sim_lepton_rgb.mcap"]
-fn regenerate_committed_session() {
-    use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig};
-    use s3tir_capture::synth::{Script, ThermalSynth};
-    let dir = tempfile::tempdir().unwrap();
-    let sock = dir.path().join("rig.sock");
-    let _rig = FakeRig::start(
-        &sock,
-        FakeRigConfig {
-            thermal: ThermalSynth::lepton35(),
-            rgb: Some((160, 120, 9.0)),
-            script: Script {
-                ffc_frames: vec![20, 21, 22],
-                thermal_drops: vec![40],
-                ..Script::default()
-            },
-            unpaced: false,
-            max_buffers: None,
-        },
-    )
-    .unwrap();
-    let status = Command::new(bin("s3tir-capture"))
-        .args([
-            "--device",
-            "sim:lepton35",
-            "--rgb",
-            "sim",
-            "--duration",
-            "6",
-        ])
-        .args(["--pair-tolerance-ms", "60"])
-        .arg("--sim-socket")
-        .arg(&sock)
-        .arg("--out")
-        .arg(session())
-        .stdin(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
 }

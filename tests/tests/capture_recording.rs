@@ -17,8 +17,8 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use s3tir_capture::sim_backend::{FakeRig, FakeRigConfig};
-use s3tir_capture::synth::{Script, ThermalSynth};
+use s3tir_capture::backend::sim_backend::{FakeRig, FakeRigConfig};
+use s3tir_capture::backend::synth::{Script, ThermalSynth};
 use s3tir_tests::{bin, capture_info_json as info_json, capture_replay_json, json_u64 as u};
 use serde_json::Value;
 

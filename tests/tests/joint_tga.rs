@@ -1,4 +1,5 @@
-//! Issue 18's "Done when" on the simulated joint scene, end to end through the real binaries:
+//! TGA-GS (joint thermal + RGB training) on the simulated joint scene, end to end through the
+//! real binaries:
 //! `s3tir-firmware-sim scene --rgb-scale 4 --low-light` writes a joint RGB + thermal dataset
 //! with high-resolution truth (a Lepton-like thermal camera at W×H, a low-light RGB camera at
 //! 4W×4H, 3 cm apart), the trainer reads both image sets of it, and `s3tir-train ablation`
@@ -21,7 +22,7 @@
 //!
 //! Does NOT prove: anything on real data (no real joint RGB + thermal set exists in
 //! ../shared/data), that the thermal gradient alignment loss helps (the table reports it;
-//! see the closing note of issue 18), nor the Vulkan backend (its parity tests).
+//! measured on the simulated scene only), nor the Vulkan backend (its parity tests).
 //!
 //! Needs the workspace's binaries (`make test` / `cargo test --workspace`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -139,7 +140,7 @@ fn joint_rgb_thermal_beats_thermal_only_at_the_rgb_resolution_and_on_depth() {
     let rows: Vec<Value> =
         serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
     assert_eq!(rows.len(), 4, "four variants in ablation.json");
-    // The scene has a truth surface: every variant is meshed and scored (issue 19's ablation;
+    // The scene has a truth surface: every variant is meshed and scored (the mesh columns of the ablation;
     // figures in its closing note, no ordering asserted: see there).
     for r in &rows {
         let m = &r["mesh"];

@@ -1,4 +1,4 @@
-//! Issue 19's "Done when" on the simulated scene, end to end through the real binaries:
+//! The thermal mesh (`s3tir-train mesh`) on the simulated scene, end to end through the real binaries:
 //! `s3tir-firmware-sim scene` (objects layout: box, free-standing heated pipe, floor, radiator)
 //! writes a thermal dataset and its truth surface (`truth/surface.ply`: the visible surface,
 //! apparent kelvin per point); `s3tir-train` trains it on the CPU backend; `s3tir-train mesh

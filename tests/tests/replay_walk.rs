@@ -1,4 +1,4 @@
-//! Issue 17's "Replay in CI": the committed walk session `tests/data/sim_walk_tags/walk.mcap`
+//! Replay in CI: the committed walk session `tests/data/sim_walk_tags/walk.mcap`
 //! becomes the same posed dataset every run, and trains.
 //!
 //! The session: a 6 s hand-held walk of the simulated rig (Lepton 3.5 + RGB) around the walk

@@ -1,4 +1,4 @@
-//! Issue 7's first "Done when", end to end through the real binaries on the simulated rig's own
+//! The trainer's first claim, end to end through the real binaries on the simulated rig's own
 //! scenes (`s3tir-firmware-sim scene`), then `s3tir-train` in s3tir mode and in 3dgs mode at
 //! equal iterations, budget and seed on the CPU backend (64×48, 16 views, 400 iterations,
 //! warm-up 100, budget 300, β lr 0.05, consistency every 4, seed 1), then
@@ -17,8 +17,8 @@
 //!   profile (32.7 s measured; up to ~50 s on a loaded 2-core machine).
 //! - `s3tir_beats_3dgs_and_psi_beta_marks_the_edge_on_the_wall_scene` (`--layout wall`: a cold
 //!   wall filling every view, painted | bare metal across a vertical line, warmed by an in-wall
-//!   heating pipe as a smooth Gaussian band; `firmware-sim/src/scene.rs`): the same PSNR / MAE /
-//!   3dgs checks, and the issue's Ψ_β bounds — mean Ψ_β over the emissivity edge (wall pixels
+//!   heating pipe as a smooth Gaussian band; `firmware-sim/src/scene/objects.rs`): the same
+//!   PSNR / MAE / 3dgs checks, and the stated Ψ_β bounds — mean Ψ_β over the emissivity edge (wall pixels
 //!   within 3 cm, ≈ 1 px, of the line) > 2.75 and > pipe + 0.5, over the pipe (wall pixels
 //!   within σ/2 of the band's axis, on the paint, > 0.3 m from the line) < 2.3. The pipe mask
 //!   is on the paint because that is where the pipe shows: behind the bare metal (ε 0.12) its

@@ -1,4 +1,4 @@
-//! Issue 17's "Done when", end to end through the real binaries on a simulated walk: the rig
+//! Session to model, end to end through the real binaries on a simulated walk: the rig
 //! (Lepton 3.5 + RGB) walks around the simulated scene and is recorded by `s3tir-capture
 //! --device sim:lepton35 --rgb sim --walk handheld` (the capture path is part of what is
 //! tested); `s3tir-calib poses` runs COLMAP (CPU) on the RGB keyframes with the rig's

@@ -16,11 +16,14 @@
 
 #![allow(clippy::unwrap_used)] // a benchmark, like a test, may panic on setup failure
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use common::{FieldScene, field_scene};
+
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use s3tir_trainer::camera::PinholeCamera;
-use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::{BETA_RAW_FROZEN, Primitives};
 use s3tir_trainer::real::Real;
 use s3tir_trainer::render::{
     GBuffers, RenderSettings, prepare, render_backward, render_backward_prepared, render_prepared,
@@ -32,44 +35,14 @@ const N: usize = 2000;
 
 fn scene() -> (Primitives<f64>, PinholeCamera) {
     let cam = PinholeCamera::look_at([0.0; 3], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0], 200.0, W, H);
-    let mut r = ChaCha8Rng::seed_from_u64(1);
-    let mut p = Primitives::new(4, None);
-    for _ in 0..N {
-        let z: f64 = r.random_range(2.0..6.0);
-        let s = r.random_range(0.02..0.12) * z / 3.0;
-        p.push(&PrimitiveInit {
-            mean_m: [
-                r.random_range(-0.6..0.6) * z,
-                r.random_range(-0.45..0.45) * z,
-                z,
-            ],
-            scale_m: [
-                s,
-                s * r.random_range(0.3..1.0),
-                s * r.random_range(0.3..1.0),
-            ],
-            quat: [
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                1.0,
-            ],
-            opacity: r.random_range(0.2..0.9),
-            beta: r.random_range(2.0..20.0),
-            omega_low: r.random_range(0.2..0.8),
-            bands: (0..4)
-                .map(|_| {
-                    (
-                        r.random_range(-0.1..0.1),
-                        [r.random_range(-2.0..2.0), r.random_range(-2.0..2.0), 0.0],
-                        0.3,
-                    )
-                })
-                .collect(),
-            sh: vec![],
-        });
-    }
-    (p, cam)
+    let spec = FieldScene {
+        n: N,
+        bands: 4,
+        sh_degree: None,
+        scale: 0.02..0.12,
+        beta_max: 20.0,
+    };
+    (field_scene(1, &spec), cam)
 }
 
 fn bench_type<T: Real>(c: &mut Criterion, name: &str) {

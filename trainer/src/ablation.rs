@@ -89,8 +89,9 @@ pub fn run_ablation<B: Backend>(
     let mut rows = Vec::new();
     let truth_surface = base.data.join(TRUTH_SURFACE);
     let mesh_truth = if truth_surface.is_file() {
-        let bad = |e: crate::mesh::MeshError| TrainError::Config {
-            reason: format!("the truth surface: {e}"),
+        let bad = |e: crate::mesh::MeshError| TrainError::Stage {
+            what: format!("the truth surface {}", truth_surface.display()),
+            source: Box::new(e),
         };
         let truth = crate::mesh::plyio::read_mesh_ply(&truth_surface).map_err(bad)?;
         let region = crate::mesh::plyio::read_region(&truth_surface).map_err(bad)?;
@@ -130,9 +131,9 @@ pub fn run_ablation<B: Backend>(
             (Some((truth, region, cams, _)), Some(range)) => {
                 let opts = MeshOptions::default();
                 let (m, _) = mesh_views(&t.prims, cams, range, &opts, &mut b, &mut |_, _, _| {})
-                    .map_err(|e| TrainError::Run {
-                        run_dir: dir.clone(),
-                        reason: format!("meshing the model: {e}"),
+                    .map_err(|e| TrainError::Stage {
+                        what: format!("run {}: meshing the model", dir.display()),
+                        source: Box::new(e),
                     })?;
                 Some(score_mesh(&m, truth, opts.tau_m, region.as_ref()))
             }

@@ -8,7 +8,7 @@
 
 use s3tir_calib::Rigid3;
 
-use crate::error::TrainerError;
+use crate::error::RenderError;
 
 /// Pinhole intrinsics, image size and pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -24,22 +24,22 @@ pub struct PinholeCamera {
 
 impl PinholeCamera {
     /// Rejects non-positive or non-finite focal lengths and empty images.
-    pub fn validate(&self) -> Result<(), TrainerError> {
+    pub fn validate(&self) -> Result<(), RenderError> {
         let ok = |x: f64| x.is_finite();
         if !(self.fx_px > 0.0 && self.fy_px > 0.0 && ok(self.fx_px) && ok(self.fy_px)) {
-            return Err(TrainerError::InvalidCamera {
+            return Err(RenderError::InvalidCamera {
                 camera: "pinhole",
                 reason: "focal lengths must be finite and positive",
             });
         }
         if !(ok(self.cx_px) && ok(self.cy_px)) {
-            return Err(TrainerError::InvalidCamera {
+            return Err(RenderError::InvalidCamera {
                 camera: "pinhole",
                 reason: "principal point must be finite",
             });
         }
         if self.width == 0 || self.height == 0 {
-            return Err(TrainerError::InvalidCamera {
+            return Err(RenderError::InvalidCamera {
                 camera: "pinhole",
                 reason: "empty image",
             });

@@ -1,9 +1,13 @@
-//! Errors of the CPU reference renderer, losses and optimiser.
+//! [`RenderError`]: errors of the renderer and of what runs on its buffers — parameter and
+//! buffer shapes, cameras, SH degrees in the CPU reference renderer, the losses and the
+//! optimiser, and the Vulkan backend's failures. The training run's own error (datasets,
+//! checkpoints, outputs, configuration) is `train::TrainError`, which wraps this one.
 
 use thiserror::Error;
 
+/// A render, loss or optimiser computation failed (CPU reference or Vulkan backend).
 #[derive(Debug, Error)]
-pub enum TrainerError {
+pub enum RenderError {
     #[error("parameter group `{group}` has {actual} values, expected {expected}")]
     ParameterLength {
         group: &'static str,

@@ -1,5 +1,22 @@
 //! s3tir-trainer: S³-TIR thermal splatting.
 //!
+//! - [`camera`]: the pinhole camera the renderer projects through (from calib's model).
+//! - [`primitive`]: the S³-TIR primitives (β, Gabor bands, SH colour) as parameter arrays.
+//! - [`real`]: the float type the CPU renderer is generic over (f32/f64).
+//! - [`sh`]: spherical harmonics of the colour head.
+//! - [`render`]: the CPU reference renderer, forward and backward.
+//! - [`loss`]: the losses and their gradients (photometric, consistency, regularisers,
+//!   alignment, view response).
+//! - [`error`]: [`error::RenderError`], errors of the renderer, losses, optimiser and Vulkan
+//!   backend.
+//! - [`dataset`]: COLMAP datasets (thermal and RGB views, hold-outs) loaded for training.
+//! - [`train`]: the training loop, its configuration and its run errors (`TrainError`).
+//! - [`checkpoint`]: checkpoints — a JSON header with the arrays in a safetensors file.
+//! - [`ply`]: the primitives as a 3DGS-compatible PLY.
+//! - [`metrics`]: PSNR, SSIM and kelvin errors of held-out views.
+//! - [`report`]: metrics logs and plots of a run.
+//! - [`truth`]: a run scored against a simulated joint scene's truth.
+//! - [`ablation`]: the TGA-GS ablation's runs and table.
 //! - [`gpu`] (feature `vulkan`): Vulkan compute through ash — device discovery and reports,
 //!   the compute context, and the kernels of the on-rig trainer.
 //! - [`mesh`]: thermal mesh extraction — rendered views fused into a sparse TSDF, surface nets,
@@ -20,7 +37,7 @@ pub mod real;
 pub mod render;
 pub mod sh;
 
-// Training pipeline (issue 7): datasets, PLY export, metrics, reports, checkpoints, the loop.
+// Training pipeline: datasets, PLY export, metrics, reports, checkpoints, the loop.
 pub mod checkpoint;
 pub mod dataset;
 pub mod metrics;

@@ -50,6 +50,13 @@ pub enum PlyError {
     },
     #[error("{path}: {reason}")]
     Format { path: PathBuf, reason: String },
+    /// The primitives do not fit their layout (array lengths, bands, SH degree).
+    #[error("{path}: {source}")]
+    Shape {
+        path: PathBuf,
+        #[source]
+        source: Box<crate::error::RenderError>,
+    },
 }
 
 /// Property names in file order for a set with `bands` bands and SH degree `sh_degree`.
@@ -88,11 +95,10 @@ pub fn property_names(bands: usize, sh_degree: Option<usize>) -> Vec<String> {
 
 /// Writes `prims` to `path` (write to `path.tmp`, then rename).
 pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
-    let fmt = |reason: String| PlyError::Format {
+    prims.validate().map_err(|source| PlyError::Shape {
         path: path.to_path_buf(),
-        reason,
-    };
-    prims.validate().map_err(|e| fmt(e.to_string()))?;
+        source: Box::new(source),
+    })?;
     let names = property_names(prims.bands, prims.sh_degree);
     let mut out = Vec::new();
     let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
@@ -298,6 +304,9 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
             prims.band_phase.push(b[4]);
         }
     }
-    prims.validate().map_err(|e| fmt(e.to_string()))?;
+    prims.validate().map_err(|source| PlyError::Shape {
+        path: path.to_path_buf(),
+        source: Box::new(source),
+    })?;
     Ok(prims)
 }

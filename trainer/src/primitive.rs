@@ -285,11 +285,11 @@ impl<T: Real> Primitives<T> {
     }
 
     /// Checks that every group has the length its stride implies.
-    pub fn validate(&self) -> Result<(), crate::error::TrainerError> {
+    pub fn validate(&self) -> Result<(), crate::error::RenderError> {
         if let Some(degree) = self.sh_degree
             && degree > crate::sh::SH_MAX_DEGREE
         {
-            return Err(crate::error::TrainerError::UnsupportedShDegree {
+            return Err(crate::error::RenderError::UnsupportedShDegree {
                 degree,
                 max: crate::sh::SH_MAX_DEGREE,
             });
@@ -307,7 +307,7 @@ impl<T: Real> Primitives<T> {
                 _ => 3 * k,
             };
             if v.len() != stride * n {
-                return Err(crate::error::TrainerError::ParameterLength {
+                return Err(crate::error::RenderError::ParameterLength {
                     group: name,
                     expected: stride * n,
                     actual: v.len(),
@@ -315,7 +315,7 @@ impl<T: Real> Primitives<T> {
             }
         }
         if self.band_count.len() != n {
-            return Err(crate::error::TrainerError::ParameterLength {
+            return Err(crate::error::RenderError::ParameterLength {
                 group: "band_count",
                 expected: n,
                 actual: self.band_count.len(),

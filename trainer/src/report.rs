@@ -5,10 +5,13 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::series::DashedLineSeries;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
+
+use s3tir_calib::plot::PngCanvas;
 
 use crate::primitive::BETA_MAX;
 
@@ -167,99 +170,115 @@ fn plot_err(path: &Path, e: impl std::fmt::Display) -> ReportError {
     }
 }
 
+/// Draws one plot on a canvas with the bundled font (no system fonts needed) and writes it to
+/// `path` as PNG.
+fn draw_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), ReportError>,
+) -> Result<(), ReportError> {
+    let mut canvas = PngCanvas::new(width, height).map_err(|e| plot_err(path, e))?;
+    {
+        let root = canvas.area();
+        draw(&root)?;
+        root.present().map_err(|e| plot_err(path, e))?;
+    }
+    canvas.save(path).map_err(|e| plot_err(path, e))
+}
+
 /// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
 /// seconds, one line per run: `runs = [(label, rows)]`.
 pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), ReportError> {
-    let root = BitMapBackend::new(path, (1100, 450)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-    let (left, right) = root.split_horizontally(550);
-    let all: Vec<&MetricsRow> = runs.iter().flat_map(|r| r.1.iter()).collect();
-    let t_max = all.iter().map(|r| r.seconds).fold(1e-3, f64::max);
-    let radiometric = all.iter().any(|r| r.kelvin_mae.is_some());
-    let range = |vals: Vec<f64>| {
-        let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if lo.is_finite() && hi.is_finite() {
-            let pad = ((hi - lo) * 0.05).max(1e-3);
-            (lo - pad, hi + pad)
-        } else {
-            (0.0, 1.0)
-        }
-    };
-    type Getter = Box<dyn Fn(&MetricsRow) -> Option<f64>>;
-    // Each panel: the raw figure (solid) and, when the log has it, the aligned one (dashed).
-    let panels: [(&str, Getter, Getter); 2] = [
-        (
-            "held-out PSNR (dB); dashed: affine-aligned",
-            Box::new(|r| Some(r.psnr)),
-            Box::new(|r| r.psnr_aligned),
-        ),
-        if radiometric {
-            (
-                "held-out MAE (K); dashed: offset-aligned",
-                Box::new(|r| r.kelvin_mae),
-                Box::new(|r| r.kelvin_mae_aligned),
-            )
-        } else {
-            (
-                "held-out SSIM",
-                Box::new(|r| Some(r.ssim)),
-                Box::new(|_| None),
-            )
-        },
-    ];
-    for (area, (label, get, get_aligned)) in [left, right].iter().zip(panels.iter()) {
-        let (lo, hi) = range(
-            all.iter()
-                .flat_map(|r| [get(r), get_aligned(r)])
-                .flatten()
-                .collect(),
-        );
-        let mut chart = ChartBuilder::on(area)
-            .caption(*label, ("sans-serif", 18))
-            .margin(12)
-            .x_label_area_size(35)
-            .y_label_area_size(55)
-            .build_cartesian_2d(0.0..t_max * 1.02, lo..hi)
-            .map_err(|e| plot_err(path, e))?;
-        chart
-            .configure_mesh()
-            .x_desc("training time (s)")
-            .draw()
-            .map_err(|e| plot_err(path, e))?;
-        for (k, (name, rows)) in runs.iter().enumerate() {
-            let colour = PALETTE[k % PALETTE.len()];
-            let pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter_map(|r| get(r).map(|v| (r.seconds, v)))
-                .collect();
-            chart
-                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-                .map_err(|e| plot_err(path, e))?
-                .label(name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
-            chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
-                .map_err(|e| plot_err(path, e))?;
-            let aligned: Vec<(f64, f64)> = rows
-                .iter()
-                .filter_map(|r| get_aligned(r).map(|v| (r.seconds, v)))
-                .collect();
-            if !aligned.is_empty() {
-                chart
-                    .draw_series(DashedLineSeries::new(aligned, 6, 4, colour.stroke_width(1)))
-                    .map_err(|e| plot_err(path, e))?;
+    draw_png(path, (1100, 450), |root| {
+        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let (left, right) = root.split_horizontally(550);
+        let all: Vec<&MetricsRow> = runs.iter().flat_map(|r| r.1.iter()).collect();
+        let t_max = all.iter().map(|r| r.seconds).fold(1e-3, f64::max);
+        let radiometric = all.iter().any(|r| r.kelvin_mae.is_some());
+        let range = |vals: Vec<f64>| {
+            let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if lo.is_finite() && hi.is_finite() {
+                let pad = ((hi - lo) * 0.05).max(1e-3);
+                (lo - pad, hi + pad)
+            } else {
+                (0.0, 1.0)
             }
+        };
+        type Getter = Box<dyn Fn(&MetricsRow) -> Option<f64>>;
+        // Each panel: the raw figure (solid) and, when the log has it, the aligned one (dashed).
+        let panels: [(&str, Getter, Getter); 2] = [
+            (
+                "held-out PSNR (dB); dashed: affine-aligned",
+                Box::new(|r| Some(r.psnr)),
+                Box::new(|r| r.psnr_aligned),
+            ),
+            if radiometric {
+                (
+                    "held-out MAE (K); dashed: offset-aligned",
+                    Box::new(|r| r.kelvin_mae),
+                    Box::new(|r| r.kelvin_mae_aligned),
+                )
+            } else {
+                (
+                    "held-out SSIM",
+                    Box::new(|r| Some(r.ssim)),
+                    Box::new(|_| None),
+                )
+            },
+        ];
+        for (area, (label, get, get_aligned)) in [left, right].iter().zip(panels.iter()) {
+            let (lo, hi) = range(
+                all.iter()
+                    .flat_map(|r| [get(r), get_aligned(r)])
+                    .flatten()
+                    .collect(),
+            );
+            let mut chart = ChartBuilder::on(area)
+                .caption(*label, ("sans-serif", 18))
+                .margin(12)
+                .x_label_area_size(35)
+                .y_label_area_size(55)
+                .build_cartesian_2d(0.0..t_max * 1.02, lo..hi)
+                .map_err(|e| plot_err(path, e))?;
+            chart
+                .configure_mesh()
+                .x_desc("training time (s)")
+                .draw()
+                .map_err(|e| plot_err(path, e))?;
+            for (k, (name, rows)) in runs.iter().enumerate() {
+                let colour = PALETTE[k % PALETTE.len()];
+                let pts: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter_map(|r| get(r).map(|v| (r.seconds, v)))
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                    .map_err(|e| plot_err(path, e))?
+                    .label(name.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+                chart
+                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                    .map_err(|e| plot_err(path, e))?;
+                let aligned: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter_map(|r| get_aligned(r).map(|v| (r.seconds, v)))
+                    .collect();
+                if !aligned.is_empty() {
+                    chart
+                        .draw_series(DashedLineSeries::new(aligned, 6, 4, colour.stroke_width(1)))
+                        .map_err(|e| plot_err(path, e))?;
+                }
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(|e| plot_err(path, e))?;
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| plot_err(path, e))?;
-    }
-    root.present().map_err(|e| plot_err(path, e))?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Writes a scalar plane as an 8-bit grey PNG mapping `[lo, hi]` to `[0, 255]`.
@@ -513,33 +532,33 @@ pub fn plot_beta_histogram(path: &Path, betas: &[f64]) -> Result<(), ReportError
         .iter()
         .map(|&c| (1.0 + c as f64).log10())
         .fold(0.5, f64::max);
-    let root = BitMapBackend::new(path, (640, 400)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!("β of {} primitives", betas.len()),
-            ("sans-serif", 20),
-        )
-        .margin(12)
-        .x_label_area_size(35)
-        .y_label_area_size(55)
-        .build_cartesian_2d((2.0f64..BETA_MAX).log_scale(), 0.0..top * 1.05)
-        .map_err(|e| plot_err(path, e))?;
-    chart
-        .configure_mesh()
-        .x_desc("β (log scale)")
-        .y_desc("log10(1 + count)")
-        .draw()
-        .map_err(|e| plot_err(path, e))?;
-    let edge = |k: usize| (l0 + (l1 - l0) * k as f64 / BINS as f64).exp();
-    chart
-        .draw_series(counts.iter().enumerate().map(|(k, &c)| {
-            Rectangle::new(
-                [(edge(k), 0.0), (edge(k + 1), (1.0 + c as f64).log10())],
-                PALETTE[1].filled(),
+    draw_png(path, (640, 400), |root| {
+        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                format!("β of {} primitives", betas.len()),
+                ("sans-serif", 20),
             )
-        }))
-        .map_err(|e| plot_err(path, e))?;
-    root.present().map_err(|e| plot_err(path, e))?;
-    Ok(())
+            .margin(12)
+            .x_label_area_size(35)
+            .y_label_area_size(55)
+            .build_cartesian_2d((2.0f64..BETA_MAX).log_scale(), 0.0..top * 1.05)
+            .map_err(|e| plot_err(path, e))?;
+        chart
+            .configure_mesh()
+            .x_desc("β (log scale)")
+            .y_desc("log10(1 + count)")
+            .draw()
+            .map_err(|e| plot_err(path, e))?;
+        let edge = |k: usize| (l0 + (l1 - l0) * k as f64 / BINS as f64).exp();
+        chart
+            .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+                Rectangle::new(
+                    [(edge(k), 0.0), (edge(k + 1), (1.0 + c as f64).log10())],
+                    PALETTE[1].filled(),
+                )
+            }))
+            .map_err(|e| plot_err(path, e))?;
+        Ok(())
+    })
 }

@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::PinholeCamera;
-use crate::dataset::{Dataset, Modality, ThermalRange};
+use crate::dataset::{Dataset, DatasetError, Modality, ThermalRange};
 use crate::metrics::{rgb_metrics, view_metrics};
 use crate::primitive::Primitives;
 use crate::superres::{back_project, bicubic_upsample};
@@ -80,7 +80,10 @@ fn truth_err(path: &Path, reason: impl Into<String>) -> TrainError {
 
 fn read_png16(path: &Path, w: usize, h: usize) -> Result<Vec<u16>, TrainError> {
     let img = image::open(path)
-        .map_err(|e| truth_err(path, e.to_string()))?
+        .map_err(|source| DatasetError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?
         .into_luma16();
     if img.width() as usize != w || img.height() as usize != h {
         return Err(truth_err(
@@ -93,7 +96,10 @@ fn read_png16(path: &Path, w: usize, h: usize) -> Result<Vec<u16>, TrainError> {
 
 fn read_rgb(path: &Path, w: usize, h: usize) -> Result<Vec<f32>, TrainError> {
     let img = image::open(path)
-        .map_err(|e| truth_err(path, e.to_string()))?
+        .map_err(|source| DatasetError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?
         .into_rgb8();
     if img.width() as usize != w || img.height() as usize != h {
         return Err(truth_err(

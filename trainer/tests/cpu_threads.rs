@@ -1,15 +1,18 @@
 //! Proves that the CPU paths that run on several cores (the renderer's prepare, forward and
-//! backward passes, the SSIM blur) give the same bits on 1, 2 and 5 threads: rows and tiles are
+//! backward passes, the SSIM blur, the multi-view consistency loss) give the same bits on 1, 2 and 5 threads: rows and tiles are
 //! fixed partitions and every sum across them is added in one fixed order
 //! (`render/backward.rs`). A run on the CPU backend is reproducible whatever machine it runs on.
 //! That the tile-ordered sums are still the right gradients is `finite_diff_render.rs`'s job.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+mod common;
+
+use common::{FieldScene, field_scene};
+
 use s3tir_trainer::camera::PinholeCamera;
+use s3tir_trainer::loss::consistency::{ConsistencyOptions, consistency_loss};
 use s3tir_trainer::loss::photometric::ssim;
-use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::Primitives;
 use s3tir_trainer::render::{
     GBuffers, RenderSettings, prepare, render_backward_prepared, render_prepared,
 };
@@ -19,55 +22,19 @@ const H: usize = 72;
 
 fn scene() -> (Primitives<f64>, PinholeCamera) {
     let cam = PinholeCamera::look_at([0.0; 3], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0], 80.0, W, H);
-    let mut r = ChaCha8Rng::seed_from_u64(7);
-    let mut p = Primitives::new(3, Some(1));
-    for _ in 0..600 {
-        let z: f64 = r.random_range(2.0..6.0);
-        let s = r.random_range(0.03..0.15) * z / 3.0;
-        p.push(&PrimitiveInit {
-            mean_m: [
-                r.random_range(-0.6..0.6) * z,
-                r.random_range(-0.45..0.45) * z,
-                z,
-            ],
-            scale_m: [
-                s,
-                s * r.random_range(0.3..1.0),
-                s * r.random_range(0.3..1.0),
-            ],
-            quat: [
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                1.0,
-            ],
-            opacity: r.random_range(0.2..0.9),
-            beta: r.random_range(2.0..12.0),
-            omega_low: r.random_range(0.2..0.8),
-            bands: (0..3)
-                .map(|_| {
-                    (
-                        r.random_range(-0.1..0.1),
-                        [r.random_range(-2.0..2.0), r.random_range(-2.0..2.0), 0.0],
-                        0.3,
-                    )
-                })
-                .collect(),
-            sh: (0..4)
-                .map(|_| {
-                    [
-                        r.random_range(-0.5..0.5),
-                        r.random_range(-0.5..0.5),
-                        r.random_range(-0.5..0.5),
-                    ]
-                })
-                .collect(),
-        });
-    }
-    (p, cam)
+    let spec = FieldScene {
+        n: 600,
+        bands: 3,
+        sh_degree: Some(1),
+        scale: 0.03..0.15,
+        beta_max: 12.0,
+    };
+    (field_scene(7, &spec), cam)
 }
 
-/// Every plane and gradient of one forward + backward pass and an SSIM gradient, as bits.
+/// Every plane and gradient of one forward + backward pass, an SSIM gradient and the
+/// consistency loss against a second view (its value, valid pixels and both views' Ψ
+/// gradients), as bits.
 fn run(prims: &Primitives<f32>, cam: &PinholeCamera) -> (Vec<Vec<u32>>, Vec<Vec<u32>>, u64) {
     let prep = prepare(prims, cam, &RenderSettings::default()).unwrap();
     let out = render_prepared(prims, &prep);
@@ -81,9 +48,42 @@ fn run(prims: &Primitives<f32>, cam: &PinholeCamera) -> (Vec<Vec<u32>>, Vec<Vec<
     let mut g_ssim = vec![0.0f32; W * H];
     let s = ssim(&out.thermal, &target, W, H, Some((&mut g_ssim, 1.0)));
     let grads = render_backward_prepared(prims, &prep, &up);
+    // A second view 0.2 m to the side, the consistency loss of the first against it.
+    let cam_j = PinholeCamera::look_at(
+        [0.2, 0.0, 0.0],
+        [0.2, 0.0, 1.0],
+        [0.0, -1.0, 0.0],
+        80.0,
+        W,
+        H,
+    );
+    let out_j = render_prepared(
+        prims,
+        &prepare(prims, &cam_j, &RenderSettings::default()).unwrap(),
+    );
+    let mut gi = GBuffers::<f32>::zeros(W, H, true);
+    let mut gj = GBuffers::<f32>::zeros(W, H, true);
+    let opt = ConsistencyOptions {
+        min_alpha: 0.3,
+        ..ConsistencyOptions::default()
+    };
+    let c = consistency_loss(&out, cam, &out_j, &cam_j, &opt, 1.0, &mut gi, &mut gj).unwrap();
+    assert!(
+        c.valid_px > W * H / 10,
+        "the two views must overlap on over a tenth of the pixels, {} valid",
+        c.valid_px
+    );
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     let mut planes: Vec<Vec<u32>> = out.planes().iter().map(|(_, p)| bits(p)).collect();
     planes.push(bits(&g_ssim));
+    planes.push(vec![
+        c.loss.to_bits() as u32,
+        (c.loss.to_bits() >> 32) as u32,
+        c.valid_px as u32,
+    ]);
+    for g in [&gi.psi_high, &gi.psi_beta, &gj.psi_high, &gj.psi_beta] {
+        planes.push(bits(g));
+    }
     let g = vec![
         bits(&grads.means),
         bits(&grads.log_scales),

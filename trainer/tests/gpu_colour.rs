@@ -29,19 +29,22 @@
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
+use common::{ParityScene, parity_camera, parity_scene};
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use s3tir_trainer::camera::PinholeCamera;
 use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
-use s3tir_trainer::error::TrainerError;
+use s3tir_trainer::error::RenderError;
 use s3tir_trainer::gpu::accumulate::AccumulateVariant;
 use s3tir_trainer::gpu::backend::VulkanBackend;
 use s3tir_trainer::gpu::raster::{GpuRasterizer, Outputs};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
 use s3tir_trainer::loss::LossWeights;
 use s3tir_trainer::loss::consistency::ConsistencyOptions;
-use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::Primitives;
 use s3tir_trainer::render::{GBuffers, RenderSettings, prepare, render, render_backward};
 use s3tir_trainer::train::{
     AdamParams, AdamState, Backend, CpuBackend, DeviceStep, OptimiserState, ResidentStep,
@@ -60,25 +63,13 @@ fn lavapipe_with(disable_float_atomics: bool) -> GpuContext {
         .expect("lavapipe (Mesa llvmpipe) must be available: install mesa-vulkan-drivers")
 }
 
-fn camera(width: usize, height: usize) -> PinholeCamera {
-    PinholeCamera::look_at(
-        [0.3, -0.2, -0.5],
-        [0.0, 0.0, 3.0],
-        [0.0, -1.0, 0.0],
-        0.9 * width as f64,
-        width,
-        height,
-    )
-}
-
 const SETTINGS: RenderSettings = RenderSettings {
     near_m: 0.05,
     cull: true,
 };
 
-/// A random scene in front of [`camera`] with `bands` bands and an SH colour of `degree`
-/// (`None`: no colour). Degree-0 coefficients in ±2.5 put some colours below zero (the ReLU).
-/// Random coloured primitives; `stiff` adds `gpu_raster.rs`'s stiff cases: β = 64, opacity
+/// A random scene in front of [`parity_camera`] with `bands` bands and an SH colour of
+/// `degree` (`None`: no colour); `stiff` adds `gpu_raster.rs`'s stiff cases: β = 64, opacity
 /// 0.999 (the α clamp), needles (one scale 1e-3).
 fn random_scene(
     seed: u64,
@@ -87,68 +78,18 @@ fn random_scene(
     degree: Option<usize>,
     stiff: bool,
 ) -> Primitives<f64> {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    let mut prims = Primitives::new(bands, degree);
-    let k = prims.sh_k();
-    for i in 0..n {
-        let beta = if i % 5 == 0 {
-            2.0
-        } else if stiff && i % 5 == 1 {
-            64.0
-        } else {
-            r.random_range(2.0..8.0)
-        };
-        let mut scale_m = [
-            r.random_range(0.05..0.5),
-            r.random_range(0.05..0.5),
-            r.random_range(0.05..0.5),
-        ];
-        if stiff && i % 11 == 0 {
-            scale_m[r.random_range(0..3)] = 1e-3; // needle / pancake
-        }
-        let opacity = r.random_range(0.05..0.9);
-        prims.push(&PrimitiveInit {
-            mean_m: [
-                r.random_range(-1.5..1.5),
-                r.random_range(-1.2..1.2),
-                r.random_range(1.0..5.0),
-            ],
-            scale_m,
-            quat: [
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-            ],
-            opacity: if stiff && i % 7 == 0 { 0.999 } else { opacity },
-            beta,
-            omega_low: r.random_range(0.0..1.0),
-            bands: (0..bands)
-                .map(|_| {
-                    (
-                        r.random_range(-0.3..0.3),
-                        [
-                            r.random_range(-2.0..2.0),
-                            r.random_range(-2.0..2.0),
-                            r.random_range(-2.0..2.0),
-                        ],
-                        r.random_range(-3.0..3.0),
-                    )
-                })
-                .collect(),
-            sh: (0..k)
-                .map(|kk| {
-                    let s = if kk == 0 { 2.5 } else { 1.0 / kk as f64 };
-                    [
-                        r.random_range(-s..s),
-                        r.random_range(-s..s),
-                        r.random_range(-s..s),
-                    ]
-                })
-                .collect(),
-        });
-    }
-    prims
+    parity_scene(
+        seed,
+        &ParityScene {
+            n,
+            bands,
+            sh_degree: degree,
+            beta_max: 8.0,
+            stiff,
+            opacity_first: true,
+            extras: false,
+        },
+    )
 }
 
 /// The same primitives without their colour.
@@ -221,7 +162,7 @@ fn rgb_planes_match_cpu_reference() {
     {
         let prims = random_scene(100 + seed as u64, n, bands, Some(degree), false);
         let prims32 = prims.cast::<f32>();
-        let cam = camera(w, h);
+        let cam = parity_camera(w, h);
         let gpu = raster
             .render(&ctx, &prims32, &cam, Outputs::All, &SETTINGS)
             .unwrap();
@@ -342,7 +283,7 @@ fn colour_gradients_match_cpu_reference_with_and_without_float_atomics() {
             {
                 let stiff = seed == 4;
                 let prims = random_scene(200 + seed as u64, n, bands, Some(degree), stiff);
-                let cam = camera(w, h);
+                let cam = parity_camera(w, h);
                 let mut up = random_upstream(seed as u64, w, h);
                 if seed == 3 {
                     up.thermal.iter_mut().for_each(|g| *g = 0.0);
@@ -430,7 +371,7 @@ fn thermal_only_scenes_run_the_thermal_kernels_only() {
     let mut raster =
         GpuRasterizer::new(&ctx, AccumulateVariant::best_for(ctx.capabilities())).unwrap();
     raster.set_profiling(true);
-    let cam = camera(64, 48);
+    let cam = parity_camera(64, 48);
     let coloured = random_scene(7, 200, 4, Some(2), false).cast::<f32>();
     let thermal = without_colour(&coloured);
     let mut up = cast_buffers(&random_upstream(3, 64, 48));
@@ -496,7 +437,7 @@ fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths()
     let mut vk = VulkanBackend::new(&options(false), SETTINGS).expect("lavapipe must be available");
     let mut cpu = CpuBackend { settings: SETTINGS };
     let coloured = random_scene(11, 150, 2, Some(1), false).cast::<f32>();
-    let cam = camera(48, 40);
+    let cam = parity_camera(48, 40);
     let (g_vk, g_cpu) = (
         vk.render(&coloured, &cam).unwrap(),
         cpu.render(&coloured, &cam).unwrap(),
@@ -523,7 +464,7 @@ fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths()
         consistency: ConsistencyOptions::default(),
         response: None,
     };
-    let refused = |r: Option<Result<_, TrainerError>>, call: &str| match r {
+    let refused = |r: Option<Result<_, RenderError>>, call: &str| match r {
         Some(Err(e)) => assert!(
             e.to_string().contains("SH colour"),
             "{call}: the error must say why: {e}"

@@ -25,13 +25,16 @@
 #![cfg(feature = "vulkan")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
+use common::{ParityScene, parity_camera, parity_scene};
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use s3tir_trainer::camera::PinholeCamera;
 use s3tir_trainer::gpu::accumulate::AccumulateVariant;
 use s3tir_trainer::gpu::raster::{GpuRasterizer, Outputs};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
-use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::{BETA_RAW_FROZEN, Primitives};
 use s3tir_trainer::render::{
     GBuffers, RenderSettings, prepare, render, render_backward, render_backward_prepared,
     render_gbuffers,
@@ -47,17 +50,6 @@ fn lavapipe_with(disable_float_atomics: bool) -> GpuContext {
         disable_float_atomics,
     })
     .expect("lavapipe (Mesa llvmpipe) must be available: install mesa-vulkan-drivers")
-}
-
-fn camera(width: usize, height: usize) -> PinholeCamera {
-    PinholeCamera::look_at(
-        [0.3, -0.2, -0.5],
-        [0.0, 0.0, 3.0],
-        [0.0, -1.0, 0.0],
-        0.9 * width as f64,
-        width,
-        height,
-    )
 }
 
 /// What capacity adaptation leaves behind: every third primitive keeps one band (its other slots
@@ -85,77 +77,20 @@ fn adapted(mut prims: Primitives<f64>) -> Primitives<f64> {
     prims
 }
 
+/// The scenes here: every stiff case and the three extras, no colour.
 fn random_scene(seed: u64, n: usize, bands: usize) -> Primitives<f64> {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    let mut prims = Primitives::new(bands, None);
-    for k in 0..n {
-        let beta = match k % 5 {
-            0 => 2.0,
-            1 => 64.0,
-            _ => r.random_range(2.0..12.0),
-        };
-        let mut scale = [
-            r.random_range(0.05..0.5),
-            r.random_range(0.05..0.5),
-            r.random_range(0.05..0.5),
-        ];
-        if k % 11 == 0 {
-            scale[r.random_range(0..3)] = 1e-3; // needle / pancake
-        }
-        prims.push(&PrimitiveInit {
-            mean_m: [
-                r.random_range(-1.5..1.5),
-                r.random_range(-1.2..1.2),
-                r.random_range(1.0..5.0),
-            ],
-            scale_m: scale,
-            quat: [
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-                r.random_range(-1.0..1.0),
-            ],
-            opacity: if k % 7 == 0 {
-                0.999
-            } else {
-                r.random_range(0.05..0.9)
-            },
-            beta,
-            omega_low: r.random_range(0.0..1.0),
-            bands: (0..bands)
-                .map(|_| {
-                    (
-                        r.random_range(-0.3..0.3),
-                        [
-                            r.random_range(-2.0..2.0),
-                            r.random_range(-2.0..2.0),
-                            r.random_range(-2.0..2.0),
-                        ],
-                        r.random_range(-3.0..3.0),
-                    )
-                })
-                .collect(),
-            sh: Vec::new(),
-        });
-    }
-    // Stiff extras: straddling the near plane (full-image rectangle), behind the camera, huge.
-    for (mean, s) in [
-        ([0.3, -0.2, -0.45], 0.2),
-        ([0.0, 0.0, -3.0], 0.5),
-        ([0.0, 0.0, 30.0], 20.0),
-    ] {
-        prims.push(&PrimitiveInit {
-            mean_m: mean,
-            scale_m: [s, s, s],
-            quat: [1.0, 0.0, 0.0, 0.0],
-            opacity: 0.5,
-            beta: 3.0,
-            omega_low: 0.5,
-            bands: vec![(0.1, [0.5, 0.0, 0.0], 0.0); bands],
-            sh: Vec::new(),
-        });
-    }
-    prims
+    parity_scene(
+        seed,
+        &ParityScene {
+            n,
+            bands,
+            sh_degree: None,
+            beta_max: 12.0,
+            stiff: true,
+            opacity_first: false,
+            extras: true,
+        },
+    )
 }
 
 fn planes<T: Copy>(g: &GBuffers<T>) -> [(&'static str, &Vec<T>); 6] {
@@ -226,7 +161,7 @@ fn gpu_forward_matches_cpu_reference_on_random_scenes() {
         // The third scene as capacity adaptation leaves it (dropped bands, frozen β).
         let prims = random_scene(seed as u64, n, bands);
         let prims = if seed == 2 { adapted(prims) } else { prims };
-        let cam = camera(w, h);
+        let cam = parity_camera(w, h);
         for cull in [true, false] {
             let settings = RenderSettings { near_m: 0.05, cull };
             let cpu64 = render(&prims, &cam, &settings).unwrap();
@@ -272,7 +207,7 @@ fn gpu_forward_of_an_empty_view_is_zero() {
         .render(
             &ctx,
             &prims.cast::<f32>(),
-            &camera(32, 32),
+            &parity_camera(32, 32),
             Outputs::All,
             &RenderSettings::default(),
         )
@@ -291,7 +226,7 @@ fn gbuffers_only_render_is_the_full_render_without_its_thermal_plane() {
     for (seed, adapt) in [(11u64, false), (12, true)] {
         let prims = random_scene(seed, 300, 4);
         let prims = if adapt { adapted(prims) } else { prims }.cast::<f32>();
-        let cam = camera(96, 72);
+        let cam = parity_camera(96, 72);
         let settings = RenderSettings {
             near_m: 0.05,
             cull: true,
@@ -413,7 +348,7 @@ fn gpu_gradients_match_cpu_reference_with_and_without_float_atomics() {
                 // phases evaluated), against the reference's full pass.
                 let prims = random_scene(50 + seed as u64, n, bands);
                 let prims = if seed == 3 { adapted(prims) } else { prims };
-                let cam = camera(w, h);
+                let cam = parity_camera(w, h);
                 let settings = RenderSettings {
                     near_m: 0.05,
                     cull: true,

@@ -92,7 +92,10 @@ fn spirv_passes_spirv_val_when_available() {
         .arg("--version")
         .output()
     else {
-        eprintln!("SKIPPED: spirv-val not installed (Debian package spirv-tools)");
+        s3tir_capture::skip::skip(
+            "spirv-val",
+            "spirv-val not installed (Debian package spirv-tools)",
+        );
         return;
     };
     assert!(status.status.success());

@@ -291,3 +291,78 @@ fn bench_mesh_reports_seconds_memory_and_the_mesh_at_the_size_given() {
         "the mesh bench should mesh the wall and report the peak memory: {v}"
     );
 }
+
+/// A run whose checkpoint is of format 1 (all JSON, as written before the arrays moved to a
+/// safetensors file) still resumes with `--resume`, and its next checkpoint is of format 2.
+#[test]
+fn a_format_1_checkpoint_still_resumes() {
+    use s3tir_trainer::checkpoint::{self, CHECKPOINT_VERSION, CHECKPOINT_VERSION_JSON};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("scene");
+    let run = tmp.path().join("run");
+    let st = bin()
+        .args(["synth", data.to_str().unwrap()])
+        .args(["--views", "9", "--width", "24", "--height", "18"])
+        .status()
+        .unwrap();
+    assert!(st.success(), "synth failed");
+    let out = bin()
+        .args(train_args(&data, &run))
+        .args(["--iters", "30"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // Rewrite the checkpoint as format 1 and drop its arrays file.
+    let header = run.join("checkpoint.json");
+    let mut ck = checkpoint::load(&header).unwrap();
+    ck.version = CHECKPOINT_VERSION_JSON;
+    std::fs::write(&header, serde_json::to_vec(&ck).unwrap()).unwrap();
+    for e in std::fs::read_dir(&run).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "safetensors") {
+            std::fs::remove_file(p).unwrap();
+        }
+    }
+    assert_eq!(checkpoint_iteration(&run), Some(30));
+
+    let out = bin()
+        .args(train_args(&data, &run))
+        .args(["--resume", "--iters", "40"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "resuming a format-1 checkpoint failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let back = checkpoint::load(&header).unwrap();
+    assert_eq!((back.iteration, back.version), (40, CHECKPOINT_VERSION));
+    assert_eq!(back.primitives.bands, ck.primitives.bands);
+}
+
+/// Without the `session` feature a recorded session is refused, saying what to do instead.
+#[cfg(not(feature = "session"))]
+#[test]
+fn a_session_input_without_the_session_feature_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("walk.mcap");
+    std::fs::write(&session, b"").unwrap();
+    let out = bin()
+        .args([session.to_str().unwrap(), "--out"])
+        .arg(tmp.path().join("run"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("walk.mcap")
+            && err.contains("`session` feature")
+            && err.contains("s3tir-calib poses"),
+        "{err}"
+    );
+}

@@ -1,10 +1,14 @@
 //! Proves: the renderer, its backward pass and the losses survive the stiff/extreme cases of
-//! BRIEF.md — β = 2 exactly and on the clamp, m = 0, scales 1e-6…1e3, needles and pancakes,
-//! primitives behind/on/grazing the near plane, edge-on views, opacity → 0 and → 1, 10⁵
-//! primitives on one pixel, huge and zero frequencies, degenerate quaternions, inputs 0 and 1 —
+//! the stability catalogue — β = 2 exactly and on the clamp, m = 0, scales 1e-6…1e3, needles
+//! and pancakes, primitives behind/on/grazing the near plane, edge-on views, opacity → 0 and
+//! → 1, 10⁵ primitives on one pixel, huge and zero frequencies, degenerate quaternions, inputs 0
+//! and 1 —
 //! with no NaN/Inf in the image, any G-buffer or any gradient, in f64 and f32, and that the f32
 //! image/G-buffers stay within a stated bound of f64 (same f32-representable parameters, so only
-//! arithmetic differs).
+//! arithmetic differs). Every case also states where it must draw (pixels whose alpha must be
+//! high, pixels a vanishing primitive must leave empty) and that its gradients are not all zero, so
+//! a renderer that drew nothing (or dropped the stiff primitive) fails rather than passing on
+//! "finite and equal".
 //! Does NOT prove: that gradients are correct in these cases (finite_diff_*.rs does that on
 //! smooth cases), nor f32 gradient accuracy (gradients are only checked for finiteness: near the
 //! α cut-off a single flipped sample changes them arbitrarily).
@@ -40,26 +44,104 @@ fn run<T: Real>(
     let l = view_loss(&out, &target, &LossWeights::default(), &mut up).unwrap();
     assert!(l.total.is_finite(), "{case} ({ty}): loss {l:?}");
     let g = render_backward(prims, cam, &settings, &up).unwrap();
+    let mut nonzero = 0usize;
     for (name, v) in g.groups() {
         let bad = v.iter().filter(|x| !x.is_finite()).count();
         assert_eq!(
             bad, 0,
             "{case} ({ty}): {bad} non-finite gradients in {name}"
         );
+        nonzero += v.iter().filter(|x| x.to_f64() != 0.0).count();
     }
+    let drawn = out.alpha.iter().any(|a| a.to_f64() > 0.0);
+    assert_eq!(
+        nonzero > 0,
+        drawn,
+        "{case} ({ty}): a scene that draws something has non-zero gradients and one that draws \
+         nothing has none ({nonzero} non-zero gradients, something drawn: {drawn})"
+    );
     out
+}
+
+/// What a case must draw: pixels `(u, v)` whose alpha must exceed `min_alpha`, pixels whose alpha
+/// must stay below `max_alpha`, and at least `min_pixels` pixels with alpha above 0.01.
+struct Expect<'a> {
+    drawn: &'a [(usize, usize)],
+    min_alpha: f64,
+    empty: &'a [(usize, usize)],
+    max_alpha: f64,
+    min_pixels: usize,
+}
+
+impl Expect<'_> {
+    /// Something is drawn at these pixels (alpha above `min_alpha`).
+    fn drawn(drawn: &[(usize, usize)], min_alpha: f64) -> Expect<'_> {
+        Expect {
+            drawn,
+            min_alpha,
+            empty: &[],
+            max_alpha: 1.0,
+            min_pixels: drawn.len(),
+        }
+    }
+
+    /// At least `min_pixels` pixels are drawn (alpha above 0.01), wherever they are.
+    fn pixels(min_pixels: usize) -> Expect<'static> {
+        Expect {
+            drawn: &[],
+            min_alpha: 0.0,
+            empty: &[],
+            max_alpha: 1.0,
+            min_pixels,
+        }
+    }
+
+    fn check<T: Real>(&self, case: &str, out: &GBuffers<T>) {
+        let ty = std::any::type_name::<T>();
+        let alpha = |(u, v): (usize, usize)| out.alpha[v * out.width + u].to_f64();
+        for &px in self.drawn {
+            assert!(
+                alpha(px) > self.min_alpha,
+                "{case} ({ty}): pixel {px:?} must be drawn (alpha > {}), got {}",
+                self.min_alpha,
+                alpha(px)
+            );
+        }
+        let covered = out.alpha.iter().filter(|a| a.to_f64() > 0.01).count();
+        assert!(
+            covered >= self.min_pixels,
+            "{case} ({ty}): at least {} pixels must be drawn (alpha > 0.01), got {covered}",
+            self.min_pixels
+        );
+        for &px in self.empty {
+            assert!(
+                alpha(px) < self.max_alpha,
+                "{case} ({ty}): pixel {px:?} must stay empty (alpha < {}), got {}",
+                self.max_alpha,
+                alpha(px)
+            );
+        }
+    }
 }
 
 /// f32 vs f64 on the same (f32-representable) parameters: for every buffer,
 /// `max |x32 − x64| ≤ tol · max(1, max |x64|)`.
 /// Returns the worst relative error over all buffers.
-fn check_case(case: &str, prims: &Primitives<f64>, cam: &PinholeCamera, tol: f64) -> f64 {
+fn check_case(
+    case: &str,
+    prims: &Primitives<f64>,
+    cam: &PinholeCamera,
+    tol: f64,
+    expect: &Expect<'_>,
+) -> f64 {
     let mut worst = 0.0f64;
     let p32 = prims.cast::<f32>();
     let p64 = p32.cast::<f64>();
     for target in [0.0, 1.0] {
         let o64 = run(case, &p64, cam, target);
         let o32 = run(case, &p32, cam, target);
+        expect.check(case, &o64);
+        expect.check(case, &o32);
         for ((name, a), (_, b)) in o64.planes().iter().zip(o32.planes().iter()) {
             let scale = a.iter().fold(1.0f64, |m, x| m.max(x.abs()));
             let err = a
@@ -117,7 +199,13 @@ fn beta_exactly_two_and_on_the_clamp() {
     assert_eq!(p.beta(0).0, 2.0);
     // At β = 64 the support drops from 1 to 0 within Δm ≈ 1/64: the f32 rounding of the
     // whitened residual (~1e-6 here) is amplified by ~β, hence 1e-4 rather than 1e-5.
-    check_case("beta 2 / clamp", &p, &c, 1e-4);
+    check_case(
+        "beta 2 / clamp",
+        &p,
+        &c,
+        1e-4,
+        &Expect::drawn(&[(10, 10), (25, 20), (18, 15)], 0.5),
+    );
 }
 
 #[test]
@@ -131,7 +219,7 @@ fn pixel_exactly_at_a_centre() {
         });
     }
     let p = scene(2, &list);
-    check_case("m = 0", &p, &c, 1e-5);
+    check_case("m = 0", &p, &c, 1e-5, &Expect::drawn(&[(20, 16)], 0.5));
 }
 
 #[test]
@@ -151,7 +239,15 @@ fn scales_from_1e_minus_6_to_1e3() {
         // known to ~0.1 Mahalanobis units in f32, so its α is ill-conditioned there (bound 3e-2);
         // from scale/depth ≥ 5e-5 on, f32 is within 1e-5 of f64.
         let tol = if s < 1e-5 { 3e-2 } else { 1e-5 };
-        check_case(&format!("scale {s:e}"), &one, &c, tol);
+        // the primitive is centred on pixel (5 + 6k, 16) with opacity 0.3: drawn there at any scale
+        let px = [(5 + 6 * k, 16)];
+        check_case(
+            &format!("scale {s:e}"),
+            &one,
+            &c,
+            tol,
+            &Expect::drawn(&px, 0.2),
+        );
         // centred on pixel rays so that the tiny ones are hit (m = 0) and not aliased away
         list.push(PrimitiveInit {
             scale_m: [s, s * 0.5, s * 2.0],
@@ -160,7 +256,14 @@ fn scales_from_1e_minus_6_to_1e3() {
         });
     }
     let p = scene(2, &list);
-    check_case("scales 1e-6..1e3", &p, &c, 3e-2);
+    let centres: Vec<(usize, usize)> = (0..6).map(|k| (5 + 6 * k, 16)).collect();
+    check_case(
+        "scales 1e-6..1e3",
+        &p,
+        &c,
+        3e-2,
+        &Expect::drawn(&centres, 0.2),
+    );
 }
 
 #[test]
@@ -199,7 +302,14 @@ fn needles_pancakes_and_edge_on_views() {
         });
     }
     let p = scene(2, &list);
-    check_case("needles/pancakes/edge-on", &p, &c, 1e-5);
+    // six pancakes of 1 m at 1–5 m cover far more than 100 of the 1 280 pixels
+    check_case(
+        "needles/pancakes/edge-on",
+        &p,
+        &c,
+        1e-5,
+        &Expect::pixels(100),
+    );
 }
 
 #[test]
@@ -236,7 +346,8 @@ fn behind_on_and_grazing_the_near_plane() {
         base(&c, 20.0, 16.0, 3.0),
     ];
     let p = scene(2, &list);
-    check_case("near plane", &p, &c, 1e-5);
+    // the ordinary primitive behind the stiff ones still shows at its centre
+    check_case("near plane", &p, &c, 1e-5, &Expect::drawn(&[(20, 16)], 0.5));
 }
 
 #[test]
@@ -255,7 +366,15 @@ fn opacity_towards_zero_and_one() {
     p.opacity_logits[1] = (1.0f64 / 255.0).ln() - (254.0f64 / 255.0).ln(); // o = 1/255
     p.opacity_logits[2] = 60.0; // o = 1: α clamps at 0.99
     p.opacity_logits[3] = 17.0;
-    check_case("opacity 0/1", &p, &c, 1e-5);
+    // o = 1 clamps alpha at 0.99 at its centre; o → 0 (and o = 1/255 nearby) leave (10, 10) empty
+    let expect = Expect {
+        drawn: &[(20, 16)],
+        min_alpha: 0.98,
+        empty: &[(10, 10)],
+        max_alpha: 0.01,
+        min_pixels: 1,
+    };
+    check_case("opacity 0/1", &p, &c, 1e-5, &expect);
 }
 
 #[test]
@@ -280,7 +399,13 @@ fn a_hundred_thousand_primitives_on_one_pixel() {
             ..PrimitiveInit::default()
         });
     }
-    check_case("1e5 on one pixel", &p, &c, 1e-5);
+    check_case(
+        "1e5 on one pixel",
+        &p,
+        &c,
+        1e-5,
+        &Expect::drawn(&[(2, 2)], 0.999),
+    );
     let out = render(&p, &c, &RenderSettings::default()).unwrap();
     let a = out.alpha[2 * 4 + 2];
     assert!(
@@ -308,7 +433,14 @@ fn huge_and_zero_frequencies() {
     let small = scene(2, &list[..3]);
     // The phase 2π f·(x* − μ) at f = 1e3 /m amplifies the f32 rounding of x* (~1e-7 m) by
     // ~6e3: 1e-3 instead of 1e-5.
-    check_case("frequencies ≤ 1e3", &small, &c, 1e-3);
+    let centres = [(6, 16), (13, 16), (20, 16)];
+    check_case(
+        "frequencies ≤ 1e3",
+        &small,
+        &c,
+        1e-3,
+        &Expect::drawn(&centres, 0.5),
+    );
 }
 
 #[test]
@@ -333,7 +465,22 @@ fn degenerate_quaternion_zero_intensity_and_empty_scene() {
         ],
     );
     p.quats[4..8].copy_from_slice(&[1e-30, 0.0, 0.0, 0.0]);
-    check_case("degenerate quat / F = 0", &p, &c, 1e-5);
+    // a degenerate quaternion still draws a primitive (normalised to the identity), and zero or
+    // negative intensity changes the colour, not the coverage
+    check_case(
+        "degenerate quat / F = 0",
+        &p,
+        &c,
+        1e-5,
+        &Expect::drawn(&[(10, 10), (20, 16), (30, 20)], 0.5),
+    );
     let empty = Primitives::<f64>::new(4, None);
-    check_case("empty scene", &empty, &c, 0.0);
+    let nothing = Expect {
+        drawn: &[],
+        min_alpha: 0.0,
+        empty: &[(0, 0), (20, 16), (39, 31)],
+        max_alpha: 1e-30,
+        min_pixels: 0,
+    };
+    check_case("empty scene", &empty, &c, 0.0, &nothing);
 }

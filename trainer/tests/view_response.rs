@@ -19,7 +19,7 @@
 //!
 //! The bounds were set from these measurements with margin; the CPU backend's steps are
 //! deterministic. Does NOT prove anything on
-//! real data (closing note of issue 24) or on the Vulkan backend (`gpu_train.rs` holds its
+//! real data (the sun-board study in scripts/real-data/README.md) or on the Vulkan backend (`gpu_train.rs` holds its
 //! steps, response included, to the host path's).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

@@ -33,9 +33,13 @@ use crate::tags::TagDetection;
 
 /// Finds the board in one keyframe image (`colmap/images/…`: RGB JPEG, thermal 8-bit PNG) of
 /// the given stream: its inner corners found, as (row-major corner index, pixel with the
-/// origin at the top-left pixel's centre); empty when the board is not found there.
-pub type BoardFinder =
-    Arc<dyn Fn(&Path, Stream) -> Result<Vec<(usize, DVec2)>, String> + Send + Sync>;
+/// origin at the top-left pixel's centre); empty when the board is not found there. An error
+/// is the finder's own (the image does not decode, the detector failed).
+pub type BoardFinder = Arc<
+    dyn Fn(&Path, Stream) -> Result<Vec<(usize, DVec2)>, Box<dyn std::error::Error + Send + Sync>>
+        + Send
+        + Sync,
+>;
 
 /// The board of `--board` (module docs).
 #[derive(Clone)]
@@ -126,10 +130,12 @@ impl BoardFiducial {
             .par_iter()
             .map(|k| {
                 let path = dir.join(stream.file_name(k.sequence));
-                let corners = (self.find)(&path, stream).map_err(|reason| PosesError::Tags {
-                    path: path.clone(),
-                    reason: format!("finding the board of {}: {reason}", self.path.display()),
-                })?;
+                let corners =
+                    (self.find)(&path, stream).map_err(|source| PosesError::BoardFinder {
+                        path: path.clone(),
+                        board: self.path.clone(),
+                        source,
+                    })?;
                 Ok(SeenTags {
                     sequence: k.sequence,
                     monotonic_ns: k.monotonic_ns,

@@ -53,10 +53,19 @@ pub struct RgbViews<'a> {
 pub const THERMAL_CAMERA_ID: u32 = 1;
 pub const RGB_CAMERA_ID: u32 = 2;
 
-fn out_err(path: &Path, e: impl ToString) -> PosesError {
+/// An output that failed to encode or write, with its cause.
+fn out_err(path: &Path, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> PosesError {
+    PosesError::Write {
+        path: path.to_path_buf(),
+        source: e.into(),
+    }
+}
+
+/// An output that cannot be written as asked (no underlying error).
+fn invalid(path: &Path, reason: impl Into<String>) -> PosesError {
     PosesError::Output {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        reason: reason.into(),
     }
 }
 
@@ -107,7 +116,7 @@ pub fn write(
             Pixels::Thermal(words) => {
                 let p = images.join(Stream::Thermal.dataset_file_name(seq));
                 let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, words.to_vec())
-                    .ok_or_else(|| out_err(&p, "pixel count does not match size"))?;
+                    .ok_or_else(|| invalid(&p, "pixel count does not match size"))?;
                 img.save(&p).map_err(|e| out_err(&p, e))?;
                 written.insert(seq);
             }
@@ -116,7 +125,7 @@ pub fn write(
                 if let Some(cam) = rgb.map(|r| r.camera)
                     && (w, h) != (cam.width_px, cam.height_px)
                 {
-                    return Err(out_err(
+                    return Err(invalid(
                         &p,
                         format!(
                             "RGB frame {seq} is {w}×{h} px, the calibrated RGB camera {}×{} px",
@@ -128,7 +137,7 @@ pub fn write(
                     grey_rgb += 1;
                 }
                 let img = image::RgbImage::from_raw(w, h, px.to_vec())
-                    .ok_or_else(|| out_err(&p, "pixel count does not match size"))?;
+                    .ok_or_else(|| invalid(&p, "pixel count does not match size"))?;
                 img.save(&p).map_err(|e| out_err(&p, e))?;
                 written_rgb.insert(seq);
             }

@@ -132,10 +132,10 @@ fn grey_of_rgb(rgb: &[u8]) -> Vec<f32> {
         .collect()
 }
 
-fn session_err(path: &Path, reason: impl Into<String>) -> PosesError {
-    PosesError::Session {
+fn session_err(path: &Path, source: s3tir_capture::CaptureError) -> PosesError {
+    PosesError::SessionRead {
         path: path.to_path_buf(),
-        reason: reason.into(),
+        source,
     }
 }
 
@@ -197,7 +197,7 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e.to_string()))?;
+    .map_err(|e| session_err(path, e))?;
     if let Some(b) = bar {
         b.finish_and_clear();
     }
@@ -243,9 +243,9 @@ pub fn write_keyframes(
     keyframes: &[FrameInfo],
     dir: &Path,
 ) -> Result<BTreeMap<u32, String>, PosesError> {
-    std::fs::create_dir_all(dir).map_err(|e| PosesError::Output {
+    std::fs::create_dir_all(dir).map_err(|e| PosesError::Write {
         path: dir.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     let wanted: BTreeSet<u32> = keyframes.iter().map(|k| k.sequence).collect();
     let mut names = BTreeMap::new();
@@ -264,9 +264,16 @@ pub fn write_keyframes(
         let Ok(frame) = parse_recorded(path, &f) else {
             return Ok(());
         };
-        let io = |p: &Path, e: String| s3tir_capture::CaptureError::Export {
+        let invalid = |p: &Path, reason: &str| s3tir_capture::CaptureError::Export {
             path: p.to_path_buf(),
-            reason: e,
+            reason: reason.to_owned(),
+        };
+        let write_err = |p: &Path, what: &'static str, source: s3tir_capture::error::BoxedCause| {
+            s3tir_capture::CaptureError::ExportWrite {
+                path: p.to_path_buf(),
+                what,
+                source,
+            }
         };
         match (stream, frame) {
             (Stream::Rgb, CapturedFrame::Rgb(r)) => {
@@ -274,13 +281,15 @@ pub fn write_keyframes(
                 let p = dir.join(&name);
                 let px = r.to_rgb8(&path.display().to_string())?;
                 let img = image::RgbImage::from_raw(r.width, r.height, px)
-                    .ok_or_else(|| io(&p, "decoded size does not match".into()))?;
-                let file = std::fs::File::create(&p).map_err(|e| io(&p, e.to_string()))?;
+                    .ok_or_else(|| invalid(&p, "decoded size does not match"))?;
+                let file = std::fs::File::create(&p)
+                    .map_err(|e| write_err(&p, "creating the keyframe", Box::new(e)))?;
                 let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(
                     std::io::BufWriter::new(file),
                     95,
                 );
-                enc.encode_image(&img).map_err(|e| io(&p, e.to_string()))?;
+                enc.encode_image(&img)
+                    .map_err(|e| write_err(&p, "encoding the keyframe", Box::new(e)))?;
                 names.insert(sequence, name);
             }
             (Stream::Thermal, CapturedFrame::Thermal(t)) => {
@@ -292,7 +301,7 @@ pub fn write_keyframes(
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e.to_string()))?;
+    .map_err(|e| session_err(path, e))?;
     if !pending.is_empty() {
         thermal_samples.sort_unstable();
         let q =
@@ -306,9 +315,9 @@ pub fn write_keyframes(
                     path: p.clone(),
                     reason: "pixel count does not match size".into(),
                 })?;
-            img.save(&p).map_err(|e| PosesError::Output {
+            img.save(&p).map_err(|e| PosesError::Write {
                 path: p.clone(),
-                reason: e.to_string(),
+                source: Box::new(e),
             })?;
             names.insert(seq, name);
         }
@@ -381,7 +390,7 @@ pub fn for_frames(
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e.to_string()))?;
+    .map_err(|e| session_err(path, e))?;
     failure.map_or(Ok(()), Err)
 }
 

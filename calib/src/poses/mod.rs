@@ -72,6 +72,11 @@
 //! Nothing already written is lost: the output folder must not exist (or be empty), the stage
 //! builds in `OUT.partial` (COLMAP's logs stay there when it fails; the next run clears it) and
 //! renames it to `OUT` when everything is written, and the session is only read.
+//!
+//! Around the steps: `rig` takes the calibration (given or attached to the session) and checks
+//! it against the session's frames, `output` keeps the output folder safe as above, `report`
+//! holds what the stage did ([`PosesReport`]) and the lines the CLIs print ([`summary`]);
+//! [`session_to_dataset`] runs it all.
 
 pub mod agreement;
 pub mod board;
@@ -79,6 +84,9 @@ pub mod dataset;
 pub mod fiducials;
 pub mod frames;
 pub mod interp;
+mod output;
+mod report;
+mod rig;
 pub mod select;
 pub mod sfm;
 #[cfg(test)]
@@ -91,13 +99,23 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::calfile::CalibrationFile;
-use crate::camera::CameraModel;
+use output::{finish_output, start_output};
+pub use report::{PosesReport, StageTimes, summary};
+pub use rig::{RigModels, attached_calibration, rig_models};
 
 /// Errors of the poses stage; each says what to install, record or pass.
 #[derive(Debug, Error)]
 pub enum PosesError {
+    /// The session reads, but not as the stage needs (a validation).
     #[error("session {path}: {reason}")]
     Session { path: PathBuf, reason: String },
+    /// The session could not be read.
+    #[error("session {path}: {source}")]
+    SessionRead {
+        path: PathBuf,
+        #[source]
+        source: s3tir_capture::CaptureError,
+    },
     #[error(
         "the calibration has no {what}: {why} (calibrate the rig with s3tir-calib BOARD --out calibration.yaml, from a board set or a session recorded with the board in view)"
     )]
@@ -114,9 +132,13 @@ pub enum PosesError {
         session_h: u32,
     },
     #[error(
-        "`{program}` (COLMAP) cannot be run: {reason}. Install Debian's colmap package (scripts/install-deps.sh does), pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR"
+        "`{program}` (COLMAP) cannot be run: {source}. Install Debian's colmap package (scripts/install-deps.sh does), pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR"
     )]
-    ColmapMissing { program: PathBuf, reason: String },
+    ColmapMissing {
+        program: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("COLMAP {step} failed ({status}); its log: {log}")]
     ColmapFailed {
         step: &'static str,
@@ -132,8 +154,16 @@ pub enum PosesError {
         needed: usize,
         workspace: PathBuf,
     },
+    /// An output that cannot be written as asked (a validation: never overwrite, sizes).
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
+    /// An output file could not be encoded or written (an I/O, image, JSON or COLMAP error).
+    #[error("{path}: {source}")]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     #[error("the COLMAP model {path}: {source}")]
     Model {
         path: PathBuf,
@@ -142,8 +172,24 @@ pub enum PosesError {
     },
     #[error("session {path}: {reason}")]
     Nothing { path: PathBuf, reason: String },
+    /// An AprilTag map or fiducial option that cannot be used (a validation).
     #[error("AprilTag map or detection {path}: {reason}")]
     Tags { path: PathBuf, reason: String },
+    /// The calibration board (`--board`) could not be looked for in a keyframe.
+    #[error("AprilTag map or detection {path}: finding the board of {board}: {source}")]
+    BoardFinder {
+        path: PathBuf,
+        board: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// An AprilTag map or keyframe could not be read, or the tag detector failed.
+    #[error("AprilTag map or detection {path}: {source}")]
+    TagsRead {
+        path: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 /// Which COLMAP matcher pairs the keyframes.
@@ -245,209 +291,6 @@ impl Default for PosesOptions {
             with_rgb: false,
         }
     }
-}
-
-/// Seconds spent per stage.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct StageTimes {
-    pub scan_s: f64,
-    pub keyframes_s: f64,
-    /// AprilTag detection in the keyframes and PnP.
-    pub tags_s: f64,
-    pub colmap_features_s: f64,
-    pub colmap_matching_s: f64,
-    pub colmap_mapper_s: f64,
-    pub interpolate_s: f64,
-    pub scale_s: f64,
-    pub write_s: f64,
-    pub total_s: f64,
-}
-
-/// What the stage did (also `poses.json` in the dataset).
-#[derive(Debug, Clone, Serialize)]
-pub struct PosesReport {
-    pub session: PathBuf,
-    pub dataset: PathBuf,
-    /// "rgb" or "thermal": the stream the keyframes come from.
-    pub sfm_stream: &'static str,
-    /// What posed the keyframes: "colmap", "apriltags" or "board" (fast paths) or "user model".
-    pub pose_source: &'static str,
-    pub session_truncated: bool,
-    pub session_note: Option<String>,
-    pub thermal_frames: usize,
-    pub rgb_frames: usize,
-    pub dropped_frames: u64,
-    pub keyframes: usize,
-    /// Keyframes posed (by structure from motion, a user's model or AprilTags) and used.
-    pub registered: usize,
-    /// Posed keyframes not used: their poses jump from their neighbours' in time
-    /// (`sfm::drop_jumps`, `fiducials::drop_jumps`).
-    pub outlier_keyframes: usize,
-    pub sfm_points: usize,
-    /// Metres per world unit, when known.
-    pub metres_per_unit: Option<f64>,
-    pub scale_source: String,
-    /// The fiducials are the calibration board (`--board`), not AprilTags.
-    pub board: bool,
-    /// Keyframes in which at least one tag of the map was decoded (with `--tags`), or one
-    /// square of the board found (with `--board`).
-    pub tag_keyframes: Option<usize>,
-    /// The scale measured from the tags on COLMAP's world (with `--tags`, COLMAP path).
-    pub tag_scale: Option<fiducials::TagScale>,
-    /// The model's keyframe rotations against the tags' PnP poses (with `--tags`, COLMAP or
-    /// user model; [`agreement`]).
-    pub tag_agreement: Option<agreement::TagAgreement>,
-    /// Thermal views trained on, and held out.
-    pub views: usize,
-    pub held_out: usize,
-    /// RGB views written (`--with-rgb`; held-out ones included; 0 without it).
-    #[serde(default)]
-    pub rgb_views: usize,
-    /// Of them, in `holdout.txt`.
-    #[serde(default)]
-    pub rgb_held_out: usize,
-    /// Count of thermal frames per reason they were not used.
-    pub skipped: std::collections::BTreeMap<String, usize>,
-    pub times: StageTimes,
-    /// One entry per thermal frame and keyframe: what happened to it.
-    pub frames: Vec<select::FrameDecision>,
-}
-
-/// Everything the stage needs of a calibration, checked against the session.
-#[derive(Debug, Clone, Copy)]
-pub struct RigModels {
-    pub thermal: CameraModel,
-    /// RGB camera and `rgb_from_thermal`, when the session records RGB.
-    pub rgb: Option<(CameraModel, crate::geometry::Rigid3)>,
-}
-
-/// Checks the calibration against the frames the session records.
-pub fn rig_models(
-    cal: &CalibrationFile,
-    scan: &frames::SessionScan,
-) -> Result<RigModels, PosesError> {
-    let thermal = cal.thermal.ok_or(PosesError::MissingCalibration {
-        what: "thermal camera",
-        why: "every posed view is a thermal view".into(),
-    })?;
-    let check = |camera: &'static str, m: &CameraModel, size: Option<(u32, u32)>| match size {
-        Some((w, h)) if (w, h) != (m.width_px, m.height_px) => {
-            Err(PosesError::CalibrationMismatch {
-                camera,
-                session: scan.path.clone(),
-                calibrated_w: m.width_px,
-                calibrated_h: m.height_px,
-                session_w: w,
-                session_h: h,
-            })
-        }
-        _ => Ok(()),
-    };
-    check("thermal", &thermal, scan.thermal_size)?;
-    let rgb = match scan.rgb_size {
-        None => None,
-        Some(_) => {
-            let rgb = cal.rgb.ok_or(PosesError::MissingCalibration {
-                what: "RGB camera",
-                why: format!(
-                    "session {} records RGB frames, and structure from motion runs on them",
-                    scan.path.display()
-                ),
-            })?;
-            check("rgb", &rgb, scan.rgb_size)?;
-            let e = cal.rgb_from_thermal.ok_or(PosesError::MissingCalibration {
-                what: "rgb_from_thermal extrinsic",
-                why: "thermal poses are the RGB poses composed with it (calibrate from thermal + RGB pairs)".into(),
-            })?;
-            Some((rgb, e))
-        }
-    };
-    Ok(RigModels { thermal, rgb })
-}
-
-/// The calibration attached to a session (`s3tir-capture --calibration FILE`).
-pub fn attached_calibration(scan: &frames::SessionScan) -> Result<CalibrationFile, PosesError> {
-    let mut problems = Vec::new();
-    for (name, data) in &scan.attachments {
-        if !name.starts_with("calibration") {
-            continue;
-        }
-        let label = scan.path.join(name);
-        match CalibrationFile::parse(&label, &String::from_utf8_lossy(data)) {
-            Ok(c) => return Ok(c),
-            Err(e) => problems.push(e.to_string()),
-        }
-    }
-    Err(PosesError::MissingCalibration {
-        what: "file",
-        why: if problems.is_empty() {
-            format!(
-                "none was given (--calibration FILE) and session {} carries none (record with s3tir-capture --calibration FILE)",
-                scan.path.display()
-            )
-        } else {
-            format!(
-                "none was given (--calibration FILE) and the one attached to session {} does not read: {}",
-                scan.path.display(),
-                problems.join("; ")
-            )
-        },
-    })
-}
-
-/// Marks a folder as this stage's unfinished work (safe to remove on the next run).
-const PARTIAL_MARKER: &str = ".s3tir-poses-partial";
-
-/// The folder the stage builds in: `OUT.partial`, renamed to `OUT` when everything is written.
-fn partial_dir(out: &Path) -> PathBuf {
-    let mut name = out.file_name().unwrap_or_default().to_os_string();
-    name.push(".partial");
-    out.with_file_name(name)
-}
-
-/// Checks that `out` is free (never overwritten), clears a previous run's unfinished
-/// `OUT.partial` (identified by its marker) and creates a fresh one.
-fn start_output(out: &Path) -> Result<PathBuf, PosesError> {
-    let err = |path: &Path, reason: String| PosesError::Output {
-        path: path.to_path_buf(),
-        reason,
-    };
-    if let Ok(mut it) = std::fs::read_dir(out)
-        && it.next().is_some()
-    {
-        return Err(err(
-            out,
-            "exists and is not empty: the poses stage never overwrites a dataset (choose another --dataset/--out or remove it)".into(),
-        ));
-    }
-    let partial = partial_dir(out);
-    if partial.exists() {
-        if !partial.join(PARTIAL_MARKER).is_file() {
-            return Err(err(
-                &partial,
-                "exists and is not an unfinished poses run of this tool: remove it or choose another output".into(),
-            ));
-        }
-        std::fs::remove_dir_all(&partial).map_err(|e| err(&partial, e.to_string()))?;
-    }
-    std::fs::create_dir_all(&partial).map_err(|e| err(&partial, e.to_string()))?;
-    std::fs::write(partial.join(PARTIAL_MARKER), "unfinished s3tir poses run\n")
-        .map_err(|e| err(&partial, e.to_string()))?;
-    Ok(partial)
-}
-
-/// Renames the finished `partial` folder to `out`.
-fn finish_output(partial: &Path, out: &Path) -> Result<(), PosesError> {
-    let err = |path: &Path, e: std::io::Error| PosesError::Output {
-        path: path.to_path_buf(),
-        reason: e.to_string(),
-    };
-    std::fs::remove_file(partial.join(PARTIAL_MARKER)).map_err(|e| err(partial, e))?;
-    if out.is_dir() {
-        // An empty folder the user made for it.
-        std::fs::remove_dir(out).map_err(|e| err(out, e))?;
-    }
-    std::fs::rename(partial, out).map_err(|e| err(out, e))
 }
 
 /// Runs the whole stage: `session` + `cal` → a posed thermal dataset in `out` (module docs).
@@ -857,113 +700,4 @@ pub fn session_to_dataset(
     dataset::write_report(out, &report)?;
     finish_output(out, final_out)?;
     Ok(report)
-}
-
-/// A few human lines about a report (what the CLIs print).
-pub fn summary(r: &PosesReport) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::new();
-    if let Some(note) = &r.session_note {
-        let _ = writeln!(s, "warning: {note}");
-    }
-    let _ = writeln!(
-        s,
-        "session {}: {} thermal, {} RGB frames, {} dropped",
-        r.session.display(),
-        r.thermal_frames,
-        r.rgb_frames,
-        r.dropped_frames
-    );
-    match r.pose_source {
-        "apriltags" | "board" => {
-            let _ = writeln!(
-                s,
-                "{} poses on {}: {} of {} keyframes posed by PnP (COLMAP not run)",
-                if r.pose_source == "board" {
-                    "board"
-                } else {
-                    "AprilTag"
-                },
-                r.sfm_stream,
-                r.registered,
-                r.keyframes
-            );
-        }
-        source => {
-            let _ = writeln!(
-                s,
-                "structure from motion ({source}) on {}: {} of {} keyframes registered, {} points",
-                r.sfm_stream, r.registered, r.keyframes, r.sfm_points
-            );
-        }
-    }
-    if r.outlier_keyframes > 0 {
-        let _ = writeln!(
-            s,
-            "warning: {} posed keyframes not used, their poses jump from their neighbours' in time (poses.json says which)",
-            r.outlier_keyframes
-        );
-    }
-    if let Some(n) = r.tag_keyframes {
-        let _ = writeln!(
-            s,
-            "{} in {n} of {} keyframes",
-            if r.board {
-                "the board found"
-            } else {
-                "AprilTags decoded"
-            },
-            r.keyframes
-        );
-    }
-    if let Some(a) = &r.tag_agreement {
-        let _ = writeln!(
-            s,
-            "{}{} model vs {} poses on {} keyframes: median {:.2}°, max {:.2}°, {} over {:.0}°{}",
-            if a.agrees { "" } else { "warning: " },
-            r.pose_source,
-            if r.board { "board" } else { "AprilTag" },
-            a.keyframes,
-            a.median_deg,
-            a.max_deg,
-            a.disagreeing,
-            agreement::DISAGREE_DEG,
-            if a.agrees {
-                ""
-            } else {
-                " — the model disagrees with the fiducials (hinged in parts?); check poses.json, or run again"
-            }
-        );
-    }
-    let _ = writeln!(s, "scale: {}", r.scale_source);
-    let _ = writeln!(
-        s,
-        "dataset {}: {} training views, {} held out",
-        r.dataset.display(),
-        r.views,
-        r.held_out
-    );
-    if r.rgb_views > 0 {
-        let _ = writeln!(
-            s,
-            "  with RGB: {} posed RGB keyframes, {} of them held out (camera 2)",
-            r.rgb_views, r.rgb_held_out
-        );
-    }
-    for (why, n) in &r.skipped {
-        let _ = writeln!(s, "  skipped {n}: {why}");
-    }
-    let t = &r.times;
-    let _ = writeln!(
-        s,
-        "time {:.1} s: scan {:.1}, tags {:.1}, features {:.1}, matching {:.1}, mapper {:.1}, write {:.1}",
-        t.total_s,
-        t.scan_s,
-        t.tags_s,
-        t.colmap_features_s,
-        t.colmap_matching_s,
-        t.colmap_mapper_s,
-        t.write_s
-    );
-    s
 }

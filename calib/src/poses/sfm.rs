@@ -22,13 +22,13 @@ fn run_step(
     args: &[String],
 ) -> Result<(), PosesError> {
     let log = workspace.join(format!("{step}.log"));
-    let file = std::fs::File::create(&log).map_err(|e| PosesError::Output {
+    let file = std::fs::File::create(&log).map_err(|e| PosesError::Write {
         path: log.clone(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
-    let err_file = file.try_clone().map_err(|e| PosesError::Output {
+    let err_file = file.try_clone().map_err(|e| PosesError::Write {
         path: log.clone(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     tracing::info!(step, "colmap {}", args.join(" "));
     let status = Command::new(program)
@@ -40,9 +40,9 @@ fn run_step(
         .stdout(Stdio::from(file))
         .stderr(Stdio::from(err_file))
         .status()
-        .map_err(|e| PosesError::ColmapMissing {
+        .map_err(|source| PosesError::ColmapMissing {
             program: program.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
     if status.success() {
         Ok(())
@@ -62,21 +62,22 @@ pub fn check_colmap(program: &Path) -> Result<(), PosesError> {
         .env("QT_QPA_PLATFORM", "offscreen")
         .stdin(Stdio::null())
         .output()
-        .map_err(|e| PosesError::ColmapMissing {
+        .map_err(|source| PosesError::ColmapMissing {
             program: program.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
     let text = String::from_utf8_lossy(&out.stdout);
     if text.contains("COLMAP") || text.to_lowercase().contains("colmap") {
         Ok(())
     } else {
+        // Not an I/O failure of its own: the program ran but is not COLMAP.
         Err(PosesError::ColmapMissing {
             program: program.to_path_buf(),
-            reason: format!(
+            source: std::io::Error::other(format!(
                 "`{} help` does not print COLMAP's usage ({})",
                 program.display(),
                 out.status
-            ),
+            )),
         })
     }
 }
@@ -92,9 +93,9 @@ pub fn run_colmap(
     let db = workspace.join("database.db");
     let images = workspace.join("images");
     let sparse = workspace.join("sparse");
-    std::fs::create_dir_all(&sparse).map_err(|e| PosesError::Output {
+    std::fs::create_dir_all(&sparse).map_err(|e| PosesError::Write {
         path: sparse.clone(),
-        reason: e.to_string(),
+        source: Box::new(e),
     })?;
     let s = |p: &Path| p.display().to_string();
     let threads = opts.threads.max(1).to_string();

@@ -83,9 +83,9 @@ pub fn load_image(path: &Path, colour: ColourMode) -> Result<RawImage, DatasetEr
             what: "image",
         });
     }
-    let img = image::open(path).map_err(|e| DatasetError::Image {
+    let img = image::open(path).map_err(|source| DatasetError::Image {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let raw = match img {
@@ -101,7 +101,7 @@ pub fn load_image(path: &Path, colour: ColourMode) -> Result<RawImage, DatasetEr
             // 16-bit colour is not a thermal format; take the first channel only if grey.
             let b = img.to_rgb16();
             if !b.pixels().all(|p| p[0] == p[1] && p[1] == p[2]) {
-                return Err(DatasetError::Image {
+                return Err(DatasetError::UnsupportedImage {
                     path: path.to_path_buf(),
                     reason: "16-bit colour images are not supported (thermal must be one channel)"
                         .into(),

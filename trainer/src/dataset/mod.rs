@@ -52,8 +52,16 @@ pub enum DatasetError {
     /// The COLMAP model could not be read (file and line in the error).
     #[error(transparent)]
     Colmap(#[from] s3tir_calib::colmap::ColmapError),
+    /// The image could not be decoded or encoded.
+    #[error("image {path}: {source}")]
+    Image {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
+    /// The image decodes but is not one the trainer takes.
     #[error("image {path}: {reason}")]
-    Image { path: PathBuf, reason: String },
+    UnsupportedImage { path: PathBuf, reason: String },
     #[error("image {image} refers to camera {camera_id}, which {model_dir} does not define")]
     UnknownCamera {
         model_dir: PathBuf,

@@ -203,13 +203,13 @@ pub fn write_scene(out_dir: &Path, cfg: &SynthConfig) -> Result<Vec<PinholeCamer
             cfg.height as u32,
             words,
         )
-        .ok_or_else(|| DatasetError::Image {
+        .ok_or_else(|| DatasetError::UnsupportedImage {
             path: path.clone(),
             reason: "buffer size mismatch".into(),
         })?;
-        buf.save(&path).map_err(|e| DatasetError::Image {
+        buf.save(&path).map_err(|source| DatasetError::Image {
             path: path.clone(),
-            reason: e.to_string(),
+            source,
         })?;
         model.images.push(ColmapImage {
             id: i as u32 + 1,

@@ -33,7 +33,7 @@ use super::loss::{GpuViewLoss, LOSS_SLOTS};
 use super::optimiser::{AdamStep, GpuOptimiser, KeyGate};
 use super::raster::{GpuRasterizer, KeptView, KeySizing, Outputs, ParamSource};
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::loss::response::ResponseGrad;
 use crate::primitive::Primitives;
 use crate::render::{GBuffers, RenderSettings};
@@ -663,8 +663,8 @@ impl VulkanBackend {
             .unwrap_or_default()
     }
 
-    fn raster(&self) -> Result<&GpuRasterizer, TrainerError> {
-        self.raster.as_ref().ok_or_else(|| TrainerError::Gpu {
+    fn raster(&self) -> Result<&GpuRasterizer, RenderError> {
+        self.raster.as_ref().ok_or_else(|| RenderError::Gpu {
             source: shut_down(),
         })
     }
@@ -673,8 +673,8 @@ impl VulkanBackend {
     /// RGB target) and keep no colour: a step of primitives with colour takes the host path
     /// (render, losses on the host, [`Backend::backward`]). Called with colour anyway, they
     /// return this error rather than gradients without the colour's losses.
-    fn colour_refused(call: &str) -> TrainerError {
-        TrainerError::Gpu {
+    fn colour_refused(call: &str) -> RenderError {
+        RenderError::Gpu {
             source: GpuError::InvalidInput {
                 reason: format!(
                     "{call}: the primitives carry an SH colour; the Vulkan backend's device and \
@@ -705,7 +705,7 @@ impl Backend for VulkanBackend {
 
     /// Every per-primitive and per-pixel buffer of the run ([`super::raster::run_buffers`])
     /// within the device's storage-buffer range.
-    fn check_run(&self, shape: &RunShape) -> Result<(), TrainerError> {
+    fn check_run(&self, shape: &RunShape) -> Result<(), RenderError> {
         let report = self.ctx.report();
         let npix = shape.width * shape.height;
         let storage = super::raster::run_buffers(shape.budget, shape.bands, shape.sh_k, npix).map(
@@ -744,22 +744,22 @@ impl Backend for VulkanBackend {
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError> {
+    ) -> Result<GBuffers<f32>, RenderError> {
         let _span = tracing::trace_span!("vulkan_render").entered();
         self.raster()?
             .render(&self.ctx, prims, cam, Outputs::All, &self.settings)
-            .map_err(|source| TrainerError::Gpu { source })
+            .map_err(|source| RenderError::Gpu { source })
     }
 
     fn render_gbuffers(
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError> {
+    ) -> Result<GBuffers<f32>, RenderError> {
         let _span = tracing::trace_span!("vulkan_render_gbuffers").entered();
         self.raster()?
             .render(&self.ctx, prims, cam, Outputs::GBuffers, &self.settings)
-            .map_err(|source| TrainerError::Gpu { source })
+            .map_err(|source| RenderError::Gpu { source })
     }
 
     fn backward(
@@ -767,18 +767,18 @@ impl Backend for VulkanBackend {
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
         upstream: &GBuffers<f32>,
-    ) -> Result<Primitives<f32>, TrainerError> {
+    ) -> Result<Primitives<f32>, RenderError> {
         let _span = tracing::trace_span!("vulkan_backward").entered();
         self.raster()?
             .render_backward(&self.ctx, prims, cam, &self.settings, upstream)
-            .map_err(|source| TrainerError::Gpu { source })
+            .map_err(|source| RenderError::Gpu { source })
     }
 
     fn device_step(
         &mut self,
         prims: &Primitives<f32>,
         step: &DeviceStep<'_>,
-    ) -> Option<Result<DeviceStepResult, TrainerError>> {
+    ) -> Option<Result<DeviceStepResult, RenderError>> {
         // The device path covers thermal-only steps whose two views share one size (its loss
         // buffers are sized per view size); anything else takes the host path.
         let same_size = step
@@ -794,15 +794,15 @@ impl Backend for VulkanBackend {
         let _span = tracing::trace_span!("vulkan_device_step").entered();
         Some(
             self.device_step_inner(prims, step)
-                .map_err(|source| TrainerError::Gpu { source }),
+                .map_err(|source| RenderError::Gpu { source }),
         )
     }
 
-    fn resident_upload(&mut self, state: &mut OptimiserState<'_>) -> Result<bool, TrainerError> {
+    fn resident_upload(&mut self, state: &mut OptimiserState<'_>) -> Result<bool, RenderError> {
         if !(self.resident && self.device_losses) || state.prims.sh_degree.is_some() {
             return Ok(false);
         }
-        let gpu = |source| TrainerError::Gpu { source };
+        let gpu = |source| RenderError::Gpu { source };
         if self.optimiser.is_none() {
             self.optimiser = Some(GpuOptimiser::new(&self.ctx).map_err(gpu)?);
         }
@@ -824,7 +824,7 @@ impl Backend for VulkanBackend {
         &mut self,
         prims: &Primitives<f32>,
         step: &ResidentStep<'_>,
-    ) -> Option<Result<ResidentStepResult, TrainerError>> {
+    ) -> Option<Result<ResidentStepResult, RenderError>> {
         let l = &step.losses;
         let same_size = l
             .pair
@@ -843,11 +843,11 @@ impl Backend for VulkanBackend {
         let _span = tracing::trace_span!("vulkan_resident_step").entered();
         Some(
             self.resident_step_inner(prims, step)
-                .map_err(|source| TrainerError::Gpu { source }),
+                .map_err(|source| RenderError::Gpu { source }),
         )
     }
 
-    fn resident_download(&mut self, state: &mut OptimiserState<'_>) -> Result<(), TrainerError> {
+    fn resident_download(&mut self, state: &mut OptimiserState<'_>) -> Result<(), RenderError> {
         let Some(opt) = self.optimiser.as_mut() else {
             return Ok(());
         };
@@ -862,7 +862,7 @@ impl Backend for VulkanBackend {
             state.grad_count,
         );
         opt.release(&self.ctx);
-        out.map_err(|source| TrainerError::Gpu { source })
+        out.map_err(|source| RenderError::Gpu { source })
     }
 }
 

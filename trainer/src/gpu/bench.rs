@@ -185,8 +185,11 @@ pub enum BenchError {
     },
     #[error("benchmark: {what} needs at least 1, got 0")]
     Zero { what: &'static str },
-    #[error("benchmark: a one-thread pool for the CPU backend: {reason}")]
-    ThreadPool { reason: String },
+    #[error("benchmark: a one-thread pool for the CPU backend: {source}")]
+    ThreadPool {
+        #[source]
+        source: rayon::ThreadPoolBuildError,
+    },
 }
 
 fn config(data: &Path, mode: Mode, partner: ConsistPartner, opts: &BenchOptions) -> TrainConfig {
@@ -389,9 +392,7 @@ fn run_in(
     let one_thread = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
-        .map_err(|e| BenchError::ThreadPool {
-            reason: e.to_string(),
-        })?;
+        .map_err(|source| BenchError::ThreadPool { source })?;
     let mut cpu1 = one_thread.install(|| {
         Timed::start(
             &data_dir,

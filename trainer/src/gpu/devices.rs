@@ -33,9 +33,8 @@ impl VulkanInstance {
     /// and creates an instance at the highest API version up to 1.3 the loader offers.
     pub fn new() -> Result<Self, GpuError> {
         // SAFETY: loading the system Vulkan loader runs its initialisers; that is its contract.
-        let entry = unsafe { ash::Entry::load() }.map_err(|e| GpuError::LoaderMissing {
-            reason: e.to_string(),
-        })?;
+        let entry =
+            unsafe { ash::Entry::load() }.map_err(|source| GpuError::LoaderMissing { source })?;
         // SAFETY: plain query on a loaded entry.
         let loader_version = unsafe { entry.try_enumerate_instance_version() }
             .map_err(vk_err("vkEnumerateInstanceVersion"))?

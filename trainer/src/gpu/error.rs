@@ -7,10 +7,13 @@ use ash::vk;
 pub enum GpuError {
     /// The Vulkan loader library could not be loaded.
     #[error(
-        "no Vulkan loader ({reason}); install a loader and a driver (Debian: libvulkan1 and \
+        "no Vulkan loader ({source}); install a loader and a driver (Debian: libvulkan1 and \
          mesa-vulkan-drivers, which includes the lavapipe CPU driver)"
     )]
-    LoaderMissing { reason: String },
+    LoaderMissing {
+        #[source]
+        source: ash::LoadingError,
+    },
     /// The loader runs but offers no physical device.
     #[error(
         "the Vulkan loader found no device; install a driver (Debian: mesa-vulkan-drivers \
@@ -61,18 +64,45 @@ pub enum GpuError {
         actual: u64,
     },
     /// gpu-allocator could not provide memory.
-    #[error("GPU memory for {name} ({bytes} bytes): {reason}")]
+    #[error("GPU memory for {name} ({bytes} bytes): {source}")]
     Allocation {
         name: String,
         bytes: u64,
-        reason: String,
+        #[source]
+        source: gpu_allocator::AllocationError,
     },
-    /// A shader is unknown or its SPIR-V is malformed.
+    /// A lock of the context (the memory allocator, a buffer pool) was poisoned by a panic in
+    /// another thread: what it guards is in an unknown state.
+    #[error("{what}: its lock was poisoned by a panic in another thread")]
+    LockPoisoned { what: &'static str },
+    /// A shader is unknown, or a kernel's use does not match its interface.
     #[error("shader {name}: {reason}")]
     Shader { name: String, reason: String },
+    /// A shader's SPIR-V module is malformed.
+    #[error("shader {name}: malformed SPIR-V: {source}")]
+    MalformedSpirv {
+        name: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The driver refused to build a shader's module or pipeline.
+    #[error("shader {name}: {call}: {source}")]
+    ShaderBuild {
+        name: String,
+        call: &'static str,
+        #[source]
+        source: vk::Result,
+    },
     /// Input data the GPU path cannot take (shapes, non-finite camera).
     #[error("invalid input: {reason}")]
     InvalidInput { reason: String },
+    /// Primitives or a camera that the renderer's own checks refuse (boxed: the renderer's
+    /// error also wraps this one).
+    #[error("invalid input: {source}")]
+    InvalidScene {
+        #[source]
+        source: Box<crate::error::RenderError>,
+    },
     /// A host read or write does not fit a buffer.
     #[error("buffer {name}: {requested_bytes} bytes requested, it holds {capacity_bytes}")]
     BufferRange {

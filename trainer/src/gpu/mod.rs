@@ -1,8 +1,14 @@
 //! Vulkan compute through ash (feature `vulkan`).
 //!
 //! - [`devices`]: the Vulkan instance and what each device offers (`s3tir-train devices`),
-//! - [`context`]: one device opened for compute: queue, memory (gpu-allocator, with peak use),
-//!   storage buffers, compute kernels, one-shot submissions,
+//! - [`context`]: one device opened for compute, a file per job: opening it (`open`: device
+//!   choice, up-front checks, features, queue and allocator), storage buffers (`buffers`:
+//!   gpu-allocator memory with peak use, uploads and reads), compute kernels (`kernels`:
+//!   pipelines and descriptor layouts), one-shot submissions (`submit`: bounded fence waits,
+//!   timestamp queries) and what is recorded into them (`recorder`: dispatches, copies,
+//!   barriers),
+//! - [`error`]: [`GpuError`], naming the device, call, buffer or feature, with the driver's,
+//!   loader's or allocator's error as its source,
 //! - [`shaders`]: every GLSL kernel of `trainer/shaders/`, compiled to SPIR-V by glslc in build.rs,
 //!   with the interface (bindings, push constants, required features) the host uses to run it,
 //! - [`reduce`]: a parallel float sum, in a subgroup-arithmetic and a portable shared-memory
@@ -20,7 +26,7 @@
 //! - [`optimiser`]: parameters, Adam moments and densification statistics resident on the GPU,
 //!   and the Adam kernel (the host optimiser's rules),
 //! - [`backend`]: the training loop's `Backend` on the GPU (`s3tir-train --backend vulkan`),
-//! - [`bench`]: `s3tir-train bench`, Vulkan vs CPU steps/s and the per-kernel breakdown.
+//! - [`bench`](mod@bench): `s3tir-train bench`, Vulkan vs CPU steps/s and the per-kernel breakdown.
 //!
 //! Devices without a feature get a typed [`GpuError`] naming it, checked when the context opens
 //! or when a kernel that needs it is created, never a driver crash mid-run.

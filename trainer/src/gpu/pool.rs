@@ -124,8 +124,8 @@ impl BufferPool {
     }
 
     fn lock(&self) -> Result<std::sync::MutexGuard<'_, Vec<GpuBuffer>>, GpuError> {
-        self.free.lock().map_err(|_| GpuError::InvalidInput {
-            reason: "buffer pool lock poisoned by a panic in another thread".to_owned(),
+        self.free.lock().map_err(|_| GpuError::LockPoisoned {
+            what: "GPU buffer pool",
         })
     }
 }

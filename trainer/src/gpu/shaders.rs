@@ -331,9 +331,11 @@ pub fn spirv(name: &str) -> Result<Vec<u32>, GpuError> {
             name: name.to_owned(),
             reason: "not compiled into this build".to_owned(),
         })?;
-    ash::util::read_spv(&mut std::io::Cursor::new(bytes)).map_err(|e| GpuError::Shader {
-        name: name.to_owned(),
-        reason: format!("malformed SPIR-V: {e}"),
+    ash::util::read_spv(&mut std::io::Cursor::new(bytes)).map_err(|source| {
+        GpuError::MalformedSpirv {
+            name: name.to_owned(),
+            source,
+        }
     })
 }
 

@@ -60,7 +60,7 @@ use rayon::prelude::*;
 
 use super::check_len;
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 use crate::render::GBuffers;
 
@@ -121,11 +121,11 @@ impl<T: Real> DepthFrame<T> {
         rendered: &GBuffers<T>,
         camera: &PinholeCamera,
         settings: &AlignSettings,
-    ) -> Result<Self, TrainerError> {
+    ) -> Result<Self, RenderError> {
         let (w, h) = (rendered.width, rendered.height);
         camera.validate()?;
         if camera.width != w || camera.height != h {
-            return Err(TrainerError::InvalidCamera {
+            return Err(RenderError::InvalidCamera {
                 camera: "thermal_align",
                 reason: "camera size differs from the rendered buffers",
             });
@@ -206,7 +206,7 @@ pub fn thermal_gradient<T: Real>(
     target: &[T],
     width: usize,
     height: usize,
-) -> Result<(Vec<T>, Vec<T>), TrainerError> {
+) -> Result<(Vec<T>, Vec<T>), RenderError> {
     check_len("target", target.len(), width, height)?;
     let n = width * height;
     let mut gx = vec![T::ZERO; n];
@@ -240,7 +240,7 @@ pub fn normals<T: Real>(
     rendered: &GBuffers<T>,
     camera: &PinholeCamera,
     settings: &AlignSettings,
-) -> Result<Vec<Option<[T; 3]>>, TrainerError> {
+) -> Result<Vec<Option<[T; 3]>>, RenderError> {
     let frame = DepthFrame::new(rendered, camera, settings)?;
     let w = frame.width;
     Ok((0..w * frame.height)
@@ -257,7 +257,7 @@ pub fn thermal_align<T: Real>(
     settings: &AlignSettings,
     weight: f64,
     upstream: &mut GBuffers<T>,
-) -> Result<AlignLoss, TrainerError> {
+) -> Result<AlignLoss, RenderError> {
     let frame = DepthFrame::new(rendered, camera, settings)?;
     let (w, h) = (frame.width, frame.height);
     check_len("upstream.depth", upstream.depth.len(), w, h)?;

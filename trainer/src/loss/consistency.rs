@@ -18,10 +18,16 @@
 //! The warp coordinates and the mask are under **stop-gradient**: no gradient reaches the depth
 //! maps, the alpha maps or the cameras through this term (the geometry is driven by the
 //! photometric loss; the consistency term anchors the frequency maps to it).
+//!
+//! Rows of the reference view run on rayon's pool; their sums and scatters into view j are added
+//! in row order, so the loss and gradients have the same bits on any thread count
+//! (`tests/cpu_threads.rs`).
+
+use rayon::prelude::*;
 
 use super::check_len;
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 use crate::render::GBuffers;
 
@@ -55,6 +61,13 @@ pub struct Consistency {
 
 /// One source pixel's bilinear footprint: four indices and weights.
 type Footprint = [(usize, f64); 4];
+
+/// One row of the reference view: its loss sum and, per valid pixel, the footprint in view j
+/// and the upstream `[dL/dΨhigh, dL/dΨβ]` to scatter there.
+struct RowScatter<T> {
+    sum: f64,
+    scatter: Vec<(Footprint, [T; 2])>,
+}
 
 /// Where pixel `(x, y)` of view i lands in view j (None: masked). Computed in f64 (stop-gradient).
 fn warp_pixel<T: Real>(
@@ -113,11 +126,11 @@ pub fn consistency_loss<T: Real>(
     weight: T,
     grad_i: &mut GBuffers<T>,
     grad_j: &mut GBuffers<T>,
-) -> Result<Consistency, TrainerError> {
+) -> Result<Consistency, RenderError> {
     let (wi, hi) = (view_i.width, view_i.height);
     let (wj, hj) = (view_j.width, view_j.height);
     if cam_i.width != wi || cam_i.height != hi || cam_j.width != wj || cam_j.height != hj {
-        return Err(TrainerError::InvalidCamera {
+        return Err(RenderError::InvalidCamera {
             camera: "consistency",
             reason: "camera size differs from its buffers",
         });
@@ -140,36 +153,56 @@ pub fn consistency_loss<T: Real>(
     }
     let n = (wi * hi) as f64;
     let k = weight / T::from_f64(n);
+    // Rows of view i in parallel: each row warps its pixels, writes its own row of `grad_i`
+    // and returns its scatter into view j (footprint and the two upstream values per pixel);
+    // the scatters and the row sums are then added in row order, so the result has the same
+    // bits on any number of threads.
+    let rows: Vec<RowScatter<T>> = grad_i
+        .psi_high
+        .par_chunks_mut(wi)
+        .zip(grad_i.psi_beta.par_chunks_mut(wi))
+        .enumerate()
+        .map(|(y, (gi_high, gi_beta))| {
+            let mut row = RowScatter {
+                sum: 0.0,
+                scatter: Vec::new(),
+            };
+            for (x, (gh, gb)) in gi_high.iter_mut().zip(gi_beta.iter_mut()).enumerate() {
+                let Some(fp) = warp_pixel(x, y, view_i, cam_i, view_j, cam_j, opt) else {
+                    continue;
+                };
+                let p = y * wi + x;
+                let mut g = [T::ZERO; 2];
+                for (which, (src_i, src_j)) in [
+                    (&view_i.psi_high, &view_j.psi_high),
+                    (&view_i.psi_beta, &view_j.psi_beta),
+                ]
+                .into_iter()
+                .enumerate()
+                {
+                    let warped = fp
+                        .iter()
+                        .fold(T::ZERO, |acc, &(q, wgt)| acc + T::from_f64(wgt) * src_j[q]);
+                    let diff = src_i[p] - warped;
+                    row.sum += diff.abs().to_f64();
+                    g[which] = k * diff.sign0();
+                }
+                *gh += g[0];
+                *gb += g[1];
+                row.scatter.push((fp, g));
+            }
+            row
+        })
+        .collect();
     let mut sum = 0.0;
     let mut valid_px = 0;
-    for y in 0..hi {
-        for x in 0..wi {
-            let Some(fp) = warp_pixel(x, y, view_i, cam_i, view_j, cam_j, opt) else {
-                continue;
-            };
-            valid_px += 1;
-            let p = y * wi + x;
-            for which in 0..2 {
-                let (src_i, src_j) = if which == 0 {
-                    (&view_i.psi_high, &view_j.psi_high)
-                } else {
-                    (&view_i.psi_beta, &view_j.psi_beta)
-                };
-                let warped = fp
-                    .iter()
-                    .fold(T::ZERO, |acc, &(q, wgt)| acc + T::from_f64(wgt) * src_j[q]);
-                let diff = src_i[p] - warped;
-                sum += diff.abs().to_f64();
-                let g = k * diff.sign0();
-                let (gi, gj) = if which == 0 {
-                    (&mut grad_i.psi_high, &mut grad_j.psi_high)
-                } else {
-                    (&mut grad_i.psi_beta, &mut grad_j.psi_beta)
-                };
-                gi[p] += g;
-                for &(q, wgt) in &fp {
-                    gj[q] -= g * T::from_f64(wgt);
-                }
+    for row in rows {
+        sum += row.sum;
+        valid_px += row.scatter.len();
+        for (fp, [g_high, g_beta]) in row.scatter {
+            for &(q, wgt) in &fp {
+                grad_j.psi_high[q] -= g_high * T::from_f64(wgt);
+                grad_j.psi_beta[q] -= g_beta * T::from_f64(wgt);
             }
         }
     }

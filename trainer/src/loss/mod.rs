@@ -16,7 +16,7 @@ pub mod photometric;
 pub mod regularizers;
 pub mod response;
 
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 use crate::render::GBuffers;
 
@@ -63,7 +63,7 @@ pub fn view_loss<T: Real>(
     target: &[T],
     weights: &LossWeights,
     upstream: &mut GBuffers<T>,
-) -> Result<ViewLoss, TrainerError> {
+) -> Result<ViewLoss, RenderError> {
     view_loss_of(&rendered.thermal, rendered, target, weights, upstream)
 }
 
@@ -75,7 +75,7 @@ pub(crate) fn view_loss_of<T: Real>(
     target: &[T],
     weights: &LossWeights,
     upstream: &mut GBuffers<T>,
-) -> Result<ViewLoss, TrainerError> {
+) -> Result<ViewLoss, RenderError> {
     let (w, h) = (rendered.width, rendered.height);
     check_len("thermal", thermal.len(), w, h)?;
     check_len("target", target.len(), w, h)?;
@@ -118,11 +118,11 @@ pub(crate) fn check_len(
     actual: usize,
     width: usize,
     height: usize,
-) -> Result<(), TrainerError> {
+) -> Result<(), RenderError> {
     if actual == width * height {
         Ok(())
     } else {
-        Err(TrainerError::BufferSize {
+        Err(RenderError::BufferSize {
             buffer,
             width,
             height,

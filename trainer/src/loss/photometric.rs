@@ -21,7 +21,7 @@
 //! stopped training (measured: 18 dB held-out thermal against 30 dB thermal-only).
 
 use super::check_len;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 use rayon::prelude::*;
 
@@ -140,7 +140,7 @@ pub fn l1_dssim<T: Real>(
     lambda_dssim: f64,
     scale: T,
     grad: &mut [T],
-) -> Result<Photometric, TrainerError> {
+) -> Result<Photometric, RenderError> {
     residual_dssim(
         image,
         target,
@@ -171,7 +171,7 @@ pub fn l1_low_dssim<T: Real>(
     eps: f64,
     scale: T,
     grad: &mut [T],
-) -> Result<Photometric, TrainerError> {
+) -> Result<Photometric, RenderError> {
     let n = (w * h).max(1) as f64;
     let mean = target.iter().map(|v| v.to_f64().max(0.0)).sum::<f64>() / n;
     let e = T::from_f64(eps);
@@ -211,7 +211,7 @@ fn residual_dssim<T: Real>(
     grad: &mut [T],
     norm: f64,
     pixel: impl Fn(T, T) -> (T, T),
-) -> Result<Photometric, TrainerError> {
+) -> Result<Photometric, RenderError> {
     check_len("image", image.len(), w, h)?;
     check_len("target", target.len(), w, h)?;
     check_len("grad", grad.len(), w, h)?;

@@ -5,7 +5,7 @@
 //!   column/row) and [`TV_EPSILON`] under the root so the gradient is finite on flat regions.
 
 use super::check_len;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 
 /// ε under the TV root (Ψ_β is in β units, ≥ 2 where covered).
@@ -30,7 +30,7 @@ pub fn tv_isotropic<T: Real>(
     h: usize,
     weight: T,
     grad: &mut [T],
-) -> Result<f64, TrainerError> {
+) -> Result<f64, RenderError> {
     check_len("psi", psi.len(), w, h)?;
     check_len("grad", grad.len(), w, h)?;
     let n = (w * h) as f64;

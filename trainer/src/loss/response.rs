@@ -8,13 +8,13 @@
 //! - 16-bit radiometric frames drift between flat-field corrections by an offset.
 //!
 //! The pivot is a constant of the scene (the training images' mean level), so gain and offset
-//! are nearly independent: a change of gain leaves the mean level in place. The learned
-//! per-view values, their optimiser and their anchoring live in [`crate::train::response`];
-//! this module is the transform and its exact gradient, the reference the GPU loss kernels
+//! are nearly independent: a change of gain leaves the mean level in place. This module is
+//! the transform and its exact gradient for given values (whoever learns them: the training
+//! loop depends on this module, not the other way round), the reference the GPU loss kernels
 //! (`loss_ssim_prepare`, `loss_grad`) are held to.
 
 use super::{LossWeights, ViewLoss, check_len, view_loss_of};
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::real::Real;
 use crate::render::GBuffers;
 
@@ -67,7 +67,7 @@ pub fn view_loss_with_response<T: Real>(
     weights: &LossWeights,
     response: &ViewResponse,
     upstream: &mut GBuffers<T>,
-) -> Result<(ViewLoss, ResponseGrad), TrainerError> {
+) -> Result<(ViewLoss, ResponseGrad), RenderError> {
     let (w, h) = (rendered.width, rendered.height);
     check_len("rendered.thermal", rendered.thermal.len(), w, h)?;
     check_len("upstream.thermal", upstream.thermal.len(), w, h)?;

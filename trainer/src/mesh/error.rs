@@ -18,6 +18,15 @@ pub enum MeshError {
     /// A malformed or unexpected PLY file (or a mesh that cannot be written as one).
     #[error("{path}: {reason}")]
     Ply { path: PathBuf, reason: String },
+    /// A number of a PLY header that does not parse.
+    #[error("{path}: {what}: {source}")]
+    PlyNumber {
+        path: PathBuf,
+        /// The header line and what it holds.
+        what: String,
+        #[source]
+        source: std::num::ParseFloatError,
+    },
     /// Fewer views than the fusion needs.
     #[error("{views} views with a surface; meshing needs at least {required}")]
     TooFewViews { views: usize, required: usize },

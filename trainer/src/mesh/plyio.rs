@@ -395,7 +395,7 @@ impl<'a> Body<'a> {
 pub type Region = [[f32; 3]; 2];
 
 /// The evaluation volume a truth surface states in its header (`comment region_m X0 Y0 Z0 X1
-/// Y1 Z1 …`, written by the simulator's `scene_truth`); `None` when it states none.
+/// Y1 Z1 …`, written by the simulator's `scene::truth`); `None` when it states none.
 pub fn read_region(path: &Path) -> Result<Option<Region>, MeshError> {
     let data = fs::read(path).map_err(|source| MeshError::Io {
         path: path.to_path_buf(),
@@ -414,7 +414,11 @@ pub fn read_region(path: &Path) -> Result<Option<Region>, MeshError> {
         .take(6)
         .map(str::parse)
         .collect::<Result<_, _>>()
-        .map_err(|e| ply_err(path, format!("region_m comment `{line}`: {e}")))?;
+        .map_err(|source| MeshError::PlyNumber {
+            path: path.to_path_buf(),
+            what: format!("region_m comment `{line}`"),
+            source,
+        })?;
     match v[..] {
         [x0, y0, z0, x1, y1, z1] if x0 <= x1 && y0 <= y1 && z0 <= z1 => {
             Ok(Some([[x0, y0, z0], [x1, y1, z1]]))

@@ -16,7 +16,7 @@ use super::forward::{blended_values, front_to_back, pixel};
 use super::prepare::{Prepared, prepare};
 use super::{GBuffers, RenderSettings, TILE_SIZE};
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::primitive::{Primitives, quat_backward};
 use crate::real::{Real, v3};
 use crate::sh;
@@ -61,7 +61,7 @@ pub fn render_backward<T: Real>(
     cam: &PinholeCamera,
     settings: &RenderSettings,
     upstream: &GBuffers<T>,
-) -> Result<Primitives<T>, TrainerError> {
+) -> Result<Primitives<T>, RenderError> {
     let mut prep = prepare(prims, cam, settings)?;
     check_upstream(&prep, upstream)?;
     // Without thermal upstream the spectrum's value does not enter any gradient: skip the band
@@ -70,12 +70,12 @@ pub fn render_backward<T: Real>(
     Ok(render_backward_prepared(prims, &prep, upstream))
 }
 
-fn check_upstream<T: Real>(prep: &Prepared<T>, g: &GBuffers<T>) -> Result<(), TrainerError> {
+fn check_upstream<T: Real>(prep: &Prepared<T>, g: &GBuffers<T>) -> Result<(), RenderError> {
     let n = prep.width * prep.height;
     for (name, v) in g.planes() {
         let expected = if name == "rgb" { 3 * n } else { n };
         if !v.is_empty() && v.len() != expected {
-            return Err(TrainerError::BufferSize {
+            return Err(RenderError::BufferSize {
                 buffer: name,
                 width: prep.width,
                 height: prep.height,

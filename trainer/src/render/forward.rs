@@ -4,7 +4,7 @@
 use super::prepare::{Prepared, PrimView, prepare};
 use super::{ALPHA_MAX, ALPHA_MIN, GBuffers, RenderSettings, T_MIN};
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::primitive::Primitives;
 use crate::real::{Real, v3};
 use rayon::prelude::*;
@@ -155,7 +155,7 @@ pub fn render<T: Real>(
     prims: &Primitives<T>,
     cam: &PinholeCamera,
     settings: &RenderSettings,
-) -> Result<GBuffers<T>, TrainerError> {
+) -> Result<GBuffers<T>, RenderError> {
     let prep = prepare(prims, cam, settings)?;
     Ok(render_prepared(prims, &prep))
 }
@@ -166,7 +166,7 @@ pub fn render_gbuffers<T: Real>(
     prims: &Primitives<T>,
     cam: &PinholeCamera,
     settings: &RenderSettings,
-) -> Result<GBuffers<T>, TrainerError> {
+) -> Result<GBuffers<T>, RenderError> {
     let mut prep = prepare(prims, cam, settings)?;
     prep.thermal = false;
     Ok(render_prepared(prims, &prep))

@@ -3,7 +3,7 @@
 
 use super::{ALPHA_MIN, CULL_PAD_PX, RenderSettings, TILE_SIZE};
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::primitive::{Primitives, rotation_from_quat};
 use crate::real::{Real, v3};
 use crate::sh;
@@ -98,7 +98,7 @@ pub fn prepare<T: Real>(
     prims: &Primitives<T>,
     cam: &PinholeCamera,
     settings: &RenderSettings,
-) -> Result<Prepared<T>, TrainerError> {
+) -> Result<Prepared<T>, RenderError> {
     prims.validate()?;
     cam.validate()?;
     let f = T::from_f64;

@@ -4,7 +4,7 @@
 //! the reference renderer ([`crate::render`]); the Vulkan backend implements the same trait.
 
 use crate::camera::PinholeCamera;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::loss::LossWeights;
 use crate::loss::consistency::ConsistencyOptions;
 use crate::loss::response::{ResponseGrad, ViewResponse};
@@ -115,7 +115,7 @@ pub trait Backend {
     /// Checks, before training starts, that a run of `shape` fits the backend (device limits);
     /// an error names what does not fit. A backend may prepare for the run here (the Vulkan
     /// backend sizes its per-primitive buffers for the budget).
-    fn check_run(&self, _shape: &RunShape) -> Result<(), TrainerError> {
+    fn check_run(&self, _shape: &RunShape) -> Result<(), RenderError> {
         Ok(())
     }
     /// Image and G-buffers of `prims` seen by `cam`.
@@ -123,7 +123,7 @@ pub trait Backend {
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError>;
+    ) -> Result<GBuffers<f32>, RenderError>;
     /// The G-buffers of `prims` seen by `cam` without the thermal image (its plane is zero): all
     /// a view needs whose image does not enter the loss (the consistency partner), without
     /// the band cosines. The default renders everything.
@@ -131,7 +131,7 @@ pub trait Backend {
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError> {
+    ) -> Result<GBuffers<f32>, RenderError> {
         self.render(prims, cam)
     }
     /// `dL/dprims` given `dL/d(buffers)` for the same view.
@@ -140,7 +140,7 @@ pub trait Backend {
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
         upstream: &GBuffers<f32>,
-    ) -> Result<Primitives<f32>, TrainerError>;
+    ) -> Result<Primitives<f32>, RenderError>;
     /// Renders, evaluates the thermal losses of `step` and back-propagates them on the
     /// backend's own device, so that images and their gradients never travel to the host.
     /// A backend with a device path keeps the G-buffers of each step's training view until its
@@ -152,14 +152,14 @@ pub trait Backend {
         &mut self,
         _prims: &Primitives<f32>,
         _step: &DeviceStep<'_>,
-    ) -> Option<Result<DeviceStepResult, TrainerError>> {
+    ) -> Option<Result<DeviceStepResult, RenderError>> {
         None
     }
 
     /// Takes the optimiser state onto the backend's device, so that whole steps
     /// ([`Backend::resident_step`]) run there with at most small readbacks. `Ok(false)`: this
     /// backend keeps no state (the default), the loop runs Adam on the host.
-    fn resident_upload(&mut self, _state: &mut OptimiserState<'_>) -> Result<bool, TrainerError> {
+    fn resident_upload(&mut self, _state: &mut OptimiserState<'_>) -> Result<bool, RenderError> {
         Ok(false)
     }
 
@@ -172,13 +172,13 @@ pub trait Backend {
         &mut self,
         _prims: &Primitives<f32>,
         _step: &ResidentStep<'_>,
-    ) -> Option<Result<ResidentStepResult, TrainerError>> {
+    ) -> Option<Result<ResidentStepResult, RenderError>> {
         None
     }
 
     /// Copies the resident state into the host's (before the loop reads or changes it) and
     /// releases it from the device: the host's copy is the truth again.
-    fn resident_download(&mut self, _state: &mut OptimiserState<'_>) -> Result<(), TrainerError> {
+    fn resident_download(&mut self, _state: &mut OptimiserState<'_>) -> Result<(), RenderError> {
         Ok(())
     }
 }
@@ -197,7 +197,7 @@ impl Backend for CpuBackend {
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError> {
+    ) -> Result<GBuffers<f32>, RenderError> {
         let _span = tracing::trace_span!("cpu_render").entered();
         render(prims, cam, &self.settings)
     }
@@ -205,7 +205,7 @@ impl Backend for CpuBackend {
         &mut self,
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
-    ) -> Result<GBuffers<f32>, TrainerError> {
+    ) -> Result<GBuffers<f32>, RenderError> {
         let _span = tracing::trace_span!("cpu_render_gbuffers").entered();
         render_gbuffers(prims, cam, &self.settings)
     }
@@ -214,7 +214,7 @@ impl Backend for CpuBackend {
         prims: &Primitives<f32>,
         cam: &PinholeCamera,
         upstream: &GBuffers<f32>,
-    ) -> Result<Primitives<f32>, TrainerError> {
+    ) -> Result<Primitives<f32>, RenderError> {
         let _span = tracing::trace_span!("cpu_backward").entered();
         render_backward(prims, cam, &self.settings, upstream)
     }

@@ -283,6 +283,34 @@ impl FromStr for ConsistPartner {
     }
 }
 
+/// The compute backend a run trains (or a command renders) on: `cpu`, the reference renderer
+/// in Rust, or `vulkan`, the on-rig compute trainer (feature `vulkan`). `--backend` takes these
+/// names and `config.json` stores them as strings (`"cpu"`, `"vulkan"`), as it always has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+#[value(rename_all = "lowercase")]
+pub enum BackendKind {
+    #[default]
+    Cpu,
+    Vulkan,
+}
+
+impl BackendKind {
+    /// The name `--backend` and `config.json` use.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "cpu",
+            BackendKind::Vulkan => "vulkan",
+        }
+    }
+}
+
+impl fmt::Display for BackendKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// Everything a run is configured by.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -329,8 +357,8 @@ pub struct TrainConfig {
     pub init_opacity: f64,
     /// SH degree of the colour branch when the data have RGB.
     pub sh_degree: usize,
-    /// Backend name (`cpu`).
-    pub backend: String,
+    /// The backend the run trains on.
+    pub backend: BackendKind,
     /// Per-view radiometric response learned with the scene (configs written before this
     /// option read as the default, `auto`).
     #[serde(default)]
@@ -387,7 +415,7 @@ impl TrainConfig {
             checkpoint_every_s: 60.0,
             init_opacity: 0.1,
             sh_degree: 0,
-            backend: "cpu".into(),
+            backend: BackendKind::Cpu,
             response: super::ResponseConfig::default(),
             cpu_timing: false,
             joint: Joint::default(),

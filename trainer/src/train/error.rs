@@ -6,7 +6,7 @@ use thiserror::Error;
 
 use crate::checkpoint::CheckpointError;
 use crate::dataset::DatasetError;
-use crate::error::TrainerError;
+use crate::error::RenderError;
 use crate::ply::PlyError;
 use crate::report::ReportError;
 
@@ -15,7 +15,7 @@ pub enum TrainError {
     #[error(transparent)]
     Dataset(#[from] DatasetError),
     #[error(transparent)]
-    Render(#[from] TrainerError),
+    Render(#[from] RenderError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
@@ -27,6 +27,21 @@ pub enum TrainError {
         path: PathBuf,
         #[source]
         source: std::io::Error,
+    },
+    /// A JSON file of the run (`config.json`, `eval.json`, …) could not be read or written.
+    #[error("{path}: {source}")]
+    Json {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A stage run with the model (meshing, reading a truth surface) failed; `what` says
+    /// which, the source why.
+    #[error("{what}: {source}")]
+    Stage {
+        what: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
     #[error("configuration: {reason}")]
     Config { reason: String },

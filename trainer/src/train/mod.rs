@@ -81,8 +81,8 @@ pub use backend::{
 };
 pub use capacity::CapacityReport;
 pub use config::{
-    Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN, Mode, RgbLoss,
-    TrainConfig, Weights,
+    BackendKind, Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN,
+    Mode, RgbLoss, TrainConfig, Weights,
 };
 pub use density::{DensifyRound, view_space_gradient};
 pub use error::TrainError;
@@ -313,8 +313,9 @@ impl<B: Backend> Trainer<B> {
             );
         }
         let cfg_path = run_dir.join(files::CONFIG);
-        let json = serde_json::to_string_pretty(&cfg).map_err(|e| TrainError::Config {
-            reason: e.to_string(),
+        let json = serde_json::to_string_pretty(&cfg).map_err(|source| TrainError::Json {
+            path: cfg_path.clone(),
+            source,
         })?;
         std::fs::write(&cfg_path, json).map_err(io_err(&cfg_path))?;
         let mut t = Self::bare(cfg, data, backend, run_dir);

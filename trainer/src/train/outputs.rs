@@ -200,8 +200,9 @@ fn output_stem(name: &str, index: usize) -> String {
 }
 
 pub(super) fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), TrainError> {
-    let s = serde_json::to_string_pretty(v).map_err(|e| TrainError::Config {
-        reason: e.to_string(),
+    let s = serde_json::to_string_pretty(v).map_err(|source| TrainError::Json {
+        path: path.to_path_buf(),
+        source,
     })?;
     std::fs::write(path, s).map_err(io_err(path))
 }
@@ -221,9 +222,9 @@ pub fn read_background(run_dir: &Path) -> Result<[f32; 3], TrainError> {
         return Ok([0.0; 3]);
     }
     let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-    let f: BackgroundFile = serde_json::from_str(&text).map_err(|e| TrainError::Run {
-        run_dir: run_dir.to_path_buf(),
-        reason: format!("{}: {e}", path.display()),
+    let f: BackgroundFile = serde_json::from_str(&text).map_err(|source| TrainError::Json {
+        path: path.clone(),
+        source,
     })?;
     Ok(f.rgb_background.map(|c| c as f32))
 }
@@ -244,10 +245,7 @@ pub struct RunEval {
 pub fn load_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
     let path = run_dir.join(files::CONFIG);
     let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Run {
-        run_dir: run_dir.to_path_buf(),
-        reason: format!("{}: {e}", path.display()),
-    })
+    serde_json::from_str(&text).map_err(|source| TrainError::Json { path, source })
 }
 
 /// Evaluates the run's primitives (its PLY, or its checkpoint when there is no PLY yet) on the

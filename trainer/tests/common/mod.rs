@@ -1,5 +1,6 @@
-//! Shared helpers of the trainer's integration tests: seeded scenes, cameras and a
-//! central-difference gradient checker. Not a test by itself.
+//! Shared helpers of the trainer's integration tests (and of `benches/cpu_render.rs`): seeded
+//! scenes (the GPU parity tests' [`parity_scene`], the CPU renderer's [`field_scene`]), cameras
+//! and a central-difference gradient checker. Not a test by itself.
 #![allow(dead_code, clippy::unwrap_used)]
 
 use rand::{Rng, SeedableRng};
@@ -268,4 +269,196 @@ impl<T: Real> Adam<T> {
             }
         }
     }
+}
+
+// ---- Random scenes of the GPU parity tests and of the CPU renderer's thread/bench checks ----
+
+/// The camera of the GPU parity tests (`gpu_raster.rs`, `gpu_colour.rs`): off-axis, looking at
+/// the middle of [`parity_scene`]'s primitives, focal length 0.9 × width.
+pub fn parity_camera(width: usize, height: usize) -> PinholeCamera {
+    PinholeCamera::look_at(
+        [0.3, -0.2, -0.5],
+        [0.0, 0.0, 3.0],
+        [0.0, -1.0, 0.0],
+        0.9 * width as f64,
+        width,
+        height,
+    )
+}
+
+/// How [`parity_scene`] draws its primitives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParityScene {
+    /// Random primitives.
+    pub n: usize,
+    pub bands: usize,
+    /// SH degree of the colour; `None`: thermal only. Degree-0 coefficients in ±2.5 put some
+    /// colours below zero (the ReLU), degree-k ones in ±1/k.
+    pub sh_degree: Option<usize>,
+    /// β is 2 for every fifth primitive (from the first), else drawn from `[2, beta_max)`.
+    pub beta_max: f64,
+    /// The stiff cases: β = 64 for every fifth primitive (from the second), opacity 0.999 (the
+    /// α clamp) for every seventh, a needle or pancake (one scale 1e-3) for every eleventh.
+    pub stiff: bool,
+    /// Each primitive's opacity is drawn before its mean, also when the stiff case pins it at
+    /// 0.999 (`gpu_colour.rs`'s random stream); otherwise after its rotation and only when not
+    /// pinned (`gpu_raster.rs`'s). Only the stream differs: each test's seeds keep giving the
+    /// scenes its bounds were measured on.
+    pub opacity_first: bool,
+    /// Three more primitives: one straddling the near plane (a full-image rectangle), one
+    /// behind the camera, one huge and far.
+    pub extras: bool,
+}
+
+/// A random scene in front of [`parity_camera`], drawn with `seed` as `spec` says.
+pub fn parity_scene(seed: u64, spec: &ParityScene) -> Primitives<f64> {
+    let mut r = rng(seed);
+    let bands = spec.bands;
+    let mut prims = Primitives::new(bands, spec.sh_degree);
+    let sh_k = prims.sh_k();
+    for i in 0..spec.n {
+        let beta = if i % 5 == 0 {
+            2.0
+        } else if spec.stiff && i % 5 == 1 {
+            64.0
+        } else {
+            r.random_range(2.0..spec.beta_max)
+        };
+        let mut scale_m = [
+            r.random_range(0.05..0.5),
+            r.random_range(0.05..0.5),
+            r.random_range(0.05..0.5),
+        ];
+        if spec.stiff && i % 11 == 0 {
+            scale_m[r.random_range(0..3)] = 1e-3; // needle / pancake
+        }
+        let pinned = spec.stiff && i % 7 == 0;
+        let early_opacity = spec.opacity_first.then(|| r.random_range(0.05..0.9));
+        let mean_m = [
+            r.random_range(-1.5..1.5),
+            r.random_range(-1.2..1.2),
+            r.random_range(1.0..5.0),
+        ];
+        let quat = random_quat(&mut r);
+        let opacity = match (pinned, early_opacity) {
+            (true, _) => 0.999,
+            (false, Some(o)) => o,
+            (false, None) => r.random_range(0.05..0.9),
+        };
+        prims.push(&PrimitiveInit {
+            mean_m,
+            scale_m,
+            quat,
+            opacity,
+            beta,
+            omega_low: r.random_range(0.0..1.0),
+            bands: (0..bands)
+                .map(|_| {
+                    (
+                        r.random_range(-0.3..0.3),
+                        [
+                            r.random_range(-2.0..2.0),
+                            r.random_range(-2.0..2.0),
+                            r.random_range(-2.0..2.0),
+                        ],
+                        r.random_range(-3.0..3.0),
+                    )
+                })
+                .collect(),
+            sh: (0..sh_k)
+                .map(|k| {
+                    let s = if k == 0 { 2.5 } else { 1.0 / k as f64 };
+                    [
+                        r.random_range(-s..s),
+                        r.random_range(-s..s),
+                        r.random_range(-s..s),
+                    ]
+                })
+                .collect(),
+        });
+    }
+    if spec.extras {
+        for (mean, s) in [
+            ([0.3, -0.2, -0.45], 0.2),
+            ([0.0, 0.0, -3.0], 0.5),
+            ([0.0, 0.0, 30.0], 20.0),
+        ] {
+            prims.push(&PrimitiveInit {
+                mean_m: mean,
+                scale_m: [s, s, s],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                opacity: 0.5,
+                beta: 3.0,
+                omega_low: 0.5,
+                bands: vec![(0.1, [0.5, 0.0, 0.0], 0.0); bands],
+                sh: vec![[0.0; 3]; sh_k],
+            });
+        }
+    }
+    prims
+}
+
+/// How [`field_scene`] draws its primitives (`cpu_threads.rs`, `benches/cpu_render.rs`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldScene {
+    pub n: usize,
+    pub bands: usize,
+    /// SH degree of the colour (coefficients in ±0.5); `None`: thermal only.
+    pub sh_degree: Option<usize>,
+    /// A primitive at depth z has a largest scale drawn from `scale × z / 3`.
+    pub scale: std::ops::Range<f64>,
+    /// β is drawn from `[2, beta_max)`.
+    pub beta_max: f64,
+}
+
+/// Small primitives filling the view of a camera at the origin looking down +z, at depths 2 to
+/// 6 m with sizes growing with depth (a frame's worth of tiles to cull), drawn with `seed`.
+pub fn field_scene(seed: u64, spec: &FieldScene) -> Primitives<f64> {
+    let mut r = rng(seed);
+    let mut p = Primitives::new(spec.bands, spec.sh_degree);
+    let sh_k = p.sh_k();
+    for _ in 0..spec.n {
+        let z: f64 = r.random_range(2.0..6.0);
+        let s = r.random_range(spec.scale.clone()) * z / 3.0;
+        p.push(&PrimitiveInit {
+            mean_m: [
+                r.random_range(-0.6..0.6) * z,
+                r.random_range(-0.45..0.45) * z,
+                z,
+            ],
+            scale_m: [
+                s,
+                s * r.random_range(0.3..1.0),
+                s * r.random_range(0.3..1.0),
+            ],
+            quat: [
+                r.random_range(-1.0..1.0),
+                r.random_range(-1.0..1.0),
+                r.random_range(-1.0..1.0),
+                1.0,
+            ],
+            opacity: r.random_range(0.2..0.9),
+            beta: r.random_range(2.0..spec.beta_max),
+            omega_low: r.random_range(0.2..0.8),
+            bands: (0..spec.bands)
+                .map(|_| {
+                    (
+                        r.random_range(-0.1..0.1),
+                        [r.random_range(-2.0..2.0), r.random_range(-2.0..2.0), 0.0],
+                        0.3,
+                    )
+                })
+                .collect(),
+            sh: (0..sh_k)
+                .map(|_| {
+                    [
+                        r.random_range(-0.5..0.5),
+                        r.random_range(-0.5..0.5),
+                        r.random_range(-0.5..0.5),
+                    ]
+                })
+                .collect(),
+        });
+    }
+    p
 }

@@ -38,7 +38,7 @@ impl GpuRasterizer {
         }
         match src {
             // The host values are the ones rendered: check them.
-            ParamSource::Host => prims.validate().map_err(|e| invalid(e.to_string()))?,
+            ParamSource::Host => prims.validate().map_err(invalid_scene)?,
             // Resident values: only the structure is on the host.
             ParamSource::Device { buffer, .. } => {
                 if has_colour(prims) {
@@ -61,7 +61,7 @@ impl GpuRasterizer {
                 }
             }
         }
-        cam.validate().map_err(|e| invalid(e.to_string()))?;
+        cam.validate().map_err(invalid_scene)?;
         let n = prims.len();
         let (tiles_x, tiles_y) = (
             cam.width.div_ceil(TILE_SIZE),
@@ -396,5 +396,13 @@ impl GpuRasterizer {
         self.bin_and_render_views(ctx, prims, src, &[(cam, what)], settings, KeySizing::Exact)?
             .pop()
             .ok_or_else(|| poisoned("rendered view"))
+    }
+}
+
+/// [`GpuError::InvalidScene`] of a check of the CPU renderer's that the primitives or the camera
+/// failed.
+fn invalid_scene(source: crate::error::RenderError) -> GpuError {
+    GpuError::InvalidScene {
+        source: Box::new(source),
     }
 }

@@ -1,0 +1,40 @@
+//! The subcommands of `s3tir-train`, one module each (their options and what they run); the
+//! binary's `main.rs` holds the clap top level, the logging set-up and the dispatch.
+//!
+//! - [`train`]: `s3tir-train DATA --out RUN_DIR` / `train`: a new or resumed run.
+//! - [`train_args`]: the training options (shared with `ablation`) and the run configuration
+//!   they make.
+//! - `session` (feature `session`): a recorded session (`SESSION.mcap`) posed into a dataset
+//!   before training.
+//! - [`eval`]: `eval`: held-out metrics of a run, or its score against a simulated truth.
+//! - [`ablation`]: `ablation`: the TGA-GS ablation's runs and table.
+//! - [`bench`]: `bench`: training steps/s per backend, or the stages of meshing.
+//! - [`mesh`]: `mesh`: a run fused into a surface mesh with kelvin per vertex.
+//! - [`compare`]: `compare`: several runs' error-vs-time curves on one plot.
+//! - [`devices`]: `devices`: the Vulkan devices and what the trainer needs of them.
+//! - [`synth`]: `synth`: the built-in analytic test scene as a COLMAP dataset.
+
+pub mod ablation;
+pub mod bench;
+pub mod compare;
+pub mod devices;
+pub mod eval;
+pub mod mesh;
+#[cfg(feature = "session")]
+pub mod session;
+pub mod synth;
+pub mod train;
+pub mod train_args;
+
+#[cfg(feature = "vulkan")]
+/// The Vulkan context options of `--device-index` and `--no-float-atomics`.
+pub fn vulkan_options(
+    device_index: Option<usize>,
+    no_float_atomics: bool,
+) -> s3tir_trainer::gpu::ContextOptions {
+    use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
+    ContextOptions {
+        device: device_index.map_or(DeviceChoice::Best, DeviceChoice::Index),
+        disable_float_atomics: no_float_atomics,
+    }
+}

@@ -1,0 +1,45 @@
+//! `s3tir-train SESSION.mcap`: a recorded session posed into a dataset before training.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+
+use super::train_args::TrainArgs;
+
+/// `s3tir-train SESSION.mcap`: the poses stage (calib's, in-process) writes the dataset first.
+pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
+    use s3tir_calib::calfile::CalibrationFile;
+    use s3tir_calib::poses::{self, PosesOptions};
+    if out.exists() {
+        bail!(
+            "{} exists: s3tir-train never overwrites a run (choose another --out)",
+            out.display()
+        );
+    }
+    let dataset = a.dataset.clone().unwrap_or_else(|| {
+        let mut name = out.file_name().unwrap_or_default().to_os_string();
+        name.push("-dataset");
+        out.with_file_name(name)
+    });
+    let cal = match &a.calibration {
+        Some(p) => Some(CalibrationFile::read(p)?),
+        None => None,
+    };
+    let opts = PosesOptions {
+        colmap: a.colmap.clone(),
+        tags: a.tags.clone(),
+        with_rgb: a.with_rgb,
+        holdout_every: a.holdout,
+        progress: true,
+        ..PosesOptions::default()
+    };
+    println!(
+        "posing session {} into {}",
+        session.display(),
+        dataset.display()
+    );
+    let report = poses::session_to_dataset(session, cal.as_ref(), &dataset, &opts)
+        .with_context(|| format!("poses from {}", session.display()))?;
+    print!("{}", poses::summary(&report));
+    Ok(dataset)
+}

@@ -1,0 +1,348 @@
+//! The training options (`s3tir-train DATA …`, `train`, `ablation`) and the run configuration
+//! they make.
+
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::{Args, ValueEnum};
+use s3tir_trainer::dataset::images::ColourMode;
+use s3tir_trainer::dataset::{LoadOptions, Modality, ThermalUnits};
+use s3tir_trainer::train::{
+    BackendKind, ConsistPartner, Densify, Joint, Mode, ResponseConfig, ResponseKind, RgbLoss,
+    TrainConfig,
+};
+
+/// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`), or a session recorded by
+    /// s3tir-capture (`.mcap`): it is posed first (`s3tir-calib poses`: COLMAP on the RGB
+    /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic) into
+    /// --dataset, then trained on.
+    #[arg(required = true)]
+    pub data: Option<PathBuf>,
+    /// Session input: the rig's calibration.yaml [default: the one attached to the session].
+    #[cfg(feature = "session")]
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Session input: where to write the posed dataset [default: RUN_DIR-dataset beside the run].
+    #[cfg(feature = "session")]
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Session input: the COLMAP program.
+    #[cfg(feature = "session")]
+    #[arg(long, env = "S3TIR_COLMAP", default_value = "colmap")]
+    pub colmap: PathBuf,
+    /// Session input: AprilTag map (see `s3tir-calib poses --help`): metric scale, and poses
+    /// without COLMAP where mapped tags are in view.
+    #[cfg(feature = "session")]
+    #[arg(long)]
+    pub tags: Option<PathBuf>,
+    /// Session input: also put the posed RGB keyframes into the dataset (their own camera,
+    /// the same world), so the run trains jointly on RGB and thermal (see --views).
+    #[cfg(feature = "session")]
+    #[arg(long)]
+    pub with_rgb: bool,
+    /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
+    /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
+    #[arg(long, required = true)]
+    pub out: Option<PathBuf>,
+    /// s3tir (learnable β + bands), 3dgs (β ≡ 2, no bands), ges (learnable β, no bands),
+    /// gabor (bands, β ≡ 2).
+    #[arg(long, default_value = "s3tir")]
+    pub mode: Mode,
+    /// Iterations [default: 30000; on --resume: the run's own].
+    #[arg(long)]
+    pub iters: Option<u64>,
+    /// Gaussian warm-up iterations (β ≡ 2, bands off).
+    #[arg(long, default_value_t = 3000)]
+    pub warmup: u64,
+    /// Compute backend [default: cpu; on --resume: the run's own].
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendKind>,
+    /// Vulkan device (position in `s3tir-train devices`) [default: the best discrete or
+    /// integrated GPU, else the CPU driver].
+    #[arg(long)]
+    pub device_index: Option<usize>,
+    /// Vulkan: do not use float atomics even where the device has them (the compare-and-swap
+    /// fallback that drivers without them, e.g. Raspberry Pi 5's, take).
+    #[arg(long)]
+    pub no_float_atomics: bool,
+    /// Hard primitive budget.
+    #[arg(long, default_value_t = 100_000)]
+    pub budget: usize,
+    /// Random seed (initial subsampling, bands, view order, splits).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Gabor bands per primitive (modes with bands).
+    #[arg(long, default_value_t = 4)]
+    pub bands: usize,
+    /// No multi-view consistency loss.
+    #[arg(long)]
+    pub no_consist: bool,
+    /// No L1 sparsity on Ψ_high.
+    #[arg(long)]
+    pub no_sparse: bool,
+    /// No TV smoothness on Ψ_β.
+    #[arg(long)]
+    pub no_smooth: bool,
+    /// Continue the run in --out from its checkpoint (its config.json; only --iters,
+    /// --time-budget and --backend may change).
+    #[arg(long)]
+    pub resume: bool,
+    /// Hold out every k-th view (by name) for evaluation; 0: none.
+    #[arg(long, default_value_t = 8)]
+    pub holdout: usize,
+    /// Integer downscale of every image at load.
+    #[arg(long, default_value_t = 1)]
+    pub downscale: usize,
+    /// What 16-bit words are: `ck` (TLinear centikelvin, radiometric) or `counts`.
+    #[arg(long, value_enum, default_value_t = Units::Ck)]
+    pub units: Units,
+    /// Read 8-bit colour images as ironbow pseudo-colour thermal instead of RGB.
+    #[arg(long)]
+    pub pseudo_colour: bool,
+    /// Held-out evaluation interval, training seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub eval_every_s: f64,
+    /// Checkpoint interval, training seconds.
+    #[arg(long, default_value_t = 60.0)]
+    pub checkpoint_every_s: f64,
+    /// β learning rate (β units).
+    #[arg(long, default_value_t = 1e-3)]
+    pub beta_lr: f64,
+    /// Compute the multi-view consistency loss every k-th iteration.
+    #[arg(long, default_value_t = 1)]
+    pub consist_every: u64,
+    /// The consistency term's partner view: `previous` pairs consecutive steps (a random view,
+    /// then a view overlapping it, warped into the G-buffers kept from the first: no extra
+    /// render, the term on every second step); `render` renders the view's best-overlap
+    /// partner in the same step (both views get gradients; about 2x the step time).
+    #[arg(long, default_value_t = ConsistPartner::Previous)]
+    pub consist_partner: ConsistPartner,
+    /// Train for this much training time instead of a number of iterations: `90s`, `10m`,
+    /// `1h30m` or plain seconds. Training time is step time, as the error-vs-time plot counts
+    /// it (held-out evaluations and checkpoints are not counted). The schedule (warm-up,
+    /// densification window, learning-rate decay) keeps its shape and follows the fraction
+    /// of the budget spent; --iters then only sets the nominal length it is written in.
+    #[arg(long, value_parser = parse_duration)]
+    pub time_budget: Option<f64>,
+    /// Density control: densify primitives whose mean view-space positional gradient (3DGS's
+    /// statistic, in normalised device coordinates) exceeds this.
+    #[arg(long, default_value_t = Densify::default().grad_threshold)]
+    pub densify_grad: f64,
+    /// Density control runs from this (schedule) iteration…
+    #[arg(long, default_value_t = Densify::default().from)]
+    pub densify_from: u64,
+    /// …until this one (and never in the second half of the run)…
+    #[arg(long, default_value_t = Densify::default().until)]
+    pub densify_until: u64,
+    /// …every this many iterations (0: no density control).
+    #[arg(long, default_value_t = Densify::default().every)]
+    pub densify_every: u64,
+    /// Density control removes primitives whose opacity is below this.
+    #[arg(long, default_value_t = Densify::default().prune_opacity)]
+    pub prune_opacity: f64,
+    /// Per-view radiometric response learned with the scene, applied to each training view's
+    /// render: `affine` (gain and offset: 8-bit images tone-mapped per frame by automatic gain
+    /// control), `offset` (16-bit radiometric frames drifting between flat-field corrections),
+    /// `none`, or `auto`: affine for 8-bit input, offset for 16-bit, dropped by mid-run when
+    /// the views' learned responses agree (offsets within 0.1 K or half a grey level, gains
+    /// within 0.5 %). The responses are anchored to the cameras' mean (mean offset and
+    /// log-gain zero), or, when DATA/ffc.txt lists the views taken right after a flat-field
+    /// correction, their offsets are pinned at zero there. Held-out views are evaluated raw
+    /// and aligned (eval.json, metrics.csv, error_vs_time.png).
+    #[arg(long, default_value_t = ResponseKind::Auto)]
+    pub response: ResponseKind,
+    /// Weight of the L2 prior on each view's response (offset² + log-gain²).
+    #[arg(long, default_value_t = ResponseConfig::default().prior)]
+    pub response_prior: f64,
+    /// Adam learning rate of the responses' offsets (normalised units) at the start of the
+    /// run; the log-gains' is twice it. Both decay to a tenth over the run.
+    #[arg(long, default_value_t = ResponseConfig::default().lr_offset)]
+    pub response_lr: f64,
+    /// At the end, time the CPU reference renderer's step on a training view with and without
+    /// its shortcuts (capacity.json: cpu_step_ms_*; six CPU passes, so off by default).
+    #[arg(long)]
+    pub cpu_timing: bool,
+    /// Joint RGB + thermal (TGA-GS): which of the dataset's image sets to train on. A COLMAP
+    /// model holding a rig's thermal and RGB images (each with its own camera: thermal pose =
+    /// RGB pose composed with the calibrated extrinsic) trains one set of primitives with a
+    /// thermal head and an SH colour head: `both` (joint), `thermal` or `rgb` alone.
+    #[arg(long, default_value_t = Modality::Both)]
+    pub views: Modality,
+    /// Joint: RGB pre-training, the first N iterations on RGB views only, then every view
+    /// (paper §3.3; counted inside --iters) [default: 0; `ablation`: a tenth of --iters].
+    #[arg(long)]
+    pub rgb_pretrain: Option<u64>,
+    /// Joint: each step trains one drawn view only, instead of the view together with the
+    /// other camera's image of the same instant (after the RGB pre-training).
+    #[arg(long)]
+    pub no_pair_steps: bool,
+    /// Joint: RGB views' loss — `l1-low` (TGA-GS's L1-low on a log curve for dark images, plus
+    /// D-SSIM), `l1` (L1 + D-SSIM), or `auto`: l1-low when the RGB training views average
+    /// below 0.2 (low light).
+    #[arg(long, default_value_t = RgbLoss::Auto)]
+    pub rgb_loss: RgbLoss,
+    /// Joint: weight of every term of a thermal view's loss.
+    #[arg(long, default_value_t = Joint::default().thermal_weight)]
+    pub thermal_weight: f64,
+    /// Joint: weight of every term of an RGB view's loss.
+    #[arg(long, default_value_t = Joint::default().rgb_weight)]
+    pub rgb_weight: f64,
+    /// Weight of the thermal gradient alignment loss (TGA-GS §3.4: rendered normals from the
+    /// depth G-buffer against the thermal image's gradients) on thermal views; 0 turns it off
+    /// [default: 0.05 in a joint run, 0 in a thermal-only run].
+    #[arg(long)]
+    pub thermal_align: Option<f64>,
+    /// Joint: also render the held-out thermal views at K× their resolution into
+    /// RUN_DIR/renders_sr/ (super-resolved thermal: the shared geometry carries the RGB views'
+    /// edges into the thermal head), and that render fused with each view's recorded image
+    /// (back-projection: its K×K averages match the recorded pixels) into
+    /// RUN_DIR/renders_sr_fused/ [default: the RGB over the thermal resolution in a joint run;
+    /// 1: none].
+    #[arg(long)]
+    pub sr_scale: Option<usize>,
+    /// Degree of the SH colour of runs with RGB views (0–3).
+    #[arg(long, default_value_t = 0)]
+    pub sh_degree: usize,
+}
+
+/// `--units`: what a dataset's 16-bit words are — `ck`, TLinear centikelvin (radiometric), or
+/// `counts`, raw sensor counts ([`ThermalUnits`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Units {
+    Ck,
+    Counts,
+}
+
+/// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
+/// (`1h30m`, `10m`, `90s`, `2.5m`); must be positive.
+fn parse_duration(text: &str) -> std::result::Result<f64, String> {
+    let t = text.trim();
+    let bad = || format!("{text:?} is not a duration (e.g. 600, 90s, 10m, 1h30m)");
+    if let Ok(s) = t.parse::<f64>() {
+        return if s.is_finite() && s > 0.0 {
+            Ok(s)
+        } else {
+            Err(format!("{text:?}: the duration must be positive"))
+        };
+    }
+    let mut total = 0.0;
+    let mut number = String::new();
+    for c in t.chars() {
+        if c.is_ascii_digit() || c == '.' {
+            number.push(c);
+            continue;
+        }
+        let unit = match c {
+            'h' => 3600.0,
+            'm' => 60.0,
+            's' => 1.0,
+            _ => return Err(bad()),
+        };
+        let n: f64 = number.parse().map_err(|_| bad())?;
+        total += n * unit;
+        number.clear();
+    }
+    if !(number.is_empty() && total.is_finite() && total > 0.0) {
+        return Err(bad());
+    }
+    Ok(total)
+}
+
+/// The configuration of a new run from the command line (`data`: the dataset folder).
+pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
+    let mut cfg = TrainConfig::new(data);
+    cfg.load = LoadOptions {
+        holdout_every: a.holdout,
+        thermal_units: match a.units {
+            Units::Ck => ThermalUnits::CentiKelvin,
+            Units::Counts => ThermalUnits::RawCounts,
+        },
+        colour: if a.pseudo_colour {
+            ColourMode::Pseudo
+        } else {
+            ColourMode::Rgb
+        },
+        downscale: a.downscale,
+        images_dir: None,
+        modality: a.views,
+    };
+    if a.sh_degree > s3tir_trainer::sh::SH_MAX_DEGREE {
+        bail!(
+            "--sh-degree {} is above the highest supported degree, {}",
+            a.sh_degree,
+            s3tir_trainer::sh::SH_MAX_DEGREE
+        );
+    }
+    if let Some(w) = a.thermal_align
+        && !(w >= 0.0 && w.is_finite())
+    {
+        bail!("--thermal-align must be a finite weight ≥ 0, got {w}");
+    }
+    for (flag, w) in [
+        ("--thermal-weight", a.thermal_weight),
+        ("--rgb-weight", a.rgb_weight),
+    ] {
+        if !(w >= 0.0 && w.is_finite()) {
+            bail!("{flag} must be a finite weight ≥ 0, got {w}");
+        }
+    }
+    cfg.sh_degree = a.sh_degree;
+    cfg.joint = Joint {
+        rgb_pretrain: a.rgb_pretrain.unwrap_or(0),
+        thermal_weight: a.thermal_weight,
+        rgb_weight: a.rgb_weight,
+        rgb_loss: a.rgb_loss,
+        thermal_align: a.thermal_align,
+        sr_scale: a.sr_scale,
+        pair_steps: !a.no_pair_steps,
+        ..Joint::default()
+    };
+    cfg.mode = a.mode;
+    cfg.iters = a.iters.unwrap_or(30_000);
+    cfg.time_budget_s = a.time_budget;
+    cfg.densify.grad_threshold = a.densify_grad;
+    cfg.densify.from = a.densify_from;
+    cfg.densify.until = a.densify_until;
+    cfg.densify.every = a.densify_every;
+    cfg.densify.prune_opacity = a.prune_opacity;
+    cfg.response.kind = a.response;
+    cfg.response.prior = a.response_prior;
+    cfg.response.lr_offset = a.response_lr;
+    cfg.response.lr_log_gain = 2.0 * a.response_lr;
+    cfg.cpu_timing = a.cpu_timing;
+    cfg.warmup = a.warmup;
+    cfg.budget = a.budget;
+    cfg.seed = a.seed;
+    cfg.bands = a.bands;
+    cfg.consist = !a.no_consist;
+    cfg.sparse = !a.no_sparse;
+    cfg.smooth = !a.no_smooth;
+    cfg.eval_every_s = a.eval_every_s;
+    cfg.checkpoint_every_s = a.checkpoint_every_s;
+    cfg.lr.beta = a.beta_lr;
+    cfg.consist_every = a.consist_every;
+    cfg.consist_partner = a.consist_partner;
+    cfg.backend = a.backend.unwrap_or_default();
+    Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::parse_duration;
+
+    #[test]
+    fn durations_read_as_seconds() {
+        assert_eq!(parse_duration("600").unwrap(), 600.0);
+        assert_eq!(parse_duration("90s").unwrap(), 90.0);
+        assert_eq!(parse_duration("10m").unwrap(), 600.0);
+        assert_eq!(parse_duration("2.5m").unwrap(), 150.0);
+        assert_eq!(parse_duration("1h30m").unwrap(), 5400.0);
+        for bad in ["", "0", "-5", "10x", "m", "5m3", "nan", "0s"] {
+            assert!(parse_duration(bad).is_err(), "{bad:?} must be refused");
+        }
+    }
+}
