@@ -32,14 +32,14 @@ demo: build
 	$(BIN)/s3tir-train devices
 	@echo "== 2/8 Calibrate the rig: record $(DEMO_BOARD_S) s of the emissivity board waved in front of it"
 	@echo "        (Lepton 3.5 + RGB), then one joint thermal + RGB solve from that session"
-	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk board --duration $(DEMO_BOARD_S) \
+	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk board --duration-s $(DEMO_BOARD_S) \
 	  --out $(DEMO_DIR)/board.mcap
 	$(BIN)/s3tir-calib $(DEMO_DIR)/board.mcap --board $(DEMO_DIR)/board-truth/board.toml \
 	  --out $(DEMO_DIR)/calibration/calibration.yaml \
 	  --report $(DEMO_DIR)/calibration/report --summary-json $(DEMO_DIR)/calibration/summary.json
 	@echo "== 3/8 Record a $(DEMO_WALK_S) s hand-held walk around the simulated scene (calibration attached;"
 	@echo "        the simulator renders every frame, so this takes longer than $(DEMO_WALK_S) s)"
-	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration $(DEMO_WALK_S) \
+	$(BIN)/s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration-s $(DEMO_WALK_S) \
 	  --calibration $(DEMO_DIR)/calibration/calibration.yaml --out $(DEMO_DIR)/walk.mcap
 	$(BIN)/s3tir-capture info $(DEMO_DIR)/walk.mcap
 	@echo "== 4/8 Pose the walk: COLMAP (CPU) on the RGB keyframes, thermal poses from the calibrated extrinsic;"

@@ -10,6 +10,8 @@ fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let pairs = if full { 50 } else { 6 };
     let dir = tempfile::tempdir().expect("temp dir");
-    let figures = s3tir_calib::bench::run(dir.path(), pairs, 7, false).expect("benchmark run");
+    let bars = s3tir_calib::progress_bars::ProgressBars::new();
+    let figures =
+        s3tir_calib::bench::run(dir.path(), pairs, 7, false, &bars).expect("benchmark run");
     println!("{figures}");
 }

@@ -31,6 +31,7 @@ use crate::frontend::{BoardDetection, detect_board};
 use crate::pipeline::{
     PipelineOptions, ViewCorners, calibrate_detections, cv_points, detect_folder, model_from_opencv,
 };
+use crate::progress::Progress;
 use crate::scalar::load_scalar;
 use crate::synth::{self, SynthOptions};
 use crate::views::DetectedSet;
@@ -105,12 +106,13 @@ impl fmt::Display for BenchFigures {
 }
 
 /// Runs the benchmark in `dir` (created; images written there); `apriltags` prints tags on the
-/// synthetic board.
+/// synthetic board; `progress` hears detection.
 pub fn run(
     dir: &Path,
     pairs: usize,
     seed: u64,
     apriltags: bool,
+    progress: &dyn Progress,
 ) -> Result<BenchFigures, CalibError> {
     let rig = synth::rig(synth::lepton(), synth::rgb_720p());
     let mut board = synth::default_board();
@@ -122,7 +124,7 @@ pub fn run(
     let t0 = Instant::now();
     synth::write_board_folder(dir, &rig, &opts)?;
     let render_s = t0.elapsed().as_secs_f64();
-    let set = detect_folder(dir, true)?;
+    let set = detect_folder(dir, progress)?;
     let t_ours = Instant::now();
     let cal = calibrate_detections(&set, &PipelineOptions::default())?;
     let ours_solve_s = t_ours.elapsed().as_secs_f64();
@@ -343,8 +345,8 @@ fn opencv_classic(grey: &Mat, pattern: Size) -> Result<bool, CalibError> {
 }
 
 /// The real-set benchmark (module docs) on board folder `dir` (`board.toml`, `thermal/`,
-/// `rgb/`). `progress` draws a bar over the per-image pass.
-pub fn run_real(dir: &Path, progress: bool) -> Result<RealBench, CalibError> {
+/// `rgb/`). `progress` hears the per-image pass, then detection.
+pub fn run_real(dir: &Path, progress: &dyn Progress) -> Result<RealBench, CalibError> {
     let board = BoardSpec::load(&dir.join("board.toml"))?;
     let (files, _) = list_views(dir)?;
     let pattern = Size::new(board.cols() as i32, board.rows() as i32);
@@ -352,11 +354,7 @@ pub fn run_real(dir: &Path, progress: bool) -> Result<RealBench, CalibError> {
     // One core per image for every detector: the product parallelises over images.
     opencv::core::set_num_threads(1).map_err(cv("setNumThreads"))?;
     let total: usize = files.iter().map(|f| f.files.iter().flatten().count()).sum();
-    let bar = if progress {
-        indicatif::ProgressBar::new(total as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    progress.start("benchmarking images", Some(total as u64));
     let mut cameras = Vec::new();
     let per_image = (|| -> Result<(), CalibError> {
         for camera in Camera::BOTH {
@@ -372,7 +370,7 @@ pub fn run_real(dir: &Path, progress: bool) -> Result<RealBench, CalibError> {
                 .iter()
                 .filter_map(|f| f.files[camera.index()].as_ref())
             {
-                bar.inc(1);
+                progress.advance(1);
                 let Ok(scalar) =
                     load_scalar(path, camera == Camera::Thermal, board.thermal_palette)
                 else {
@@ -408,7 +406,7 @@ pub fn run_real(dir: &Path, progress: bool) -> Result<RealBench, CalibError> {
         }
         Ok(())
     })();
-    bar.finish_and_clear();
+    progress.finish();
     opencv::core::set_num_threads(threads_before).map_err(cv("setNumThreads"))?;
     per_image?;
     let mut set = detect_folder(dir, progress)?;

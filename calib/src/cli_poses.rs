@@ -1,6 +1,7 @@
 //! `s3tir-calib poses`: part of the `s3tir-calib` binary (not of the library).
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
@@ -10,6 +11,8 @@ use s3tir_calib::frontend::detect_board;
 use s3tir_calib::poses::board::BoardFiducial;
 use s3tir_calib::poses::frames::Stream;
 use s3tir_calib::poses::{self, Matcher, PosesOptions};
+use s3tir_calib::progress::Progress;
+use s3tir_calib::progress_bars::ProgressBars;
 use s3tir_calib::scalar::load_scalar;
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -184,7 +187,7 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         board,
         tag_poses: !a.no_tag_poses,
         min_registered: a.min_registered,
-        progress: !a.json,
+        progress: (!a.json).then(|| Arc::new(ProgressBars::new()) as Arc<dyn Progress>),
         with_rgb: a.with_rgb,
         ..PosesOptions::default()
     };

@@ -11,6 +11,8 @@
 //! - `calfile`: `calibration.yaml` reader and model-only writer.
 //! - `colmap`: the workspace's COLMAP sparse-model codec (text and binary).
 //! - `error`: the library's error type.
+//! - `progress`: progress events of long runs (the library emits them, binaries draw them).
+//! - `progress_bars` (`poses`): the indicatif adapter that draws them (binaries only).
 //! - `tags` (`tags`): tag36h11 AprilTag detection and code tables.
 //! - `poses` (`poses`): a recorded session → a posed thermal dataset (the poses stage).
 //! - `plot` (`plots`): PNG plots with the bundled font.
@@ -57,6 +59,9 @@ pub mod pipeline;
 pub mod plot;
 #[cfg(feature = "poses")]
 pub mod poses;
+pub mod progress;
+#[cfg(feature = "poses")]
+pub mod progress_bars;
 #[cfg(feature = "opencv")]
 pub mod report;
 #[cfg(feature = "opencv")]

@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use s3tir_calib::pairs::PairThresholds;
 use s3tir_calib::pipeline::{self, PipelineOptions};
+use s3tir_calib::progress_bars::ProgressBars;
 use s3tir_calib::session::SessionOptions;
 use s3tir_calib::solve::SolveOptions;
 use s3tir_calib::tags::{self, TagConfig, TagDetector};
@@ -208,7 +209,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
             residual_ratio: args.pair_residual_ratio,
             ..PairThresholds::default()
         },
-        progress: true,
+        progress: Some(std::sync::Arc::new(ProgressBars::new())),
     };
     let cal = if pipeline::is_session(dir) {
         let Some(board) = &args.board else {
@@ -361,7 +362,7 @@ fn main() -> Result<()> {
         Some(Command::Bench {
             real: Some(real), ..
         }) => {
-            let figures = bench::run_real(&real, true)?;
+            let figures = bench::run_real(&real, &ProgressBars::new())?;
             println!("{figures}");
             Ok(())
         }
@@ -376,7 +377,7 @@ fn main() -> Result<()> {
             let dir = dir.unwrap_or_else(|| {
                 std::env::temp_dir().join(format!("s3tir-calib-bench-{}", std::process::id()))
             });
-            let figures = bench::run(&dir, pairs, seed, apriltags);
+            let figures = bench::run(&dir, pairs, seed, apriltags, &ProgressBars::new());
             if !keep {
                 let _ = std::fs::remove_dir_all(&dir);
             }

@@ -15,6 +15,7 @@ use crate::board::ThermalPolarity;
 use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
 use crate::error::CalibError;
 use crate::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board, rotate_180};
+use crate::progress::Progress;
 use crate::scalar::{ScalarImage, SourceKind, load_scalar};
 use crate::session::{SessionOptions, SessionViews};
 
@@ -60,7 +61,8 @@ pub fn is_session(path: &Path) -> bool {
 
 /// Loads `board.toml` and detects the board in every image of `dir`. A session path
 /// (`.mcap`) is refused with [`CalibError::SessionNeedsBoard`]: use [`detect_session`].
-pub fn detect_folder(dir: &Path, progress: bool) -> Result<DetectedSet, CalibError> {
+/// `progress` hears one stage, one item per image.
+pub fn detect_folder(dir: &Path, progress: &dyn Progress) -> Result<DetectedSet, CalibError> {
     if is_session(dir) {
         return Err(CalibError::SessionNeedsBoard {
             path: dir.to_path_buf(),
@@ -85,7 +87,7 @@ pub fn detect_session(
     session: &Path,
     board_toml: &Path,
     session_opts: &SessionOptions,
-    progress: bool,
+    progress: &dyn Progress,
 ) -> Result<DetectedSet, CalibError> {
     let board = BoardSpec::load(board_toml)?;
     let SessionViews {
@@ -128,7 +130,7 @@ pub fn detect_views(
     board: BoardSpec,
     files: Vec<ViewFiles>,
     problems: &mut Vec<FileProblem>,
-    progress: bool,
+    progress: &dyn Progress,
     load: impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError> + Sync,
 ) -> Result<DetectedSet, CalibError> {
     let start = Instant::now();
@@ -145,17 +147,7 @@ pub fn detect_views(
                 .filter_map(move |c| vf.files[c.index()].clone().map(|p| (v, c, p)))
         })
         .collect();
-    let bar = if progress {
-        let b = indicatif::ProgressBar::new(jobs.len() as u64);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "detecting {bar:40} {pos}/{len} images {elapsed}/{eta} {msg}",
-        ) {
-            b.set_style(style);
-        }
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    progress.start("detecting images", Some(jobs.len() as u64));
     let outcomes: Vec<ImageOutcome> = jobs
         .par_iter()
         .map(|(_, camera, path)| {
@@ -175,16 +167,17 @@ pub fn detect_views(
                     Err(e) => ImageOutcome::Failed(e.to_string()),
                 },
             };
-            bar.set_message(
-                path.file_name()
+            progress.item(
+                &path
+                    .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default(),
             );
-            bar.inc(1);
+            progress.advance(1);
             outcome
         })
         .collect();
-    bar.finish_and_clear();
+    progress.finish();
     let _ = opencv::core::set_num_threads(cv_threads);
     let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
     let mut images = [0usize; 2];

@@ -18,6 +18,7 @@ use s3tir_calib::Rigid3;
 use s3tir_calib::board::{BoardSpec, Camera};
 use s3tir_calib::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board};
 use s3tir_calib::pipeline::{PipelineOptions, calibrate_detections};
+use s3tir_calib::progress::NoProgress;
 use s3tir_calib::scalar::{ScalarImage, SourceKind};
 use s3tir_calib::synth::{self, Shades, SynthOptions, SynthRig, SynthTruth};
 use s3tir_calib::views::{DetectedSet, detect_folder};
@@ -61,7 +62,7 @@ fn partly_visible_tag_boards_give_their_corners_in_rgb() {
     let mut opts = SynthOptions::new(tag_board(9, 6), 14, 21);
     opts.rgb_partly_out = 4;
     let truth = synth::write_board_folder(dir.path(), &rig, &opts).unwrap();
-    let set = detect_folder(dir.path(), false).unwrap();
+    let set = detect_folder(dir.path(), &NoProgress).unwrap();
     let n = set.board.corner_count();
     for v in 0..set.views.len() {
         let Some((count, err)) = rgb_corner_error(&set, &rig, &truth, v) else {

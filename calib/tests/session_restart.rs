@@ -6,13 +6,16 @@
 //! sequences) first, so every pair after the restart was "a frame not in the session". With `max_views`, the views kept are spread over the whole
 //! session and only their pixels are held. The poses stage numbers the frames of such a
 //! session past the restart (unique, increasing per stream), and the keyframes it writes are
-//! the frames it scanned, on both sides of the restart. Does not calibrate
+//! the frames it scanned, on both sides of the restart; its scan reports one progress stage
+//! (start, one event per frame, finish). Does not calibrate
 //! (tests/session_input.rs does) nor run COLMAP (tests/tests/session_to_dataset.rs does).
 #![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use s3tir_calib::board::Camera;
+use s3tir_calib::progress::Progress;
 use s3tir_calib::session::{SessionOptions, read_views};
 use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::session::pairing::PairingMode;
@@ -122,13 +125,49 @@ fn pairs_after_a_sequence_restart_are_all_views() {
     );
 }
 
+/// Counts the progress events it hears: (starts, items advanced, finishes).
+#[derive(Debug, Default)]
+struct Counting {
+    starts: AtomicU64,
+    advanced: AtomicU64,
+    finishes: AtomicU64,
+}
+
+impl Progress for Counting {
+    fn start(&self, _stage: &str, _total: Option<u64>) {
+        self.starts.fetch_add(1, Ordering::Relaxed);
+    }
+    fn advance(&self, n: u64) {
+        self.advanced.fetch_add(n, Ordering::Relaxed);
+    }
+    fn finish(&self) {
+        self.finishes.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+impl Counting {
+    fn counts(&self) -> (u64, u64, u64) {
+        (
+            self.starts.load(Ordering::Relaxed),
+            self.advanced.load(Ordering::Relaxed),
+            self.finishes.load(Ordering::Relaxed),
+        )
+    }
+}
+
 #[test]
 fn the_poses_stage_numbers_frames_past_a_restart() {
     use s3tir_calib::poses::frames::{Stream, scan_session, write_keyframes};
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("restart.mcap");
     restarted_session(&path);
-    let scan = scan_session(&path, false).unwrap();
+    let progress = Counting::default();
+    let scan = scan_session(&path, &progress).unwrap();
+    assert_eq!(
+        progress.counts(),
+        (1, (scan.thermal.len() + scan.rgb.len()) as u64, 1),
+        "the scan reports one stage (start, every frame, finish)"
+    );
     for (name, frames) in [("thermal", &scan.thermal), ("rgb", &scan.rgb)] {
         assert!(
             frames.windows(2).all(|w| w[1].sequence > w[0].sequence),

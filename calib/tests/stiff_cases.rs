@@ -10,6 +10,7 @@
 
 use s3tir_calib::CalibError;
 use s3tir_calib::pipeline::{Calibration, PipelineOptions, calibrate_folder, detect_folder};
+use s3tir_calib::progress::NoProgress;
 use s3tir_calib::scalar::{Palette, SourceKind};
 use s3tir_calib::synth::{self, SynthOptions, ThermalFormat};
 
@@ -160,7 +161,7 @@ fn pseudo_colour_thermal_images_are_inverted_through_the_palette() {
     opts.thermal_format = ThermalFormat::PseudoColour(Palette::Ironbow);
     opts.coated_bright = true;
     synth::write_board_folder(dir.path(), &rig, &opts).unwrap();
-    let set = detect_folder(dir.path(), false).unwrap();
+    let set = detect_folder(dir.path(), &NoProgress).unwrap();
     assert!(
         set.source_kinds.iter().any(|(c, k)| c.name() == "thermal" && *k == SourceKind::PseudoColour(Palette::Ironbow)),
         "thermal images should be recognised as ironbow: {:?}",

@@ -1,6 +1,8 @@
 //! The capture daemon: device reader threads → one bounded queue → pipeline → session writer,
-//! on a tokio runtime that also handles signals, the recording duration, chunk-flush ticks and
-//! the status line.
+//! on a tokio runtime that also keeps the recording duration and the chunk-flush ticks. It
+//! draws nothing and installs no signal handler: the caller stops it through the `stop` flag
+//! and is told what happens through [`DaemonEvent`]s (the `s3tir-capture` binary turns them
+//! into its status line and sets the flag on SIGINT/SIGTERM).
 //!
 //! - Backpressure: readers `try_send` into a bounded queue of [`DaemonConfig::queue_frames`]
 //!   buffers. When the writer falls behind (slow disk) frames are dropped and counted per
@@ -12,8 +14,8 @@
 //!   this way; V4L2 only times out) is closed and reopened, counted in `stalls`. Frames lost
 //!   across a reopen are counted as drops by time ([`crate::session::pairing::SeqTracker`]): a
 //!   reopened V4L2 device restarts its sequence numbers.
-//! - Shutdown: SIGINT/SIGTERM or the end of `--duration` stop the readers, drain the queue,
-//!   decide pending pairs, and finish the file (summary + footer).
+//! - Shutdown: the caller's `stop` flag or the end of [`DaemonConfig::duration`] stop the
+//!   readers, drain the queue, decide pending pairs, and finish the file (summary + footer).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -56,12 +58,10 @@ pub struct DaemonConfig {
     pub out: PathBuf,
     pub info: SessionInfo,
     pub pairing: PairingMode,
-    /// Stop after this long (`None`: until SIGINT/SIGTERM or `stop` is set).
+    /// Stop after this long (`None`: until the caller sets `stop`).
     pub duration: Option<Duration>,
     /// Capacity of the reader → writer queue, in buffers.
     pub queue_frames: usize,
-    /// Draw the live status line on stderr.
-    pub status_line: bool,
     /// Calibration file attached to the session: (name with the file's extension, bytes);
     /// the media type follows the extension.
     pub calibration: Option<(String, Vec<u8>)>,
@@ -131,7 +131,7 @@ pub fn apply_polled_ffc(raw: &mut RawFrame, polled: FfcState) {
     }
 }
 
-/// Live counters, shared with the status line and the caller.
+/// Live counters, shared with the caller.
 #[derive(Debug, Default)]
 pub struct Counters {
     pub frames: [AtomicU64; 2],
@@ -176,6 +176,37 @@ pub struct DaemonReport {
     pub clock: Option<ClockMap>,
 }
 
+/// What a running recording tells its caller ([`run_with_events`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum DaemonEvent {
+    /// Once a second: frame rates over the last second and the live counters.
+    Status {
+        /// Since the recording started.
+        elapsed: Duration,
+        /// Thermal frames recorded per second over the last second.
+        thermal_hz: f64,
+        /// RGB frames recorded per second over the last second.
+        rgb_hz: f64,
+        /// The counters as the session's status records carry them.
+        status: StatusRecord,
+        /// Bytes written to the session so far.
+        bytes_written: u64,
+    },
+    /// The recording is ending: the queue is drained and the file finished next.
+    Stopping { why: StopReason },
+}
+
+/// Why a recording ends ([`DaemonEvent::Stopping`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// The caller set the `stop` flag (a signal, the end of a simulated walk).
+    Requested,
+    /// [`DaemonConfig::duration`] has passed.
+    Duration,
+    /// The session writer stopped (disk full, I/O error); [`run`] returns its error.
+    WriterStopped,
+}
+
 enum Msg {
     Frame {
         device: Arc<str>,
@@ -193,12 +224,24 @@ fn idx(s: StreamKind) -> usize {
     }
 }
 
-/// Records until the duration ends, a signal arrives, or `stop` is set. Blocks the calling
-/// thread (it builds its own tokio runtime).
+/// Records until the duration ends or `stop` is set. Blocks the calling thread (it builds its
+/// own tokio runtime). The same as [`run_with_events`] with the events ignored.
 pub fn run(
     cfg: DaemonConfig,
     stop: Arc<AtomicBool>,
     counters: Arc<Counters>,
+) -> Result<DaemonReport, CaptureError> {
+    run_with_events(cfg, stop, counters, |_| {})
+}
+
+/// Records until the duration ends or `stop` is set, calling `on_event` on the calling thread
+/// with the recording's status once a second and when it is stopping. Blocks the calling
+/// thread (it builds its own tokio runtime).
+pub fn run_with_events(
+    cfg: DaemonConfig,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+    on_event: impl FnMut(DaemonEvent),
 ) -> Result<DaemonReport, CaptureError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -209,13 +252,14 @@ pub fn run(
             what: "start runtime",
             source,
         })?;
-    rt.block_on(run_async(cfg, stop, counters))
+    rt.block_on(run_async(cfg, stop, counters, on_event))
 }
 
 async fn run_async(
     cfg: DaemonConfig,
     stop: Arc<AtomicBool>,
     counters: Arc<Counters>,
+    mut on_event: impl FnMut(DaemonEvent),
 ) -> Result<DaemonReport, CaptureError> {
     let started = Instant::now();
     let mut writer = SessionWriter::create(&cfg.out, &cfg.info)?;
@@ -363,70 +407,44 @@ async fn run_async(
             Ok((pipe, bytes))
         });
 
-    // Control: ticks, status line, signals, duration.
-    let bar = if cfg.status_line {
-        let b = indicatif::ProgressBar::new_spinner();
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{spinner} {elapsed} {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
-        );
-        Some(b)
-    } else {
-        None
-    };
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
-        .map_err(|source| CaptureError::SessionIo {
-            path: cfg.out.clone(),
-            what: "install SIGINT handler",
-            source,
-        })?;
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .map_err(|source| CaptureError::SessionIo {
-            path: cfg.out.clone(),
-            what: "install SIGTERM handler",
-            source,
-        })?;
+    // Control: ticks, status events, duration, the stop flag.
     let mut tick = tokio::time::interval(Duration::from_millis(100));
     let mut last_frames = [0u64; 2];
     let mut last_status = Instant::now();
-    let mut status_count = 0u64;
-    loop {
-        tokio::select! {
-            _ = sigint.recv() => { tracing::info!("SIGINT: finishing the session"); break; }
-            _ = sigterm.recv() => { tracing::info!("SIGTERM: finishing the session"); break; }
-            _ = tick.tick() => {
-                if stop.load(Ordering::Relaxed) { break; }
-                if cfg.duration.is_some_and(|d| started.elapsed() >= d) { break; }
-                // A full queue delays the tick, never drops it. A closed queue means the
-                // writer stopped (disk full, I/O error): stop and report its error.
-                if tx.send(Msg::Tick).await.is_err() {
-                    tracing::error!("the session writer stopped; ending the recording");
-                    break;
-                }
-                if last_status.elapsed() >= Duration::from_secs(1) {
-                    let dt = last_status.elapsed().as_secs_f64();
-                    last_status = Instant::now();
-                    let f = [counters.frames[0].load(Ordering::Relaxed), counters.frames[1].load(Ordering::Relaxed)];
-                    let fps = [(f[0] - last_frames[0]) as f64 / dt, (f[1] - last_frames[1]) as f64 / dt];
-                    last_frames = f;
-                    let s = counters.status();
-                    let msg = format!(
-                        "thermal {:.1} fps | rgb {:.1} fps | rejected {}/{} | queue drops {}/{} | reconnects {} | {:.1} MB",
-                        fps[0], fps[1], s.rejected_thermal, s.rejected_rgb, s.queue_drops_thermal,
-                        s.queue_drops_rgb, s.reconnects,
-                        counters.bytes.load(Ordering::Relaxed) as f64 / 1e6
-                    );
-                    status_count += 1;
-                    match &bar {
-                        Some(b) if !b.is_hidden() => b.set_message(msg),
-                        // No terminal (systemd, a pipe): the status goes to the log every 10 s.
-                        _ if status_count.is_multiple_of(10) => tracing::info!("{msg}"),
-                        _ => tracing::debug!("{msg}"),
-                    }
-                }
-            }
+    let why = loop {
+        tick.tick().await;
+        if stop.load(Ordering::Relaxed) {
+            break StopReason::Requested;
         }
-    }
+        if cfg.duration.is_some_and(|d| started.elapsed() >= d) {
+            break StopReason::Duration;
+        }
+        // A full queue delays the tick, never drops it. A closed queue means the writer
+        // stopped (disk full, I/O error): stop and report its error.
+        if tx.send(Msg::Tick).await.is_err() {
+            tracing::error!("the session writer stopped; ending the recording");
+            break StopReason::WriterStopped;
+        }
+        if last_status.elapsed() >= Duration::from_secs(1) {
+            let dt = last_status.elapsed().as_secs_f64();
+            last_status = Instant::now();
+            let f = [
+                counters.frames[0].load(Ordering::Relaxed),
+                counters.frames[1].load(Ordering::Relaxed),
+            ];
+            let hz = |k: usize| (f[k] - last_frames[k]) as f64 / dt;
+            let (thermal_hz, rgb_hz) = (hz(0), hz(1));
+            last_frames = f;
+            on_event(DaemonEvent::Status {
+                elapsed: started.elapsed(),
+                thermal_hz,
+                rgb_hz,
+                status: counters.status(),
+                bytes_written: counters.bytes.load(Ordering::Relaxed),
+            });
+        }
+    };
+    on_event(DaemonEvent::Stopping { why });
     stop.store(true, Ordering::Relaxed);
     for r in readers {
         let _ = r.await;
@@ -437,9 +455,6 @@ async fn run_async(
         what: "writer task",
         source: std::io::Error::other(e),
     })??;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
     Ok(DaemonReport {
         clock: pipe.clock(),
         thermal: pipe.thermal,

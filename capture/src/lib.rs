@@ -20,7 +20,8 @@
 //! Feature `rig` (the recorder and its binary):
 //! - [`backend`]: device backends behind one `FrameSource` trait (V4L2, nokhwa, simulated rig,
 //!   synthetic buffers),
-//! - [`daemon`]: the capture daemon (tokio, bounded queue, reconnect, clean shutdown),
+//! - [`daemon`]: the capture daemon (tokio, bounded queue, reconnect, clean shutdown when its
+//!   caller sets the stop flag; reports [`daemon::DaemonEvent`]s, draws nothing),
 //! - [`tools`]: `info`, `replay`, `export` over recorded sessions,
 //! - [`bench`](mod@bench): recorder throughput benchmark (`s3tir-capture bench`).
 //!

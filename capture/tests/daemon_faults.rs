@@ -6,7 +6,8 @@
 //! replay of the result reproduces every frame (same digest) and every pair; a device that
 //! stalls (open, no error, no buffers) is reopened by the watchdog and counted, its restarted
 //! sequence numbers do not lose the pairs after the reopen in `export`, and the outage is
-//! counted as drops by time.
+//! counted as drops by time; the daemon reports a status event a second and a last
+//! `Stopping` event saying whether its duration or its caller's stop flag ended it.
 //! Does NOT run the binaries or the real `s3tir-firmware-sim` (tests/tests/capture_*.rs do)
 //! and does not measure throughput (`s3tir-capture bench` does).
 #![allow(clippy::unwrap_used)]
@@ -49,7 +50,6 @@ fn config(socket: &std::path::Path, out: &std::path::Path, secs: f64) -> DaemonC
         },
         duration: Some(Duration::from_secs_f64(secs)),
         queue_frames: 64,
-        status_line: false,
         calibration: None,
         slow_disk: None,
         stall_timeout: s3tir_capture::daemon::DEFAULT_STALL_TIMEOUT,
@@ -443,4 +443,57 @@ fn a_stalled_camera_is_reopened_and_its_restarted_sequences_keep_their_pairs() {
         exported, info.pairs,
         "export writes every recorded pair ({pairs_after} after the restart)"
     );
+}
+
+#[test]
+fn the_daemon_reports_status_events_and_stops_on_its_callers_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("rig.sock");
+    let _rig = FakeRig::start(
+        &sock,
+        FakeRigConfig {
+            thermal: ThermalSynth {
+                rate_hz: 9.0,
+                ..ThermalSynth::lepton35()
+            },
+            rgb: None,
+            script: Script::default(),
+            unpaced: false,
+            max_buffers: None,
+        },
+    )
+    .unwrap();
+    // The duration ends the first recording; the caller's flag the second (no duration).
+    for (secs, why) in [
+        (Some(1.5), daemon::StopReason::Duration),
+        (None, daemon::StopReason::Requested),
+    ] {
+        let out = dir.path().join(format!("{why:?}.mcap"));
+        let mut cfg = config(&sock, &out, 1.0);
+        cfg.duration = secs.map(Duration::from_secs_f64);
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let stopper = std::thread::spawn(move || {
+            if secs.is_none() {
+                std::thread::sleep(Duration::from_millis(1500));
+                flag.store(true, Ordering::Relaxed);
+            }
+        });
+        let mut events = Vec::new();
+        let report =
+            daemon::run_with_events(cfg, stop, Arc::new(Counters::default()), |e| events.push(e))
+                .unwrap();
+        stopper.join().unwrap();
+        let statuses = events
+            .iter()
+            .filter(|e| matches!(e, daemon::DaemonEvent::Status { .. }))
+            .count();
+        assert!(statuses >= 1, "a status event a second: {events:?}");
+        assert_eq!(
+            events.last(),
+            Some(&daemon::DaemonEvent::Stopping { why }),
+            "the last event says why the recording ends"
+        );
+        assert!(report.thermal.frames > 0, "{report:?}");
+    }
 }

@@ -1,6 +1,8 @@
 //! `s3tir-firmware-sim`: the simulated s3tir rig.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -418,6 +420,27 @@ fn progress_bar(total: usize, what: &str) -> ProgressBar {
     bar
 }
 
+/// A stop flag that SIGINT/SIGTERM set, so Ctrl-C stops the rig cleanly (socket removed).
+/// Both signals are blocked in this thread before the rig starts its threads, which inherit
+/// the mask; a waiting thread takes them instead.
+fn stop_on_signals() -> Result<Arc<AtomicBool>> {
+    use nix::sys::signal::{SigSet, Signal};
+    let mut set = SigSet::empty();
+    set.add(Signal::SIGINT);
+    set.add(Signal::SIGTERM);
+    set.thread_block().context("blocking SIGINT/SIGTERM")?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    // Detached: it lives until a signal arrives or the process exits.
+    std::thread::spawn(move || {
+        if let Ok(sig) = set.wait() {
+            tracing::info!("{sig:?}: stopping");
+        }
+        flag.store(true, Ordering::Relaxed);
+    });
+    Ok(stop)
+}
+
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -582,8 +605,7 @@ fn main() -> Result<()> {
                 duration_s: duration,
                 seed,
                 stop_on_stdin_eof: true,
-                handle_signals: true,
-                stop: Default::default(),
+                stop: stop_on_signals()?,
             };
             let mut announce = |key: &str, value: &str| {
                 println!("{key}: {value}");
@@ -591,7 +613,7 @@ fn main() -> Result<()> {
                 let _ = std::io::Write::flush(&mut std::io::stdout());
             };
             if let Some(kind) = walk {
-                let stop = s3tir_firmware_sim::serve::watch_stop(&cfg)?;
+                let stop = s3tir_firmware_sim::serve::watch_stop(&cfg);
                 let rig = WalkRig {
                     thermal: cfg.thermal,
                     rgb: cfg.rgb,

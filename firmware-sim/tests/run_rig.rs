@@ -109,7 +109,6 @@ impl ServedRig {
             duration_s: Some(60.0),
             seed,
             stop_on_stdin_eof: false,
-            handle_signals: false,
             stop: stop.clone(),
         };
         let (tx, rx) = mpsc::channel::<(String, String)>();

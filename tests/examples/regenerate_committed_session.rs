@@ -73,7 +73,7 @@ fn regenerate(session: &std::path::Path, old: &std::path::Path) -> Result<(), St
             "sim:lepton35",
             "--rgb",
             "sim",
-            "--duration",
+            "--duration-s",
             "6",
         ])
         .args(["--pair-tolerance-ms", "60"])

@@ -42,7 +42,7 @@ fn a_recorded_board_session_calibrates_the_rig() {
             "--walk",
             "board",
         ])
-        .args(["--duration", "24"])
+        .args(["--duration-s", "24"])
         .arg("--out")
         .arg(&session)
         .arg("--sim-socket")

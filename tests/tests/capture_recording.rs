@@ -44,7 +44,7 @@ fn ten_second_boson_rgb_recording_is_complete_and_replays_byte_exact() {
             "sim:boson640",
             "--rgb",
             "sim",
-            "--duration",
+            "--duration-s",
             "10",
         ])
         .arg("--sim-socket")
@@ -158,7 +158,7 @@ fn sim_device_without_a_rig_uses_the_installed_simulator() {
     let out = dir.path().join("s.mcap");
     let t0 = Instant::now();
     let o = Command::new(bin("s3tir-capture"))
-        .args(["--device", "sim:lepton35", "--duration", "2"])
+        .args(["--device", "sim:lepton35", "--duration-s", "2"])
         .arg("--sim-socket")
         .arg(&sock)
         .arg("--out")

@@ -1,5 +1,5 @@
 //! End to end with the rig controller triggering the simulated cameras:
-//! `s3tir-capture --device sim:boson640 --rgb sim --rig-serial sim --trigger-rate 30` starts
+//! `s3tir-capture --device sim:boson640 --rgb sim --rig-serial sim --trigger-rate-hz 30` starts
 //! `s3tir-firmware-sim run`, talks to its rig-controller firmware over the pseudo-terminal
 //! (status for a rough clock map, StartTrigger, GetTriggers every 100 ms), records 8 s, and
 //! stops the trigger and the simulator.
@@ -41,9 +41,9 @@ fn triggered_recording_maps_the_controller_clock_and_pairs_by_pulse() {
             "sim",
             "--rig-serial",
             "sim",
-            "--trigger-rate",
+            "--trigger-rate-hz",
             "30",
-            "--duration",
+            "--duration-s",
             "8",
         ])
         // As in capture_sim_rig.rs: a queue that rides out CPU starvation on a shared machine.

@@ -1,5 +1,5 @@
 //! End to end on the real simulated rig: `s3tir-capture --device sim:boson640 --rgb sim
-//! --duration 10` starts `s3tir-firmware-sim run` (Boson 640×512 Y16 at 60 Hz, RGB 1280×720
+//! --duration-s 10` starts `s3tir-firmware-sim run` (Boson 640×512 Y16 at 60 Hz, RGB 1280×720
 //! MJPEG at 30 Hz), records 10 s, stops it; then `info --json` and `replay` are run on the file.
 //!
 //! Proves:
@@ -46,7 +46,7 @@ fn ten_seconds_of_the_simulated_boson_and_rgb_are_complete_and_replay_byte_exact
     let sock = dir.path().join("rig.sock");
     let out = dir.path().join("boson_rgb.mcap");
     let rec = Command::new(bin("s3tir-capture"))
-        .args(["--device", "sim:boson640", "--rgb", "sim", "--duration"])
+        .args(["--device", "sim:boson640", "--rgb", "sim", "--duration-s"])
         .arg(DURATION_S.to_string())
         // 256 frames ≈ 4 s of Boson (≈ 170 MB at worst): rides out the seconds-long CPU
         // starvation a shared CI machine inflicts; a recorder that falls behind for longer

@@ -3,7 +3,7 @@
 //!
 //! The session: a 6 s hand-held walk of the simulated rig (Lepton 3.5 + RGB) around the walk
 //! scene, whose room carries AprilTags (`s3tir-firmware-sim` `fiducials`), recorded by
-//! `s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration 6 --calibration
+//! `s3tir-capture --device sim:lepton35 --rgb sim --walk handheld --duration-s 6 --calibration
 //! cal.yaml` (the rig's true calibration attached). Beside it, the simulator's `tags.toml`
 //! (the tag map) and `truth.json`.
 //!

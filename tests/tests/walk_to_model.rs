@@ -255,7 +255,7 @@ fn a_recorded_walk_becomes_posed_views_and_trains_like_truth_poses() {
                 "handheld",
                 "--walk-board",
             ])
-            .args(["--duration", WALK_S])
+            .args(["--duration-s", WALK_S])
             .arg("--out")
             .arg(&session)
             .arg("--sim-socket")
@@ -464,7 +464,7 @@ fn a_thermal_only_walk_is_posed_by_thermal_fiducials() {
                 "--walk-tags",
                 "heated",
                 "--walk-board",
-                "--duration",
+                "--duration-s",
                 WALK_S,
             ])
             .arg("--out")

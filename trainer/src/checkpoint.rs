@@ -105,7 +105,7 @@ fn first_non_finite(p: &PrimitivesData) -> Option<(&'static str, usize, f32)> {
 }
 
 /// Serialisable mirror of [`Primitives<f32>`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct PrimitivesData {
     pub bands: usize,
     pub sh_degree: Option<usize>,
@@ -162,17 +162,7 @@ impl PrimitivesData {
         Self {
             bands: layout.bands,
             sh_degree: layout.sh_degree,
-            means: Vec::new(),
-            log_scales: Vec::new(),
-            quats: Vec::new(),
-            opacity_logits: Vec::new(),
-            beta_raw: Vec::new(),
-            omega_low: Vec::new(),
-            band_amp: Vec::new(),
-            band_freq: Vec::new(),
-            band_phase: Vec::new(),
-            sh: Vec::new(),
-            band_count: Vec::new(),
+            ..Self::default()
         }
     }
 

@@ -8,8 +8,8 @@
 //! and that the bands are off during the warm-up (no live slot, so no band work) and go live,
 //! with fresh frequencies and zero amplitude, at its end.
 //! Runs on the CPU backend; the Vulkan optimiser's statistic is held to the host's in
-//! `gpu_adam.rs`. Does NOT prove density control improves a real scene (the closing note of the
-//! real-scenes issue measures that on thermal-facade).
+//! `gpu_adam.rs`. Does NOT prove density control improves a real scene (measured by hand on real data:
+//! scripts/real-data/README.md).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::atomic::AtomicBool;

@@ -1,8 +1,8 @@
-//! Proves, through the `s3tir-train` binary, that a run killed with SIGKILL continues from its
-//! last checkpoint with `--resume` (iteration count carries on, no restart from 0), that Ctrl-C
-//! (SIGINT) writes a checkpoint and exits with 130, that `eval --json` prints the documented
-//! object, that `compare` overlays runs into a PNG, and that a bad dataset path fails with a
-//! message naming it. Does NOT check training quality (pipeline_modes.rs does).
+//! Proves, through the `s3tir-train` binary, one behaviour per test: a run killed with SIGKILL
+//! continues from its last checkpoint with `--resume` (iteration count carries on, no restart
+//! from 0; `--json` prints the run's summary); Ctrl-C (SIGINT) writes a checkpoint and exits
+//! with 130; `eval --json` prints the documented object and `compare` overlays runs into a PNG;
+//! a run folder is never overwritten and a bad dataset path fails with a message naming it. Does NOT check training quality (pipeline_modes.rs does).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::Path;
@@ -56,11 +56,9 @@ fn train_args(data: &Path, run: &Path) -> Vec<String> {
     .collect()
 }
 
-#[test]
-fn kill_resume_ctrl_c_eval_and_compare() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("scene");
-    let run = tmp.path().join("run");
+/// A small radiometric scene (9 views of 24×18, 2 held out) in `dir/scene`.
+fn synth_scene(dir: &Path) -> std::path::PathBuf {
+    let data = dir.join("scene");
     let st = bin()
         .args([
             "synth",
@@ -75,7 +73,28 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         .status()
         .unwrap();
     assert!(st.success(), "synth failed");
+    data
+}
 
+/// A finished run of `iters` iterations of `data` in `run`.
+fn finished_run(data: &Path, run: &Path, iters: u64) {
+    let out = bin()
+        .args(train_args(data, run))
+        .args(["--iters", &iters.to_string()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "training failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn a_killed_run_resumes_from_its_last_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
     // 1. Start a long run and SIGKILL it after two checkpoints.
     let mut child = bin()
         .args(train_args(&data, &run))
@@ -95,13 +114,32 @@ fn kill_resume_ctrl_c_eval_and_compare() {
     let target = killed_at + 25;
     let out = bin()
         .args(train_args(&data, &run))
-        .args(["--resume", "--iters", &target.to_string()])
+        .args(["--resume", "--iters", &target.to_string(), "--json"])
         .output()
         .unwrap();
     assert!(
         out.status.success(),
         "resume failed: {}",
         String::from_utf8_lossy(&out.stderr)
+    );
+    // --json: stdout is one object (the human lines went to stderr).
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "train --json stdout is not one JSON object ({e}): {}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    });
+    assert_eq!(summary["outcome"], "finished", "{summary}");
+    assert_eq!(summary["iterations"].as_u64(), Some(target), "{summary}");
+    assert!(
+        summary["eval"]["psnr"].as_f64().is_some_and(|p| p > 10.0),
+        "the summary carries the held-out figures: {summary}"
+    );
+    assert!(
+        summary["files"].as_array().is_some_and(|f| f
+            .iter()
+            .any(|p| p.as_str().is_some_and(|p| p.ends_with("point_cloud.ply")))),
+        "the summary lists the files written: {summary}"
     );
     assert_eq!(
         checkpoint_iteration(&run),
@@ -143,16 +181,22 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         2 * 9,
         "4 G-buffer PNGs and 5 .npy planes per held-out view (2 views)"
     );
+}
 
-    // 3. Ctrl-C: checkpoint, then exit 130.
+#[test]
+fn ctrl_c_writes_a_checkpoint_and_exits_130() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
+    // Ctrl-C: checkpoint, then exit 130.
     let child = bin()
         .args(train_args(&data, &run))
-        .args(["--resume", "--iters", "1000000"])
+        .args(["--iters", "1000000"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    wait_for_checkpoint_past(&run, target);
+    wait_for_checkpoint_past(&run, 0);
     let st = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
@@ -165,9 +209,15 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         stdout.contains("interrupted at iteration"),
         "stdout: {stdout}"
     );
-    assert!(checkpoint_iteration(&run).unwrap() > target);
+    assert!(checkpoint_iteration(&run).unwrap() > 0);
+}
 
-    // 4. eval --json.
+#[test]
+fn eval_json_and_compare_read_a_finished_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
+    finished_run(&data, &run, 40);
     let out = bin()
         .args(["eval", run.to_str().unwrap(), "--json"])
         .output()
@@ -188,7 +238,6 @@ fn kill_resume_ctrl_c_eval_and_compare() {
     );
     assert_eq!(v["views"].as_array().unwrap().len(), 2);
 
-    // 5. compare.
     let png = tmp.path().join("cmp.png");
     let out = bin()
         .args([
@@ -209,8 +258,15 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         std::fs::metadata(&png).unwrap().len() > 1000,
         "compare plot is empty"
     );
+}
 
-    // 6. A new run into a folder that holds one is refused (no silent overwrite).
+#[test]
+fn a_run_is_never_overwritten_and_a_bad_dataset_path_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
+    finished_run(&data, &run, 5);
+    // A new run into a folder that holds one is refused (no silent overwrite).
     let out = bin()
         .args(train_args(&data, &run))
         .args(["--iters", "5"])
@@ -223,7 +279,7 @@ fn kill_resume_ctrl_c_eval_and_compare() {
         "error should point to --resume: {err}"
     );
 
-    // 7. A bad dataset path.
+    // A bad dataset path.
     let out = bin()
         .args([
             tmp.path().join("nope").to_str().unwrap(),

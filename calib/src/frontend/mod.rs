@@ -63,7 +63,7 @@ mod search;
 
 use glam::DVec2;
 use opencv::calib3d;
-use opencv::core::{Point2f, Size, Vector};
+use opencv::core::{Point2f, Size};
 use opencv::prelude::*;
 
 use crate::board::BoardSpec;
@@ -250,15 +250,7 @@ pub fn detect_board(
             Err(why) => return Ok(Err(why)),
         };
     // Sharpness on the 8-bit original-resolution-mapped corners (upscaled image, then rescaled).
-    let up_corners: Vector<Point2f> = pts
-        .iter()
-        .map(|p| {
-            Point2f::new(
-                ((p.x + 0.5) * s - 0.5) as f32,
-                ((p.y + 0.5) * s - 0.5) as f32,
-            )
-        })
-        .collect();
+    let up_corners = refine::upscaled_points(&pts, s);
     let sharp = calib3d::estimate_chessboard_sharpness_def(&up, pattern, &up_corners)
         .map(|v| v[0] / s)
         .unwrap_or(f64::NAN);

@@ -40,6 +40,19 @@ pub(super) fn stretched_f32(img: &ScalarImage) -> Result<Mat, CalibError> {
     Ok(mat)
 }
 
+/// Corner positions in an image upscaled by `s` (pixel-centre origin on both sides), as
+/// OpenCV points.
+pub(super) fn upscaled_points(pts: &[DVec2], s: f64) -> Vector<Point2f> {
+    pts.iter()
+        .map(|p| {
+            Point2f::new(
+                ((p.x + 0.5) * s - 0.5) as f32,
+                ((p.y + 0.5) * s - 0.5) as f32,
+            )
+        })
+        .collect()
+}
+
 /// `cornerSubPix` on the float image, window from the square size. Images are refined at
 /// `upscale` × their resolution (cubic interpolation) when `upscale` > 1: at 160×120 the
 /// squares are only ~10 px and the gradient window then holds too few samples.
@@ -72,15 +85,7 @@ pub(super) fn refine(
     let half = (win_factor * min_spacing(pts, cols) * s)
         .floor()
         .clamp(2.0, 12.0 * s) as i32;
-    let mut corners: Vector<Point2f> = pts
-        .iter()
-        .map(|p| {
-            Point2f::new(
-                ((p.x + 0.5) * s - 0.5) as f32,
-                ((p.y + 0.5) * s - 0.5) as f32,
-            )
-        })
-        .collect();
+    let mut corners = upscaled_points(pts, s);
     let criteria = TermCriteria::new(
         TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
         60,

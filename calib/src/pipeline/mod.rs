@@ -14,6 +14,7 @@ mod init;
 mod solves;
 
 use std::path::Path;
+use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -28,6 +29,7 @@ use crate::pairs::{
     InconsistentPair, MAX_RESIDUAL_ROUNDS, PairEvidence, PairTest, PairThresholds, residual_fails,
     rotation_diff_deg, transfer_test,
 };
+use crate::progress::{self, Progress};
 use crate::session::SessionOptions;
 use crate::solve::{
     ExtrinsicSigma, IntrinsicSigma, IterationLog, PoseFrame, RejectedCorner, SolveOptions, solve,
@@ -117,13 +119,14 @@ fn tilt_deg(cam_from_board: &Rigid3) -> f64 {
 }
 
 /// Options of a run.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct PipelineOptions {
     pub solve: SolveOptions,
     /// Thresholds of the pair-consistency tests ([`crate::pairs`]).
     pub pairs: PairThresholds,
-    /// Draw an indicatif progress bar over detection.
-    pub progress: bool,
+    /// Receives detection's progress (`None`: nobody watches); the binary passes
+    /// [`crate::progress_bars::ProgressBars`] to draw a bar.
+    pub progress: Option<Arc<dyn Progress>>,
 }
 
 /// Which sub-pixel refinement a camera's corners use, and the figures that chose it.
@@ -589,7 +592,7 @@ fn coverage_warning(
 
 /// Detects and solves a board folder.
 pub fn calibrate_folder(dir: &Path, opts: &PipelineOptions) -> Result<Calibration, CalibError> {
-    let set = detect_folder(dir, opts.progress)?;
+    let set = detect_folder(dir, progress::or_silent(&opts.progress))?;
     calibrate_detections(&set, opts)
 }
 
@@ -600,6 +603,11 @@ pub fn calibrate_session(
     session_opts: &SessionOptions,
     opts: &PipelineOptions,
 ) -> Result<Calibration, CalibError> {
-    let set = detect_session(session, board_toml, session_opts, opts.progress)?;
+    let set = detect_session(
+        session,
+        board_toml,
+        session_opts,
+        progress::or_silent(&opts.progress),
+    )?;
     calibrate_detections(&set, opts)
 }

@@ -12,6 +12,7 @@ use s3tir_capture::frame::{CapturedFrame, FfcState};
 use s3tir_capture::session::{SessionItem, SessionSequences, parse_recorded, read_session};
 
 use super::PosesError;
+use crate::progress::Progress;
 
 /// The two streams of a rig.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -139,17 +140,14 @@ fn session_err(path: &Path, source: s3tir_capture::CaptureError) -> PosesError {
     }
 }
 
-/// Reads the whole session once: every frame's numbers (module docs).
-pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesError> {
+/// Reads the whole session once: every frame's numbers (module docs). `progress` hears one
+/// stage without a total, one item per readable frame.
+pub fn scan_session(path: &Path, progress: &dyn Progress) -> Result<SessionScan, PosesError> {
     let mut scan = SessionScan {
         path: path.to_path_buf(),
         ..SessionScan::default()
     };
-    let bar = progress.then(|| {
-        let b = indicatif::ProgressBar::new_spinner();
-        b.set_message(format!("scanning {}", path.display()));
-        b
-    });
+    progress.start(&format!("scanning {}", path.display()), None);
     let mut ids = SessionSequences::default();
     let outcome = read_session(path, |item| {
         match item {
@@ -159,9 +157,7 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
                     scan.unreadable += 1;
                     return Ok(());
                 };
-                if let Some(b) = &bar {
-                    b.inc(1);
-                }
+                progress.advance(1);
                 match frame {
                     CapturedFrame::Thermal(t) => {
                         let grey: Vec<f32> = t.pixels.iter().map(|&v| f32::from(v)).collect();
@@ -197,10 +193,9 @@ pub fn scan_session(path: &Path, progress: bool) -> Result<SessionScan, PosesErr
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e))?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
+    .map_err(|e| session_err(path, e));
+    progress.finish();
+    let outcome = outcome?;
     scan.thermal.sort_by_key(|f| f.monotonic_ns);
     scan.rgb.sort_by_key(|f| f.monotonic_ns);
     scan.truncated = outcome.truncated;

@@ -94,11 +94,13 @@ mod tests;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use serde::Serialize;
 use thiserror::Error;
 
 use crate::calfile::CalibrationFile;
+use crate::progress::{self, Progress};
 use output::{finish_output, start_output};
 pub use report::{PosesReport, StageTimes, summary};
 pub use rig::{RigModels, attached_calibration, rig_models};
@@ -256,8 +258,10 @@ pub struct PosesOptions {
     pub tag_poses: bool,
     /// CPU threads COLMAP may use.
     pub threads: usize,
-    /// Draw progress bars.
-    pub progress: bool,
+    /// Receives the stage's progress (`None`: nobody watches); a binary passes
+    /// [`crate::progress_bars::ProgressBars`] to draw bars.
+    #[serde(skip)]
+    pub progress: Option<Arc<dyn Progress>>,
     /// Also write the posed RGB keyframes (`images/rgb_SEQUENCE.png`, a second camera) for
     /// joint RGB + thermal training ([`dataset`] module docs); an error on a session without
     /// RGB frames.
@@ -287,7 +291,7 @@ impl Default for PosesOptions {
             board: None,
             tag_poses: true,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
-            progress: false,
+            progress: None,
             with_rgb: false,
         }
     }
@@ -307,7 +311,7 @@ pub fn session_to_dataset(
     let mut times = StageTimes::default();
 
     let t = std::time::Instant::now();
-    let scan = frames::scan_session(session, opts.progress)?;
+    let scan = frames::scan_session(session, progress::or_silent(&opts.progress))?;
     times.scan_s = t.elapsed().as_secs_f64();
     if scan.thermal.is_empty() {
         return Err(PosesError::Nothing {

@@ -30,36 +30,40 @@ pub(crate) fn create_dirs(out: &Path, dirs: &[&str]) -> Result<(), SimError> {
     Ok(())
 }
 
-/// Writes a `w × h` 16-bit grey PNG.
-pub(crate) fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError> {
-    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, data).ok_or(
-        SimError::InvalidParameter {
-            parameter: "image buffer",
-            value: path.display().to_string(),
-            why: "size does not match",
-        },
-    )?;
-    img.save(path).map_err(|source| SimError::Image {
-        path: path.to_path_buf(),
-        what: "16-bit PNG",
-        source: Box::new(source),
-    })
-}
-
-/// Writes a `w × h` 8-bit sRGB PNG of packed RGB bytes.
-pub(crate) fn save_rgb8(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<(), SimError> {
-    image::RgbImage::from_raw(w, h, rgb)
+/// Writes a `w × h` PNG of pixel type `P` from its samples (`what` names it in errors).
+fn save_png<P>(
+    path: &Path,
+    w: u32,
+    h: u32,
+    samples: Vec<P::Subpixel>,
+    what: &'static str,
+) -> Result<(), SimError>
+where
+    P: image::Pixel + image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
+    image::ImageBuffer::<P, Vec<P::Subpixel>>::from_raw(w, h, samples)
         .ok_or(SimError::InvalidParameter {
-            parameter: "rgb buffer",
+            parameter: "image buffer",
             value: path.display().to_string(),
             why: "size does not match",
         })?
         .save(path)
         .map_err(|source| SimError::Image {
             path: path.to_path_buf(),
-            what: "RGB PNG",
+            what,
             source: Box::new(source),
         })
+}
+
+/// Writes a `w × h` 16-bit grey PNG.
+pub(crate) fn save_u16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Result<(), SimError> {
+    save_png::<image::Luma<u16>>(path, w, h, data, "16-bit PNG")
+}
+
+/// Writes a `w × h` 8-bit sRGB PNG of packed RGB bytes.
+pub(crate) fn save_rgb8(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<(), SimError> {
+    save_png::<image::Rgb<u8>>(path, w, h, rgb, "RGB PNG")
 }
 
 /// Writes a thermal frame as the response simulator exported it (16-bit centikelvin or 8-bit
@@ -72,18 +76,7 @@ pub(crate) fn save_exported(
 ) -> Result<(), SimError> {
     match frame {
         ExportedFrame::CentiKelvin(words) => save_u16(path, w, h, words),
-        ExportedFrame::Grey8(grey) => image::GrayImage::from_raw(w, h, grey)
-            .ok_or(SimError::InvalidParameter {
-                parameter: "grey buffer",
-                value: path.display().to_string(),
-                why: "size does not match",
-            })?
-            .save(path)
-            .map_err(|source| SimError::Image {
-                path: path.to_path_buf(),
-                what: "8-bit PNG",
-                source: Box::new(source),
-            }),
+        ExportedFrame::Grey8(grey) => save_png::<image::Luma<u8>>(path, w, h, grey, "8-bit PNG"),
     }
 }
 

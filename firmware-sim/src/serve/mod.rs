@@ -15,9 +15,9 @@
 //! - The camera sees the emissivity board at a fixed pose 0.8 m in front of it. The board
 //!   starts as in the TGA-GS induction: at 25 °C, surroundings at the ambient −20 °C.
 //!
-//! Stops on SIGINT/SIGTERM (when `handle_signals`), stdin EOF (when `stop_on_stdin_eof` and
-//! stdin is a pipe or socket, i.e. a parent process holds it), the `stop` flag, or after
-//! `duration_s`.
+//! Stops on the `stop` flag, stdin EOF (when `stop_on_stdin_eof` and stdin is a pipe or
+//! socket, i.e. a parent process holds it), or after `duration_s`. Signals are the binary's
+//! business: `s3tir-firmware-sim run` sets the `stop` flag on SIGINT/SIGTERM.
 //!
 //! **Modules** (private; their public constants are re-exported here): `firmware` (the Boson
 //! FSLP command set and the rig controller: clock, trigger, board setpoint), `pty` (serving
@@ -70,10 +70,8 @@ pub struct ServeConfig {
     pub seed: u64,
     /// Stop when stdin reaches EOF (the parent process closed it or died).
     pub stop_on_stdin_eof: bool,
-    /// Block SIGINT/SIGTERM and stop cleanly when one arrives (binary only: it changes the
-    /// process's signal mask).
-    pub handle_signals: bool,
-    /// External stop flag (tests).
+    /// Stop flag: setting it stops the rig cleanly (the binary sets it on SIGINT/SIGTERM,
+    /// tests directly).
     pub stop: Arc<AtomicBool>,
 }
 
@@ -94,28 +92,10 @@ fn stdin_is_pipe() -> bool {
         .unwrap_or(false)
 }
 
-/// Sets up what stops the rig (signals when `handle_signals`, stdin EOF when
-/// `stop_on_stdin_eof` and stdin is a pipe): returns the stop flag they set.
-pub fn watch_stop(cfg: &ServeConfig) -> Result<Arc<AtomicBool>, SimError> {
+/// Sets up what else stops the rig (stdin EOF when `stop_on_stdin_eof` and stdin is a pipe):
+/// returns the stop flag it sets, `cfg.stop`.
+pub fn watch_stop(cfg: &ServeConfig) -> Arc<AtomicBool> {
     let stop = cfg.stop.clone();
-    if cfg.handle_signals {
-        let mut set = nix::sys::signal::SigSet::empty();
-        set.add(nix::sys::signal::Signal::SIGINT);
-        set.add(nix::sys::signal::Signal::SIGTERM);
-        set.thread_block().map_err(|e| SimError::Io {
-            path: PathBuf::from("<signals>"),
-            what: "block SIGINT/SIGTERM",
-            source: e.into(),
-        })?;
-        let stop = stop.clone();
-        // Detached: it lives until a signal arrives or the process exits.
-        thread::spawn(move || {
-            if let Ok(sig) = set.wait() {
-                tracing::info!("{sig:?}: stopping");
-            }
-            stop.store(true, Ordering::Relaxed);
-        });
-    }
     if cfg.stop_on_stdin_eof && stdin_is_pipe() {
         let stop = stop.clone();
         thread::spawn(move || {
@@ -130,13 +110,13 @@ pub fn watch_stop(cfg: &ServeConfig) -> Result<Arc<AtomicBool>, SimError> {
             stop.store(true, Ordering::Relaxed);
         });
     }
-    Ok(stop)
+    stop
 }
 
 /// Runs the rig until stopped. `announce(key, value)` receives the `key: value` lines
 /// (`socket`, `fslp_pty`, `rig_pty`, `thermal`, `rgb`, `ready`).
 pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(), SimError> {
-    let stop = watch_stop(&cfg)?;
+    let stop = watch_stop(&cfg);
     let fslp_pty = open_pty("open FSLP pty")?;
     let rig_pty = open_pty("open rig controller pty")?;
 

@@ -30,7 +30,9 @@ pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf
         tags: a.tags.clone(),
         with_rgb: a.with_rgb,
         holdout_every: a.holdout,
-        progress: true,
+        progress: Some(std::sync::Arc::new(
+            s3tir_calib::progress_bars::ProgressBars::new(),
+        )),
         ..PosesOptions::default()
     };
     println!(

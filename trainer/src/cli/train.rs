@@ -13,6 +13,17 @@ use s3tir_trainer::train::{
 
 #[cfg(feature = "session")]
 use super::session::pose_session;
+
+/// A human-readable line: on stdout, or on stderr when stdout carries the `--json` summary.
+macro_rules! say {
+    ($json:expr, $($arg:tt)*) => {
+        if $json {
+            eprintln!($($arg)*)
+        } else {
+            println!($($arg)*)
+        }
+    };
+}
 use super::train_args::{TrainArgs, new_config};
 
 /// Trains (or with `--resume` continues) the run `a` describes; a recorded session
@@ -46,7 +57,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         if let Some(b) = a.backend
             && b != cfg.backend
         {
-            println!(
+            say!(
+                a.json,
                 "--resume: switching from the run's {} backend to {b} (--backend)",
                 cfg.backend
             );
@@ -58,7 +70,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     let dataset = Dataset::load(&cfg.data, &cfg.load)
         .with_context(|| format!("loading dataset {}", cfg.data.display()))?;
-    println!(
+    say!(
+        a.json,
         "dataset {}: {} views ({} train, {} held out){}",
         cfg.data.display(),
         dataset.views.len(),
@@ -70,7 +83,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             ""
         }
     );
-    println!("training on the {} backend", cfg.backend);
+    say!(a.json, "training on the {} backend", cfg.backend);
     match cfg.backend {
         BackendKind::Vulkan => train_vulkan(
             cfg,
@@ -79,8 +92,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
             a.resume,
             a.device_index,
             a.no_float_atomics,
+            a.json,
         ),
-        BackendKind::Cpu => run_training(cfg, dataset, CpuBackend::default(), &out, a.resume),
+        BackendKind::Cpu => {
+            run_training(cfg, dataset, CpuBackend::default(), &out, a.resume, a.json)
+        }
     }
 }
 
@@ -92,13 +108,14 @@ fn train_vulkan(
     resume: bool,
     device_index: Option<usize>,
     no_float_atomics: bool,
+    json: bool,
 ) -> Result<()> {
     let backend = s3tir_trainer::gpu::backend::VulkanBackend::new(
         &super::vulkan_options(device_index, no_float_atomics),
         s3tir_trainer::render::RenderSettings::default(),
     )
     .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
-    run_training(cfg, dataset, backend, out, resume)
+    run_training(cfg, dataset, backend, out, resume, json)
 }
 
 #[cfg(not(feature = "vulkan"))]
@@ -108,6 +125,7 @@ fn train_vulkan(
     _: &Path,
     _: bool,
     _: Option<usize>,
+    _: bool,
     _: bool,
 ) -> Result<()> {
     bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
@@ -138,6 +156,7 @@ fn run_training<B: Backend>(
     backend: B,
     out: &Path,
     resume: bool,
+    json: bool,
 ) -> Result<()> {
     let mut trainer = if resume {
         Trainer::resume(cfg, dataset, backend, out)?
@@ -205,7 +224,20 @@ fn run_training<B: Backend>(
     bar.finish();
     match outcome {
         Outcome::Interrupted { iteration } => {
-            println!(
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "outcome": "interrupted",
+                        "out": out,
+                        "iterations": iteration,
+                        "train_seconds": trainer.train_seconds,
+                        "checkpoint": out.join(files::CHECKPOINT),
+                    })
+                );
+            }
+            say!(
+                json,
                 "interrupted at iteration {iteration}: checkpoint written to {}; continue with --resume",
                 out.join(files::CHECKPOINT).display()
             );
@@ -213,12 +245,13 @@ fn run_training<B: Backend>(
         }
         Outcome::Finished => {
             let cap = trainer.capacity_report();
-            println!(
+            say!(
+                json,
                 "done: {} primitives in {}",
                 trainer.prims.len(),
                 out.display()
             );
-            for f in [
+            let written: Vec<std::path::PathBuf> = [
                 files::PLY,
                 files::METRICS_CSV,
                 files::METRICS_PNG,
@@ -228,12 +261,16 @@ fn run_training<B: Backend>(
                 files::RENDERS,
                 files::RENDERS_SR,
                 files::GBUFFERS,
-            ] {
-                if out.join(f).exists() {
-                    println!("  {}", out.join(f).display());
-                }
+            ]
+            .iter()
+            .map(|f| out.join(f))
+            .filter(|p| p.exists())
+            .collect();
+            for p in &written {
+                say!(json, "  {}", p.display());
             }
-            println!(
+            say!(
+                json,
                 "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path; view response: {}",
                 if cap.colour_allocated {
                     "kept"
@@ -248,10 +285,11 @@ fn run_training<B: Backend>(
                 cap.response.as_ref().map_or("none", |r| r.kind.as_str())
             );
             if let Some(r) = &cap.response {
-                println!("view response: {}", r.describe());
+                say!(json, "view response: {}", r.describe());
             }
             if let Some(why) = &cap.rgb_loss {
-                println!(
+                say!(
+                    json,
                     "joint RGB + thermal: RGB loss {why}; thermal gradient alignment {}; {}",
                     if cap.thermal_align > 0.0 {
                         format!("weight {}", cap.thermal_align)
@@ -265,7 +303,8 @@ fn run_training<B: Backend>(
                     }
                 );
             }
-            println!(
+            say!(
+                json,
                 "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
                 cap.densify_rounds.len(),
                 cap.densify_cloned,
@@ -275,11 +314,39 @@ fn run_training<B: Backend>(
                 trainer.cfg.budget
             );
             if let Some(b) = budget {
-                println!(
+                say!(
+                    json,
                     "time budget: {:.1} s of training time of {b:.1} s ({} iterations); {:.1} s wall clock with evaluations, checkpoints and outputs",
                     trainer.train_seconds,
                     trainer.iteration,
                     wall.elapsed().as_secs_f64()
+                );
+            }
+            if json {
+                // The held-out figures as `eval` wrote them (absent when nothing is held out).
+                let eval: Option<serde_json::Value> = std::fs::read(out.join(files::EVAL))
+                    .ok()
+                    .and_then(|b| serde_json::from_slice(&b).ok());
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "outcome": "finished",
+                        "out": out,
+                        "backend": trainer.cfg.backend,
+                        "iterations": trainer.iteration,
+                        "train_seconds": trainer.train_seconds,
+                        "wall_seconds": wall.elapsed().as_secs_f64(),
+                        "primitives": cap.primitives,
+                        "budget": trainer.cfg.budget,
+                        "density_control": {
+                            "rounds": cap.densify_rounds.len(),
+                            "cloned": cap.densify_cloned,
+                            "split": cap.densify_split,
+                            "pruned": cap.densify_pruned,
+                        },
+                        "eval": eval,
+                        "files": written,
+                    })
                 );
             }
             Ok(())

@@ -90,6 +90,11 @@ pub struct TrainArgs {
     /// --time-budget and --backend may change).
     #[arg(long)]
     pub resume: bool,
+    /// Print one JSON object summarising the run on stdout when it ends (outcome, iterations,
+    /// seconds, primitives, density control, held-out figures, files); the human-readable
+    /// lines go to stderr.
+    #[arg(long)]
+    pub json: bool,
     /// Hold out every k-th view (by name) for evaluation; 0: none.
     #[arg(long, default_value_t = 8)]
     pub holdout: usize,

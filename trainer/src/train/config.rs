@@ -243,13 +243,13 @@ impl Default for Capacity {
 /// The paper (eq. 5) warps view i's frequency maps into a partner view j; it does not say how
 /// the pair is scheduled. Rendering the partner in the same step ([`ConsistPartner::Render`])
 /// costs a second projection, sort, forward and backward pass: at least 2× the step of a
-/// 3DGS view however the kernels are tuned, while issue 8 asks full S³-TIR training to cost at
-/// most 1.5× 3DGS mode. [`ConsistPartner::Previous`] (the default) pairs consecutive steps
+/// 3DGS view however the kernels are tuned, while full S³-TIR training is meant to cost at most
+/// 1.5× 3DGS mode. [`ConsistPartner::Previous`] (the default) pairs consecutive steps
 /// instead: a step on a random view i is followed by a step on a random view j that overlaps
 /// i, whose term warps j into the G-buffers kept from step i's render (one optimiser step old,
 /// under stop-gradient). Nothing extra is rendered; the term is computed on every second step
-/// and pulls only the freshly rendered side. Cost and held-out quality against `Render` are in
-/// the closing note of issue 8; `s3tir-train bench` measures both modes' steps/s.
+/// and pulls only the freshly rendered side. `s3tir-train bench` measures both modes' steps/s
+/// (`--consist-partner render` gives the other schedule to compare held-out quality).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ConsistPartner {
