@@ -25,8 +25,18 @@ pub enum ReportError {
     },
     #[error("{path}: {reason}")]
     Format { path: PathBuf, reason: String },
-    #[error("plot {path}: {reason}")]
-    Plot { path: PathBuf, reason: String },
+    #[error("writing image {path}: {source}")]
+    Image {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("plot {path}: {source}")]
+    Plot {
+        path: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 /// Header of `metrics.csv`.
@@ -163,10 +173,10 @@ const PALETTE: [RGBColor; 6] = [
     RGBColor(90, 90, 90),
 ];
 
-fn plot_err(path: &Path, e: impl std::fmt::Display) -> ReportError {
+fn plot_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ReportError {
     ReportError::Plot {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source: Box::new(e),
     }
 }
 
@@ -301,9 +311,9 @@ pub fn write_plane_png(
             reason: format!("plane has {} values, not {width}×{height}", plane.len()),
         }
     })?;
-    img.save(path).map_err(|e| ReportError::Format {
+    img.save(path).map_err(|source| ReportError::Image {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     })
 }
 
@@ -335,9 +345,9 @@ pub fn write_rgb_png(
             reason: format!("not {width}×{height}"),
         }
     })?;
-    img.save(path).map_err(|e| ReportError::Format {
+    img.save(path).map_err(|source| ReportError::Image {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     })
 }
 
@@ -363,9 +373,9 @@ pub fn write_thermal_png16(
         path: path.to_path_buf(),
         reason: format!("plane has {} values, not {width}×{height}", plane.len()),
     })?;
-    img.save(path).map_err(|e| ReportError::Format {
+    img.save(path).map_err(|source| ReportError::Image {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     })
 }
 
