@@ -100,7 +100,18 @@ fn evaluate_on(
     device_index: Option<usize>,
 ) -> Result<train::RunEval> {
     let what = || format!("evaluating {} on the {backend} backend", run_dir.display());
-    match backend {
+    // A bar over the held-out views (indicatif draws it only when stderr is a terminal).
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("evaluating [{bar:30}] {pos}/{len} views")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let mut on_view = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let run = match backend {
         #[cfg(feature = "vulkan")]
         BackendKind::Vulkan => {
             let b = s3tir_trainer::gpu::backend::VulkanBackend::new(
@@ -108,15 +119,18 @@ fn evaluate_on(
                 s3tir_trainer::render::RenderSettings::default(),
             )
             .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
-            train::evaluate_run(run_dir, b).with_context(what)
+            train::evaluate_run_with(run_dir, b, &mut on_view).with_context(what)
         }
         #[cfg(not(feature = "vulkan"))]
         BackendKind::Vulkan => {
             let _ = device_index;
             bail!("this s3tir-train was built without the `vulkan` feature: use --backend cpu")
         }
-        BackendKind::Cpu => train::evaluate_run(run_dir, CpuBackend::default()).with_context(what),
-    }
+        BackendKind::Cpu => train::evaluate_run_with(run_dir, CpuBackend::default(), &mut on_view)
+            .with_context(what),
+    };
+    bar.finish_and_clear();
+    run
 }
 
 /// `eval --truth`: the run scored against its dataset's truth.

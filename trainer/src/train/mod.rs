@@ -89,7 +89,9 @@ pub use error::TrainError;
 use error::io_err;
 use init::choose_pairs;
 pub use joint::{Background, composite_background, composite_background_backward};
-pub use outputs::{BackgroundFile, RunEval, evaluate_run, load_config, read_background};
+pub use outputs::{
+    BackgroundFile, RunEval, evaluate_run, evaluate_run_with, load_config, read_background,
+};
 pub use response::{ResponseConfig, ResponseKind, ResponseModel, ResponseSummary};
 
 use crate::camera::PinholeCamera;

@@ -16,15 +16,26 @@ use crate::report::{self, MetricsRow};
 impl<B: Backend> Trainer<B> {
     /// Renders the held-out views (all training views if there are none) and measures them.
     pub fn evaluate(&mut self) -> Result<EvalSummary, TrainError> {
+        self.evaluate_with(&mut |_, _| {})
+    }
+
+    /// [`Trainer::evaluate`], reporting `(views done, views to do)` after each view (the
+    /// binaries draw it).
+    pub fn evaluate_with(
+        &mut self,
+        on_view: &mut dyn FnMut(usize, usize),
+    ) -> Result<EvalSummary, TrainError> {
         self.sync_host()?;
         let ids = if self.data.test.is_empty() {
             self.data.train.clone()
         } else {
             self.data.test.clone()
         };
+        let total = ids.len();
         let mut out = Vec::new();
         let mut rgb = Vec::new();
-        for i in ids {
+        for (done, i) in ids.into_iter().enumerate() {
+            on_view(done, total);
             let v = &self.data.views[i];
             match (&v.thermal, &v.rgb) {
                 (Some(target), _) => {
@@ -46,6 +57,7 @@ impl<B: Backend> Trainer<B> {
                 (None, _) => {}
             }
         }
+        on_view(total, total);
         let mut e = EvalSummary::from_views(out);
         if !rgb.is_empty() {
             let n = rgb.len() as f64;
@@ -251,6 +263,15 @@ pub fn load_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
 /// Evaluates the run's primitives (its PLY, or its checkpoint when there is no PLY yet) on the
 /// held-out views of its dataset.
 pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, TrainError> {
+    evaluate_run_with(run_dir, backend, &mut |_, _| {})
+}
+
+/// [`evaluate_run`], reporting `(views done, views to do)` as it goes.
+pub fn evaluate_run_with<B: Backend>(
+    run_dir: &Path,
+    backend: B,
+    on_view: &mut dyn FnMut(usize, usize),
+) -> Result<RunEval, TrainError> {
     let cfg = load_config(run_dir)?;
     let data = Dataset::load(&cfg.data, &cfg.load)?;
     let ply = run_dir.join(files::PLY);
@@ -266,7 +287,7 @@ pub fn evaluate_run<B: Backend>(run_dir: &Path, backend: B) -> Result<RunEval, T
     t.prims = prims;
     let bg = read_background(run_dir)?;
     t.state.background = Some(super::joint::Background::fixed(bg.map(f64::from)));
-    let e = t.evaluate()?;
+    let e = t.evaluate_with(on_view)?;
     Ok(RunEval {
         run_dir: run_dir.to_path_buf(),
         mode,
