@@ -84,8 +84,8 @@ check-features:
 	$(CARGO) check -p s3tir-trainer --no-default-features --features session
 	./scripts/check-deps.sh
 
-# What this project's CI machine has (scripts/install-deps.sh installs spirv-tools; Debian has
-# /dev/full and systemd-analyze): a test that would skip for lack of one of these fails instead
+# What this project's CI machine has (scripts/install-deps.sh installs spirv-tools and systemd;
+# the kernel gives /dev/full): a test that would skip for lack of one of these fails instead
 # (capture/src/skip.rs). No camera is attached, so `camera` skips visibly.
 S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze
 export S3TIR_REQUIRE

@@ -14,6 +14,7 @@ packages=(
   spirv-tools                    # spirv-val: shader validation test
   vulkan-tools                   # vulkaninfo, for diagnosing a rig
   socat                          # pseudo-terminals for serial tests
+  systemd                        # systemd-analyze: the capture unit file is verified in a test
   colmap                         # structure from motion of recorded walks (s3tir-calib poses; CPU SIFT)
 )
 
