@@ -71,15 +71,12 @@ fn committed_session_replays_through_info_replay_and_export() {
     assert_eq!(rep["pair_mismatches"], 0);
 
     let dir = tempfile::tempdir().unwrap();
-    let out = Command::new(bin("s3tir-capture"))
-        .args(["export", p, "--out"])
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let summary = run(&["export", p, "--json", "--out", dir.path().to_str().unwrap()]);
+    assert_eq!(summary["board_folder"]["pairs"], PAIRS, "{summary}");
+    assert_eq!(
+        summary["board_folder"]["dir"],
+        dir.path().display().to_string(),
+        "{summary}"
     );
     let names = |sub: &str| {
         let mut v: Vec<String> = std::fs::read_dir(dir.path().join(sub))

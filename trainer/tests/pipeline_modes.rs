@@ -67,7 +67,17 @@ fn s3tir_beats_3dgs_on_sharp_edge_and_keeps_pipe_gaussian() {
         assert_eq!(out, Outcome::Finished);
         assert_eq!(t.iteration, 400, "both modes run the same iterations");
         assert!(t.prims.len() <= 150, "budget exceeded: {}", t.prims.len());
-        let e = t.evaluate().unwrap();
+        // The evaluation reports each held-out view as it goes, ending at (n, n).
+        let mut reports = Vec::new();
+        let e = t
+            .evaluate_with(&mut |done, total| reports.push((done, total)))
+            .unwrap();
+        let n = e.views.len();
+        assert_eq!(
+            reports,
+            (0..=n).map(|k| (k, n)).collect::<Vec<_>>(),
+            "one report before each of the {n} held-out views and one at the end"
+        );
         eprintln!(
             "{mode}: held-out PSNR {:.2} dB, MAE {:.3} K, {} primitives",
             e.psnr,
