@@ -1,7 +1,8 @@
 //! Proves density control acts with its default threshold (3DGS's 2e-4 on the view-space
 //! positional gradient in NDC): on a scene seeded with far too few points for its detail it
 //! clones and splits, the counts are in `capacity.json`, growth stops at the hard budget (and
-//! says how many it left out), transparent primitives are pruned; that the statistic has
+//! says how many it left out) unless relocation gives the weakest primitives' places to the
+//! candidates beyond it, transparent primitives are pruned; that the statistic has
 //! 3DGS's units (NDC: the same world gradient at the same field of view gives the same value at
 //! any resolution); and that `--time-budget` stops on time with every output written and the
 //! schedule (warm-up, densification window, learning-rate decay) following the time spent;
@@ -66,6 +67,9 @@ fn default_threshold_densifies_an_under_reconstructed_scene() {
         "this test is about the default threshold"
     );
     cfg.budget = 400; // room for 30× the seeds, and a test that stays quick
+    // No per-round growth cap: it would hold 12 seeds to about one new primitive per round;
+    // this test is about what the threshold selects (the cap has its own test below).
+    cfg.densify.grow_frac = 0.0;
     let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
     let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
@@ -101,8 +105,8 @@ fn default_threshold_densifies_an_under_reconstructed_scene() {
     for r in &cap.densify_rounds {
         assert_eq!(
             r.after,
-            r.before + r.cloned + r.split - r.pruned,
-            "round at {}: a clone adds one, a split replaces one by two, a prune removes one",
+            r.before + r.cloned + r.split - r.pruned - r.relocated,
+            "round at {}: a clone adds one, a split replaces one by two, a prune or a relocation removes one",
             r.iteration
         );
         assert!(r.median_statistic.is_finite() && r.median_statistic >= 0.0);
@@ -135,6 +139,135 @@ fn growth_stops_at_the_budget_and_reports_what_it_left_out() {
         "a full budget must show primitives left out: {:?}",
         cap.densify_rounds
     );
+}
+
+/// `grow_frac` caps what one round adds (a fraction of the primitives it starts with), and the
+/// candidates it leaves out are reported like those beyond the budget.
+#[test]
+fn growth_per_round_is_capped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    sparse_scene(&data_dir);
+    let mut cfg = short(&data_dir, Mode::Gaussian);
+    cfg.budget = 400;
+    cfg.densify.grow_frac = 0.25;
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let run = tmp.path().join("run");
+    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    let cap = read_capacity(&run);
+    for r in &cap.densify_rounds {
+        let limit = (0.25 * r.before as f64).ceil() as usize;
+        assert!(
+            r.cloned + r.split <= limit,
+            "round at {}: {} cloned + {} split from {} primitives, cap {limit}",
+            r.iteration,
+            r.cloned,
+            r.split,
+            r.before
+        );
+        assert_eq!(
+            r.relocated, 0,
+            "the budget never filled: nothing to relocate"
+        );
+    }
+    assert!(
+        cap.densify_rounds
+            .iter()
+            .any(|r| r.over_budget > 0 && r.after < 400),
+        "the cap, not the budget, must have left candidates out: {:?}",
+        cap.densify_rounds
+    );
+    assert!(
+        t.prims.len() > 12,
+        "a capped round still grows an under-reconstructed scene: {} primitives",
+        t.prims.len()
+    );
+}
+
+/// With the budget full, a round removes up to `relocate_frac` of the primitives — the weakest
+/// by opacity — and clones or splits as many candidates in their place; with 0 it does not.
+#[test]
+fn a_full_budget_relocates_its_weakest_primitives() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data_dir = tmp.path().join("scene");
+    sparse_scene(&data_dir);
+    for frac in [0.0, 0.25] {
+        let mut cfg = short(&data_dir, Mode::Gaussian);
+        cfg.iters = 22; // one round, at iteration 10 (the window ends at iters/2 = 11)
+        cfg.budget = 12; // the seeds fill it
+        cfg.densify.relocate_frac = frac;
+        cfg.densify.grow_frac = 0.0;
+        let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+        let run = tmp.path().join(format!("run-{frac}"));
+        let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+        let n = t.prims.len();
+        assert_eq!(n, 12, "the scene's 12 seeds fill the budget");
+        // Three weak primitives: opacity ≈ 0.018, above the 0.005 prune threshold, so only a
+        // relocation removes them.
+        for i in 0..3 {
+            t.prims.opacity_logits[i] = -4.0;
+        }
+        let seeds: Vec<[f32; 3]> = (0..n).map(|i| t.prims.mean(i)).collect();
+        let dist = |a: [f32; 3], b: [f32; 3]| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        };
+        let closest = seeds
+            .iter()
+            .enumerate()
+            .flat_map(|(i, a)| seeds[i + 1..].iter().map(move |b| dist(*a, *b)))
+            .fold(f32::INFINITY, f32::min);
+        assert!(
+            closest > 0.05,
+            "seeds {closest} m apart: too close to tell apart"
+        );
+        while t.iteration <= 10 {
+            t.step().unwrap();
+        }
+        let cap = t.capacity_report();
+        assert_eq!(cap.densify_rounds.len(), 1, "{:?}", cap.densify_rounds);
+        let r = &cap.densify_rounds[0];
+        assert!(
+            r.over_threshold >= 3,
+            "the sparse scene has candidates: {r:?}"
+        );
+        assert!(t.prims.len() <= 12, "budget 12 exceeded: {}", t.prims.len());
+        let survives = |s: [f32; 3]| (0..t.prims.len()).any(|i| dist(t.prims.mean(i), s) < 0.01);
+        if frac == 0.0 {
+            assert_eq!(r.relocated, 0, "relocation off: {r:?}");
+            assert_eq!(
+                r.over_budget, r.over_threshold,
+                "growth stops at the budget: {r:?}"
+            );
+            assert!(
+                seeds[..3].iter().all(|&s| survives(s)),
+                "without relocation the weak primitives stay"
+            );
+        } else {
+            assert_eq!(r.relocated, 3, "a quarter of 12 relocated: {r:?}");
+            assert_eq!(
+                r.cloned + r.split,
+                3,
+                "one candidate in each freed place: {r:?}"
+            );
+            assert!(
+                seeds[..3].iter().all(|&s| !survives(s)),
+                "the three weakest primitives are the ones removed"
+            );
+            let strong_left = seeds[3..].iter().filter(|&&s| survives(s)).count();
+            assert!(
+                strong_left + r.split >= 9,
+                "the nine stronger primitives stay unless split (a clone keeps its parent's \
+                 centre, a split replaces it): {strong_left} left, {} split",
+                r.split
+            );
+        }
+        assert_eq!(
+            r.after,
+            r.before + r.cloned + r.split - r.pruned - r.relocated
+        );
+        assert_eq!(cap.densify_relocated, r.relocated, "capacity.json's total");
+    }
 }
 
 #[test]

@@ -305,11 +305,12 @@ fn run_training<B: Backend>(
             }
             say!(
                 json,
-                "density control: {} rounds, {} cloned, {} split, {} pruned; {} primitives at the end (budget {})",
+                "density control: {} rounds, {} cloned, {} split, {} pruned, {} relocated; {} primitives at the end (budget {})",
                 cap.densify_rounds.len(),
                 cap.densify_cloned,
                 cap.densify_split,
                 cap.densify_pruned,
+                cap.densify_relocated,
                 cap.primitives,
                 trainer.cfg.budget
             );
@@ -343,6 +344,7 @@ fn run_training<B: Backend>(
                             "cloned": cap.densify_cloned,
                             "split": cap.densify_split,
                             "pruned": cap.densify_pruned,
+                            "relocated": cap.densify_relocated,
                         },
                         "eval": eval,
                         "files": written,

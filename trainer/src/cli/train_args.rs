@@ -148,6 +148,15 @@ pub struct TrainArgs {
     /// Density control removes primitives whose opacity is below this.
     #[arg(long, default_value_t = Densify::default().prune_opacity)]
     pub prune_opacity: f64,
+    /// Density control with the budget full: up to this fraction of the primitives per round,
+    /// the weakest by opacity, make room for primitives still over the threshold (0: growth
+    /// stops at the budget).
+    #[arg(long, default_value_t = Densify::default().relocate_frac)]
+    pub relocate_frac: f64,
+    /// Density control adds at most this fraction of the primitives per round (0: as many as
+    /// are over the threshold, up to the budget).
+    #[arg(long, default_value_t = Densify::default().grow_frac)]
+    pub densify_grow_frac: f64,
     /// Per-view radiometric response learned with the scene, applied to each training view's
     /// render: `affine` (gain and offset: 8-bit images tone-mapped per frame by automatic gain
     /// control), `offset` (16-bit radiometric frames drifting between flat-field corrections),
@@ -313,6 +322,8 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     cfg.densify.until = a.densify_until;
     cfg.densify.every = a.densify_every;
     cfg.densify.prune_opacity = a.prune_opacity;
+    cfg.densify.relocate_frac = a.relocate_frac;
+    cfg.densify.grow_frac = a.densify_grow_frac;
     cfg.response.kind = a.response;
     cfg.response.prior = a.response_prior;
     cfg.response.lr_offset = a.response_lr;

@@ -124,6 +124,7 @@ impl<B: Backend> Trainer<B> {
         cap.densify_cloned = rounds.iter().map(|r| r.cloned).sum();
         cap.densify_split = rounds.iter().map(|r| r.split).sum();
         cap.densify_pruned = rounds.iter().map(|r| r.pruned).sum();
+        cap.densify_relocated = rounds.iter().map(|r| r.relocated).sum();
         // Each band is 5 floats; ×3 with the Adam moments.
         cap.band_bytes_saved =
             (cap.bands_initial - m.min(cap.bands_initial)) * 5 * 4 * 3 * self.prims.len();
@@ -216,6 +217,8 @@ pub struct CapacityReport {
     pub densify_split: usize,
     #[serde(default)]
     pub densify_pruned: usize,
+    #[serde(default)]
+    pub densify_relocated: usize,
     /// The per-view radiometric responses the run learned, and why (filled by
     /// [`Trainer::capacity_report`]).
     #[serde(default)]

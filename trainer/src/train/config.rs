@@ -181,7 +181,16 @@ impl Default for Joint {
     }
 }
 
-/// Density control: 3DGS-style clone/split/prune under a **hard primitive budget**.
+/// Default [`Densify::relocate_frac`]: chosen by measurement (see the module docs of
+/// `train::density`).
+pub const RELOCATE_FRAC: f64 = 0.0;
+
+/// Default [`Densify::grow_frac`]: chosen by measurement (see the module docs of
+/// `train::density`).
+pub const GROW_FRAC: f64 = 0.05;
+
+/// Density control: 3DGS-style clone/split/prune under a **hard primitive budget**, growth
+/// capped per round (`grow_frac`), optional relocation when the budget is full.
 ///
 /// Every `every` iterations while the schedule is in `[from, min(until, iters/2))` (see the
 /// `schedule` module for time-budgeted runs): primitives whose mean view-space positional
@@ -189,7 +198,9 @@ impl Default for Joint {
 /// normalised device coordinates (`train::view_space_gradient`) — exceeds `grad_threshold`
 /// (3DGS's 2e-4) are densified — split in two (scales ÷ 1.6, centres drawn from the primitive)
 /// when their largest scale exceeds `split_scale_frac` × the scene extent, cloned otherwise —
-/// highest gradients first, and only while the count stays ≤ the budget; then primitives with
+/// highest gradients first, at most `grow_frac` × the count more per round, and only while
+/// the count stays ≤ the budget (with `relocate_frac` > 0 a full budget gives the weakest
+/// primitives' places to the candidates beyond it); then primitives with
 /// opacity < `prune_opacity` are removed. Initialisation never exceeds the budget either
 /// (points are subsampled). Each round's figures are in `capacity.json` (`densify_rounds`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -200,6 +211,15 @@ pub struct Densify {
     pub grad_threshold: f64,
     pub split_scale_frac: f64,
     pub prune_opacity: f64,
+    /// With the budget full, up to this fraction of the primitives per round — the weakest,
+    /// by opacity — are removed to make room for candidates beyond the budget. Configs saved
+    /// before it existed read 0 (no relocation), so resumed runs keep their behaviour.
+    #[serde(default)]
+    pub relocate_frac: f64,
+    /// At most this fraction of the primitives added per round (0: up to the budget). Configs
+    /// saved before it existed read 0.
+    #[serde(default)]
+    pub grow_frac: f64,
 }
 
 impl Default for Densify {
@@ -211,6 +231,8 @@ impl Default for Densify {
             grad_threshold: 2e-4,
             split_scale_frac: 0.01,
             prune_opacity: 0.005,
+            relocate_frac: RELOCATE_FRAC,
+            grow_frac: GROW_FRAC,
         }
     }
 }

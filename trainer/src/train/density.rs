@@ -9,6 +9,21 @@
 //! Until this module measured in NDC the statistic was in pixels (‖dL/dμ‖·z/f), 160× smaller
 //! than 3DGS's at 320 px wide, and the same 2e-4 threshold never fired on a real 320×256 scene
 //! (34 462 → 34 464 primitives in 2 000 iterations).
+//!
+//! **Growth is capped per round** (`grow_frac`, default 5 % of the primitives): every primitive
+//! makes every later step slower, and under a time budget the steps are what the run has. With
+//! 3DGS's rule uncapped, an 8-minute run on the real thermal facade (lavapipe, 320×240, 30 k
+//! seeds) filled the 100 k budget in its first 30 s and then ran at half the steps/s. Measured
+//! at equal training time (`scripts/real-data/README.md`): on the simulated scene (2 000 seed
+//! points, 2 min, scenes of two seeds) the cap ended 1.4 and 2.6 dB above uncapped growth; on
+//! the facade the two ended within 0.1 dB, the cap with 62 k primitives instead of 100 k.
+//!
+//! **Relocation** (`relocate_frac`, off by default): with the budget full, up to that fraction
+//! of the primitives per round — the weakest by opacity — are removed so that as many
+//! candidates beyond the budget can be cloned or split (3DGS-MCMC's relocation of weak
+//! primitives to where the error is, with 3DGS's statistic choosing where). With the cap the
+//! budget rarely fills; measured on the facade with uncapped growth, where it does (figures in
+//! `scripts/real-data/README.md`).
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -27,13 +42,17 @@ pub struct DensifyRound {
     pub after: usize,
     /// Primitives whose statistic exceeded the threshold.
     pub over_threshold: usize,
-    /// Of those, left out because the budget was full.
+    /// Of those, left out because the budget (or the round's growth cap, `grow_frac`) was full.
     pub over_budget: usize,
     pub cloned: usize,
     /// Primitives split (each replaced by two).
     pub split: usize,
     /// Primitives removed for opacity below `prune_opacity`.
     pub pruned: usize,
+    /// With the budget full: the weakest primitives (lowest opacity) removed to make room for
+    /// candidates beyond it (`relocate_frac`); counted in `cloned`/`split` where they went.
+    #[serde(default)]
+    pub relocated: usize,
     /// Median of the statistic over the primitives that had one (NDC units).
     pub median_statistic: f64,
 }
@@ -114,8 +133,44 @@ impl<B: Backend> Trainer<B> {
             .collect();
         let over_threshold = cand.len();
         cand.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let room = self.cfg.budget.saturating_sub(n);
-        cand.truncate(room);
+        let room_budget = self.cfg.budget.saturating_sub(n);
+        // At most `grow_frac` × n more primitives per round (0: no cap): every primitive makes
+        // every later step slower, so growth under a time budget has to be paid for.
+        let grow_cap = if d.grow_frac > 0.0 {
+            (d.grow_frac * n as f64).ceil() as usize
+        } else {
+            usize::MAX
+        };
+        let room = room_budget.min(grow_cap);
+        // With the budget full, the weakest primitives (lowest opacity, not candidates, not
+        // about to be pruned) give their places to the candidates beyond the room: at most
+        // `relocate_frac` × n per round, so growth keeps following the error after the budget
+        // is reached instead of stopping there.
+        let wanted = if room_budget <= grow_cap {
+            cand.len()
+                .saturating_sub(room)
+                .min((d.relocate_frac.max(0.0) * n as f64) as usize)
+        } else {
+            0
+        };
+        let mut victim = vec![false; n];
+        if wanted > 0 {
+            let mut is_cand = vec![false; n];
+            for &(_, i) in cand.iter().take(room + wanted) {
+                is_cand[i] = true;
+            }
+            let mut weak: Vec<(f32, usize)> = (0..n)
+                .filter(|&i| !is_cand[i])
+                .map(|i| (self.prims.opacity(i).0, i))
+                .filter(|&(o, _)| f64::from(o) >= d.prune_opacity)
+                .collect();
+            weak.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for &(_, i) in weak.iter().take(wanted) {
+                victim[i] = true;
+            }
+        }
+        let relocated = victim.iter().filter(|&&v| v).count();
+        cand.truncate(room + relocated);
         let split_scale = d.split_scale_frac * self.extent_m;
         let mut keep: Vec<usize> = Vec::with_capacity(n + cand.len());
         let mut split = vec![false; n];
@@ -143,7 +198,7 @@ impl<B: Backend> Trainer<B> {
         let mut pruned = 0;
         for (i, &was_split) in split.iter().enumerate() {
             let o = f64::from(self.prims.opacity(i).0);
-            if was_split {
+            if was_split || victim[i] {
                 continue;
             }
             if o >= d.prune_opacity {
@@ -184,6 +239,7 @@ impl<B: Backend> Trainer<B> {
             cloned: cand.len() - n_split,
             split: n_split,
             pruned,
+            relocated,
             median_statistic,
         };
         tracing::info!(
@@ -193,6 +249,7 @@ impl<B: Backend> Trainer<B> {
             cloned = round.cloned,
             split = round.split,
             pruned = round.pruned,
+            relocated = round.relocated,
             over_budget = round.over_budget,
             "density control"
         );
