@@ -79,6 +79,24 @@ def quat_from_R(R):
     return q / np.linalg.norm(q) * (1 if q[0] >= 0 else -1)
 
 
+def write_colmap_text(sparse_dir, w, h, K, images, seeds):
+    """COLMAP text model: one PINHOLE camera with OpenCV's K (pixel centres at integers; COLMAP's
+    origin is the top-left pixel's corner, so +0.5 on the principal point), `images` as
+    (quaternion w x y z, translation, name) of camera-from-world, `seeds` as rows (x, y, z, grey)."""
+    with open(os.path.join(sparse_dir, "cameras.txt"), "w") as f:
+        f.write("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n")
+        f.write(f"1 PINHOLE {w} {h} {K[0, 0]:.6f} {K[1, 1]:.6f} {K[0, 2] + 0.5:.6f} {K[1, 2] + 0.5:.6f}\n")
+    with open(os.path.join(sparse_dir, "images.txt"), "w") as f:
+        f.write("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n")
+        for i, (q, t, name) in enumerate(images):
+            f.write(f"{i + 1} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} 1 {name}\n\n")
+    with open(os.path.join(sparse_dir, "points3D.txt"), "w") as f:
+        f.write("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n")
+        for i, (x, y, z, v) in enumerate(seeds):
+            g = int(v)
+            f.write(f"{i + 1} {x:.5f} {y:.5f} {z:.5f} {g} {g} {g} 0\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("calib_bin")
@@ -144,21 +162,8 @@ def main():
     seeds = np.concatenate(seeds)
     if len(seeds) > a.points:
         seeds = seeds[rng.choice(len(seeds), a.points, replace=False)]
-    sp = os.path.join(a.dataset, "sparse", "0")
-    with open(os.path.join(sp, "cameras.txt"), "w") as f:
-        f.write("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n")
-        # COLMAP's pixel origin is the top-left pixel's corner: +0.5 on the principal point.
-        f.write(f"1 PINHOLE {w} {h} {K[0,0]:.6f} {K[1,1]:.6f} {K[0,2] + 0.5:.6f} {K[1,2] + 0.5:.6f}\n")
-    with open(os.path.join(sp, "images.txt"), "w") as f:
-        f.write("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n")
-        for i, (stem, R, t, *_rest) in enumerate(poses):
-            q = quat_from_R(R)
-            f.write(f"{i + 1} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} 1 {stem}\n\n")
-    with open(os.path.join(sp, "points3D.txt"), "w") as f:
-        f.write("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n")
-        for i, (x, y, z, v) in enumerate(seeds):
-            g = int(v)
-            f.write(f"{i + 1} {x:.5f} {y:.5f} {z:.5f} {g} {g} {g} 0\n")
+    write_colmap_text(os.path.join(a.dataset, "sparse", "0"), w, h, K,
+                      [(quat_from_R(R), t, stem) for stem, R, t, *_rest in poses], seeds)
     rms = [p[4] for p in poses]
     print(f"{len(poses)} of {len(images)} views posed (PnP RMS median {np.median(rms):.3f} px, max {max(rms):.3f} px); {len(seeds)} seed points; written to {a.dataset}")
 

@@ -27,6 +27,7 @@ with the image's grey value, thinned to --points. Shots no pair reaches are left
 
 Needs python3-opencv and numpy (Debian: `apt install python3-opencv`); ~4 min on 2 cores.
 Usage: thermal_facade_dataset.py IMAGES_DIR DATASET [--points N] [--k1 K1] [--focal-px F]
+       [--px-per-m S] [--pair-m M] [--search-px R] [--plane-sigma-m S] [--iters N]
 """
 import argparse
 import glob
@@ -39,7 +40,7 @@ import sys
 import cv2
 import numpy as np
 
-from sun_board_dataset import quat_from_R
+from sun_board_dataset import quat_from_R, write_colmap_text
 
 PATCH = 32  # half size of the matched patches, px
 
@@ -232,6 +233,8 @@ def main():
     ap.add_argument("--iters", type=int, default=20, help="bundle-adjustment iterations")
     a = ap.parse_args()
 
+    if os.path.exists(a.dataset):
+        sys.exit(f"{a.dataset} exists: give a new folder (nothing is overwritten)")
     paths = sorted(glob.glob(os.path.join(a.images_dir, "*.JPG")) + glob.glob(os.path.join(a.images_dir, "*.jpg")))
     if len(paths) < 3:
         sys.exit(f"{a.images_dir}: fewer than 3 JPEG images")
@@ -332,7 +335,7 @@ def main():
 
     os.makedirs(os.path.join(a.dataset, "images"), exist_ok=False)
     os.makedirs(os.path.join(a.dataset, "sparse", "0"))
-    lines, seeds, left_out = [], [], []
+    images, seeds, left_out = [], [], []
     for c, p in enumerate(paths):
         if not seen[c]:
             left_out.append(os.path.basename(p))
@@ -341,8 +344,7 @@ def main():
         cv2.imwrite(os.path.join(a.dataset, "images", stem), undist[c])
         cw = rot[c].T
         t = -cw @ centre[c]
-        q = quat_from_R(cw)
-        lines.append(f"{len(lines) + 1} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} 1 {stem}\n\n")
+        images.append((quat_from_R(cw), t, stem))
         us, vs = np.meshgrid(np.arange(4, w, 8), np.arange(4, h, 8))
         rays = rot[c] @ (Kinv @ np.stack([us.ravel(), vs.ravel(), np.ones(us.size)]))
         s = (dist - nv @ centre[c]) / (nv @ rays)
@@ -351,20 +353,9 @@ def main():
     seeds = np.concatenate(seeds)
     if len(seeds) > a.points:
         seeds = seeds[np.random.default_rng(0).choice(len(seeds), a.points, replace=False)]
-    sp = os.path.join(a.dataset, "sparse", "0")
-    with open(os.path.join(sp, "cameras.txt"), "w") as fo:
-        fo.write("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n")
-        # COLMAP's pixel origin is the top-left pixel's corner: +0.5 on the principal point.
-        fo.write(f"1 PINHOLE {w} {h} {f:.6f} {f:.6f} {K[0, 2] + 0.5:.6f} {K[1, 2] + 0.5:.6f}\n")
-    with open(os.path.join(sp, "images.txt"), "w") as fo:
-        fo.write("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n")
-        fo.writelines(lines)
-    with open(os.path.join(sp, "points3D.txt"), "w") as fo:
-        fo.write("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n")
-        for i, (x, y, z, v) in enumerate(seeds):
-            fo.write(f"{i + 1} {x:.5f} {y:.5f} {z:.5f} {int(v)} {int(v)} {int(v)} 0\n")
+    write_colmap_text(os.path.join(a.dataset, "sparse", "0"), w, h, K, images, seeds)
     report = {
-        "views": len(lines), "left_out": left_out, "pairs_registered": len(pairs), "pairs_used": len(active),
+        "views": len(images), "left_out": left_out, "pairs_registered": len(pairs), "pairs_used": len(active),
         "points": int(len(pts)), "observations": int(len(uv)), "scale_px_per_m": scale,
         "reprojection_px": {"median": float(np.median(err)), "p90": float(np.percentile(err, 90)),
                             "max": float(err.max())},
@@ -373,7 +364,7 @@ def main():
     }
     with open(os.path.join(a.dataset, "poses.json"), "w") as fo:
         json.dump(report, fo, indent=2)
-    print(f"{len(lines)} of {n} views posed, {len(seeds)} seed points; written to {a.dataset}"
+    print(f"{len(images)} of {n} views posed, {len(seeds)} seed points; written to {a.dataset}"
           + (f"; left out (no registered neighbour): {', '.join(left_out)}" if left_out else ""))
 
 
