@@ -52,6 +52,12 @@ fn short(data: &std::path::Path, mode: Mode) -> TrainConfig {
     c
 }
 
+/// A CPU trainer on `cfg.data`, writing to `run`.
+fn trainer(cfg: TrainConfig, run: &std::path::Path) -> Trainer<CpuBackend> {
+    let data = Dataset::load(&cfg.data, &LoadOptions::default()).unwrap();
+    Trainer::new(cfg, data, CpuBackend::default(), run).unwrap()
+}
+
 fn read_capacity(run: &std::path::Path) -> CapacityReport {
     serde_json::from_str(&std::fs::read_to_string(run.join(files::CAPACITY)).unwrap()).unwrap()
 }
@@ -70,9 +76,8 @@ fn default_threshold_densifies_an_under_reconstructed_scene() {
     // No per-round growth cap: it would hold 12 seeds to about one new primitive per round;
     // this test is about what the threshold selects (the cap has its own test below).
     cfg.densify.grow_frac = 0.0;
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let mut t = trainer(cfg, &run);
     let start = t.prims.len();
     assert!(
         start <= 12,
@@ -120,9 +125,8 @@ fn growth_stops_at_the_budget_and_reports_what_it_left_out() {
     sparse_scene(&data_dir);
     let mut cfg = short(&data_dir, Mode::S3tir);
     cfg.budget = 20;
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let mut t = trainer(cfg, &run);
     t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
     let cap = read_capacity(&run);
     for r in &cap.densify_rounds {
@@ -151,9 +155,8 @@ fn growth_per_round_is_capped() {
     let mut cfg = short(&data_dir, Mode::Gaussian);
     cfg.budget = 400;
     cfg.densify.grow_frac = 0.25;
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let mut t = trainer(cfg, &run);
     t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
     let cap = read_capacity(&run);
     for r in &cap.densify_rounds {
@@ -198,9 +201,8 @@ fn a_full_budget_relocates_its_weakest_primitives() {
         cfg.budget = 12; // the seeds fill it
         cfg.densify.relocate_frac = frac;
         cfg.densify.grow_frac = 0.0;
-        let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
         let run = tmp.path().join(format!("run-{frac}"));
-        let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+        let mut t = trainer(cfg, &run);
         let n = t.prims.len();
         assert_eq!(n, 12, "the scene's 12 seeds fill the budget");
         // Three weak primitives: opacity ≈ 0.018, above the 0.005 prune threshold, so only a
@@ -278,9 +280,8 @@ fn transparent_primitives_are_pruned() {
     let mut cfg = short(&data_dir, Mode::Gaussian);
     cfg.iters = 22; // one round, at iteration 10 (the window ends at iters/2 = 11)
     cfg.densify.grad_threshold = f64::INFINITY; // nothing grows: only pruning acts
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let mut t = trainer(cfg, &run);
     let n = t.prims.len();
     // Three primitives made transparent (opacity ≈ 5e-5, under the 0.005 default): a few
     // steps of Adam at lr 0.05 cannot bring them back above it.
@@ -338,9 +339,8 @@ fn time_budget_stops_on_time_with_outputs_and_a_scaled_schedule() {
     cfg.time_budget_s = Some(4.0);
     cfg.eval_every_s = 1.0;
     cfg.checkpoint_every_s = 1e9;
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
     let run = tmp.path().join("run");
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    let mut t = trainer(cfg, &run);
     let mut evals = 0;
     t.run(&AtomicBool::new(false), &mut |e| {
         if let s3tir_trainer::train::Event::Eval(_) = e {
@@ -408,8 +408,7 @@ fn bands_are_off_during_the_warm_up_and_live_after_it() {
     sparse_scene(&data_dir);
     let mut cfg = short(&data_dir, Mode::S3tir);
     cfg.densify.every = 0;
-    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
-    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &tmp.path().join("run")).unwrap();
+    let mut t = trainer(cfg, &tmp.path().join("run"));
     let m = t.prims.bands;
     assert_eq!(m, 4);
     while t.iteration < 30 {
