@@ -15,6 +15,8 @@
 //! - [`ply`]: the primitives as a 3DGS-compatible PLY.
 //! - [`metrics`]: PSNR, SSIM and kelvin errors of held-out views.
 //! - [`report`]: metrics logs and plots of a run.
+//! - [`compare`]: runs compared — repeated runs of a configuration as one mean-and-range curve,
+//!   and where one configuration leads another after the warm-up.
 //! - [`truth`]: a run scored against a simulated joint scene's truth.
 //! - [`ablation`]: the TGA-GS ablation's runs and table.
 //! - [`gpu`] (feature `vulkan`): Vulkan compute through ash — device discovery and reports,
@@ -37,8 +39,10 @@ pub mod real;
 pub mod render;
 pub mod sh;
 
-// Training pipeline: datasets, PLY export, metrics, reports, checkpoints, the loop.
+// Training pipeline: datasets, PLY export, metrics, reports and comparisons, checkpoints, the
+// loop.
 pub mod checkpoint;
+pub mod compare;
 pub mod dataset;
 pub mod metrics;
 pub mod ply;

@@ -82,7 +82,9 @@ enum Command {
     /// (coloured by the ironbow palette for viewers that show only RGB); opens in MeshLab,
     /// Blender, CloudCompare. The voxel follows the scene's extent and --memory-budget-mib.
     Mesh(MeshArgs),
-    /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs).
+    /// Overlay the error-vs-time curves of several runs on one plot (e.g. s3tir vs 3dgs), or of
+    /// groups of repeated runs (several seeds of one configuration: their mean, the range
+    /// shaded), with a table of where the first leads each other after the warm-up.
     Compare(CompareArgs),
     /// Write the built-in analytic test scene (a wall with a sharp emissivity step and a heated
     /// pipe) as a COLMAP dataset with 16-bit centikelvin images.

@@ -1,5 +1,6 @@
 //! Run reports: `metrics.csv` (error against training wall time), its PNG plot, the `compare`
-//! overlay of several runs, G-buffer images (paper Fig. 4) and the log-histogram of β (Fig. 6).
+//! overlay of several runs or groups of repeated runs ([`Curve`]), G-buffer images (paper Fig. 4)
+//! and the log-histogram of β (Fig. 6).
 
 use std::fs;
 use std::io::Write;
@@ -196,15 +197,103 @@ fn draw_png(
     canvas.save(path).map_err(|e| plot_err(path, e))
 }
 
+/// A held-out figure at one evaluation over one or more runs: their mean and range.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Spread {
+    pub mean: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    /// One run's value.
+    pub fn one(v: f64) -> Self {
+        Self {
+            mean: v,
+            min: v,
+            max: v,
+        }
+    }
+
+    /// Mean and range of `values` (`None` when empty).
+    pub fn of(values: &[f64]) -> Option<Self> {
+        if values.is_empty() {
+            return None;
+        }
+        Some(Self {
+            mean: values.iter().sum::<f64>() / values.len() as f64,
+            min: values.iter().copied().fold(f64::INFINITY, f64::min),
+            max: values.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        })
+    }
+}
+
+/// One evaluation of a [`Curve`]: training seconds (mean over the runs) and the held-out
+/// figures (`None` where a run's log lacks them).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CurvePoint {
+    pub seconds: f64,
+    pub psnr: Spread,
+    pub psnr_aligned: Option<Spread>,
+    pub ssim: Spread,
+    pub kelvin_mae: Option<Spread>,
+    pub kelvin_mae_aligned: Option<Spread>,
+    /// Mean primitives.
+    pub primitives: f64,
+}
+
+/// Error against training time of one run, or of repeated runs of one configuration (their
+/// mean and range per evaluation; [`crate::compare`] builds those).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Curve {
+    pub label: String,
+    /// Runs behind each point.
+    pub runs: usize,
+    pub points: Vec<CurvePoint>,
+}
+
+impl Curve {
+    /// One run's rows as a curve.
+    pub fn of_run(label: &str, rows: &[MetricsRow]) -> Self {
+        Self {
+            label: label.to_owned(),
+            runs: 1,
+            points: rows
+                .iter()
+                .map(|r| CurvePoint {
+                    seconds: r.seconds,
+                    psnr: Spread::one(r.psnr),
+                    psnr_aligned: r.psnr_aligned.map(Spread::one),
+                    ssim: Spread::one(r.ssim),
+                    kelvin_mae: r.kelvin_mae.map(Spread::one),
+                    kelvin_mae_aligned: r.kelvin_mae_aligned.map(Spread::one),
+                    primitives: r.primitives as f64,
+                })
+                .collect(),
+        }
+    }
+}
+
 /// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
 /// seconds, one line per run: `runs = [(label, rows)]`.
 pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), ReportError> {
+    let curves: Vec<Curve> = runs
+        .iter()
+        .map(|(label, rows)| Curve::of_run(label, rows))
+        .collect();
+    plot_curves(path, &curves)
+}
+
+/// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
+/// seconds, one line per curve: the mean of its runs, with the range of the raw figure shaded
+/// where a curve holds several runs, and the aligned figure dashed where the logs have it.
+pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
     draw_png(path, (1100, 450), |root| {
         root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
         let (left, right) = root.split_horizontally(550);
-        let all: Vec<&MetricsRow> = runs.iter().flat_map(|r| r.1.iter()).collect();
-        let t_max = all.iter().map(|r| r.seconds).fold(1e-3, f64::max);
-        let radiometric = all.iter().any(|r| r.kelvin_mae.is_some());
+        let all: Vec<&CurvePoint> = curves.iter().flat_map(|c| c.points.iter()).collect();
+        let t_max = all.iter().map(|p| p.seconds).fold(1e-3, f64::max);
+        let radiometric = all.iter().any(|p| p.kelvin_mae.is_some());
         let range = |vals: Vec<f64>| {
             let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -215,24 +304,25 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
                 (0.0, 1.0)
             }
         };
-        type Getter = Box<dyn Fn(&MetricsRow) -> Option<f64>>;
-        // Each panel: the raw figure (solid) and, when the log has it, the aligned one (dashed).
+        type Getter = Box<dyn Fn(&CurvePoint) -> Option<Spread>>;
+        // Each panel: the raw figure (solid, its range shaded) and, when the log has it, the
+        // aligned one (dashed).
         let panels: [(&str, Getter, Getter); 2] = [
             (
                 "held-out PSNR (dB); dashed: affine-aligned",
-                Box::new(|r| Some(r.psnr)),
-                Box::new(|r| r.psnr_aligned),
+                Box::new(|p| Some(p.psnr)),
+                Box::new(|p| p.psnr_aligned),
             ),
             if radiometric {
                 (
                     "held-out MAE (K); dashed: offset-aligned",
-                    Box::new(|r| r.kelvin_mae),
-                    Box::new(|r| r.kelvin_mae_aligned),
+                    Box::new(|p| p.kelvin_mae),
+                    Box::new(|p| p.kelvin_mae_aligned),
                 )
             } else {
                 (
                     "held-out SSIM",
-                    Box::new(|r| Some(r.ssim)),
+                    Box::new(|p| Some(p.ssim)),
                     Box::new(|_| None),
                 )
             },
@@ -240,8 +330,9 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
         for (area, (label, get, get_aligned)) in [left, right].iter().zip(panels.iter()) {
             let (lo, hi) = range(
                 all.iter()
-                    .flat_map(|r| [get(r), get_aligned(r)])
+                    .flat_map(|p| [get(p), get_aligned(p)])
                     .flatten()
+                    .flat_map(|s| [s.min, s.max])
                     .collect(),
             );
             let mut chart = ChartBuilder::on(area)
@@ -256,23 +347,41 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
                 .x_desc("training time (s)")
                 .draw()
                 .map_err(|e| plot_err(path, e))?;
-            for (k, (name, rows)) in runs.iter().enumerate() {
+            for (k, curve) in curves.iter().enumerate() {
                 let colour = PALETTE[k % PALETTE.len()];
-                let pts: Vec<(f64, f64)> = rows
+                let spreads: Vec<(f64, Spread)> = curve
+                    .points
                     .iter()
-                    .filter_map(|r| get(r).map(|v| (r.seconds, v)))
+                    .filter_map(|p| get(p).map(|s| (p.seconds, s)))
                     .collect();
+                if curve.runs > 1 && spreads.len() > 1 {
+                    let band: Vec<(f64, f64)> = spreads
+                        .iter()
+                        .map(|(t, s)| (*t, s.max))
+                        .chain(spreads.iter().rev().map(|(t, s)| (*t, s.min)))
+                        .collect();
+                    chart
+                        .draw_series(std::iter::once(Polygon::new(band, colour.mix(0.18))))
+                        .map_err(|e| plot_err(path, e))?;
+                }
+                let pts: Vec<(f64, f64)> = spreads.iter().map(|(t, s)| (*t, s.mean)).collect();
+                let name = if curve.runs > 1 {
+                    format!("{} (mean of {} runs)", curve.label, curve.runs)
+                } else {
+                    curve.label.clone()
+                };
                 chart
                     .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
                     .map_err(|e| plot_err(path, e))?
-                    .label(name.clone())
+                    .label(name)
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
                 chart
                     .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                     .map_err(|e| plot_err(path, e))?;
-                let aligned: Vec<(f64, f64)> = rows
+                let aligned: Vec<(f64, f64)> = curve
+                    .points
                     .iter()
-                    .filter_map(|r| get_aligned(r).map(|v| (r.seconds, v)))
+                    .filter_map(|p| get_aligned(p).map(|s| (p.seconds, s.mean)))
                     .collect();
                 if !aligned.is_empty() {
                     chart

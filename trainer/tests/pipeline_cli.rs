@@ -258,6 +258,57 @@ fn eval_json_and_compare_read_a_finished_run() {
         std::fs::metadata(&png).unwrap().len() > 1000,
         "compare plot is empty"
     );
+
+    // Groups of repeated runs: the mean-and-range curves and the leads, as JSON.
+    let (r, png2) = (run.to_str().unwrap(), tmp.path().join("groups.png"));
+    let out = bin()
+        .args([
+            "compare",
+            &format!("twice={r},{r}"),
+            &format!("once={r}"),
+            "--json",
+            "--out",
+            png2.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "compare with groups: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let curves = v["curves"].as_array().expect("`curves` is an array");
+    assert_eq!(curves.len(), 2, "one curve per group: {v}");
+    assert_eq!(curves[0]["label"], "twice");
+    assert_eq!(curves[0]["runs"], 2, "the first group holds two runs");
+    let p = &curves[0]["points"].as_array().unwrap().last().unwrap()["psnr"];
+    assert_eq!(p["min"], p["max"], "the same run twice has no range: {p}");
+    let leads = v["leads"].as_array().expect("`leads` is an array");
+    assert!(!leads.is_empty(), "the first group against the second: {v}");
+    let l = &leads[0];
+    assert_eq!(l["ahead"], l["evaluations"], "a run equals itself: {l}");
+    assert!(
+        l["ahead_in_every_pair"].is_null(),
+        "groups of 2 and 1 runs are not paired: {l}"
+    );
+    assert!(
+        std::fs::metadata(&png2).unwrap().len() > 1000,
+        "group plot is empty"
+    );
+
+    // An entry that is neither a run folder nor a group is named.
+    let missing = tmp.path().join("no_such_run");
+    let out = bin()
+        .args(["compare", missing.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "compare of a missing folder fails");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no_such_run") && err.contains("no such run folder"),
+        "the error names the entry: {err}"
+    );
 }
 
 #[test]
