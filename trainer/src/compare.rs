@@ -1,7 +1,7 @@
 //! Comparing training runs (`s3tir-train compare`). A run's held-out metrics are one sample of
 //! its configuration: timing decides how many steps fall before each evaluation, and the seed
 //! decides the initial subsampling, the bands and the view order, so runs of one configuration
-//! differ (three training seeds on one simulated scene ended 1.4–3.2 dB apart after 2 minutes).
+//! differ (three training seeds on one simulated scene ended up to 4.3 dB apart after 2 minutes).
 //! A [`Group`] holds repeated runs of one configuration (e.g. `--seed 0, 1, 2`); [`group_curve`]
 //! gives per evaluation the mean and range of its runs, and [`leads`] counts, after the warm-up,
 //! at how many evaluations the first group is ahead of each other group: on the means, beyond
