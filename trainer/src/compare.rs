@@ -10,7 +10,8 @@
 //!
 //! Runs are matched evaluation by evaluation (the k-th row of each `metrics.csv`), so the runs
 //! of a comparison need the same evaluation interval (`--eval-every-s`, or `--eval-every` in
-//! iterations); [`group_curve`] refuses runs whose k-th evaluations lie apart.
+//! iterations); [`group_curve`] refuses runs, and [`check_aligned`] entries, whose k-th
+//! evaluations lie apart.
 
 use std::path::{Path, PathBuf};
 
@@ -43,6 +44,18 @@ pub enum CompareError {
         run: PathBuf,
         seconds: f64,
         first: PathBuf,
+        expected: f64,
+    },
+    #[error(
+        "evaluation {index} is at {seconds:.1} s in `{label}` but at {expected:.1} s in \
+         `{first}`; entries compared evaluation by evaluation need the same evaluation interval \
+         (--eval-every-s)"
+    )]
+    EntriesMisaligned {
+        label: String,
+        index: usize,
+        seconds: f64,
+        first: String,
         expected: f64,
     },
 }
@@ -131,6 +144,40 @@ impl Group {
 const ALIGN_FRACTION: f64 = 0.25;
 const ALIGN_SLACK_S: f64 = 0.5;
 
+/// Whether `seconds` is the evaluation of `reference` at index `k` (see [`ALIGN_FRACTION`]).
+fn same_evaluation(reference: &[f64], k: usize, seconds: f64) -> bool {
+    let expected = reference[k];
+    let interval = if k > 0 {
+        expected - reference[k - 1]
+    } else {
+        reference.get(1).map_or(0.0, |t| t - expected)
+    };
+    (seconds - expected).abs() <= ALIGN_FRACTION * interval.abs() + ALIGN_SLACK_S
+}
+
+/// Checks that the curves' k-th evaluations are at the same training time as the first
+/// curve's (up to the shortest curve), so [`leads`] compares like with like.
+pub fn check_aligned(curves: &[Curve]) -> Result<(), CompareError> {
+    let Some((first, others)) = curves.split_first() else {
+        return Ok(());
+    };
+    let reference: Vec<f64> = first.points.iter().map(|p| p.seconds).collect();
+    for c in others {
+        for (k, p) in c.points.iter().enumerate().take(reference.len()) {
+            if !same_evaluation(&reference, k, p.seconds) {
+                return Err(CompareError::EntriesMisaligned {
+                    label: c.label.clone(),
+                    index: k,
+                    seconds: p.seconds,
+                    first: first.label.clone(),
+                    expected: reference[k],
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The group's curve: per evaluation (up to the shortest run's count) the mean and range of its
 /// runs' figures. A figure some run's log lacks (e.g. `psnr_aligned` in old logs) is `None`.
 pub fn group_curve(group: &Group) -> Result<Curve, CompareError> {
@@ -139,23 +186,18 @@ pub fn group_curve(group: &Group) -> Result<Curve, CompareError> {
     })?;
     let n = group.runs.iter().map(|r| r.rows.len()).min().unwrap_or(0);
     let mut points = Vec::with_capacity(n);
+    let reference: Vec<f64> = first.rows.iter().map(|r| r.seconds).collect();
     for k in 0..n {
-        let expected = first.rows[k].seconds;
-        let interval = if k > 0 {
-            expected - first.rows[k - 1].seconds
-        } else {
-            first.rows.get(1).map_or(0.0, |r| r.seconds - expected)
-        };
         for run in &group.runs[1..] {
             let seconds = run.rows[k].seconds;
-            if (seconds - expected).abs() > ALIGN_FRACTION * interval.abs() + ALIGN_SLACK_S {
+            if !same_evaluation(&reference, k, seconds) {
                 return Err(CompareError::Misaligned {
                     label: group.label.clone(),
                     index: k,
                     run: run.dir.clone(),
                     seconds,
                     first: first.dir.clone(),
-                    expected,
+                    expected: reference[k],
                 });
             }
         }
@@ -352,6 +394,24 @@ mod tests {
                 assert_eq!(run, PathBuf::from("late"));
             }
             other => panic!("expected a misalignment error, got {other:?}"),
+        }
+        // Entries (groups) evaluated at different intervals are refused too.
+        let every_10 = group_curve(&Group {
+            label: "every 10 s".into(),
+            runs: vec![run("a", &[10.0, 20.0, 30.0])],
+        })
+        .unwrap();
+        let mut every_30 = every_10.clone();
+        every_30.label = "every 30 s".into();
+        for (k, p) in every_30.points.iter_mut().enumerate() {
+            p.seconds = 30.0 * k as f64;
+        }
+        assert!(check_aligned(&[every_10.clone(), every_10.clone()]).is_ok());
+        match check_aligned(&[every_10, every_30]) {
+            Err(CompareError::EntriesMisaligned { index, label, .. }) => {
+                assert_eq!((index, label.as_str()), (1, "every 30 s"));
+            }
+            other => panic!("expected entries misaligned at evaluation 1, got {other:?}"),
         }
         let empty = Group {
             label: "none".into(),

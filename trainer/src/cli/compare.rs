@@ -82,6 +82,7 @@ pub fn run(a: &CompareArgs) -> Result<()> {
         .iter()
         .map(compare::group_curve)
         .collect::<Result<Vec<_>, _>>()?;
+    compare::check_aligned(&curves)?;
     let warmup_end_s = groups
         .iter()
         .filter_map(Group::warmup_end_s)
