@@ -381,6 +381,30 @@ mod tests {
     }
 
     #[test]
+    fn a_run_folder_is_read_and_an_unreadable_one_is_named() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("old_run");
+        std::fs::create_dir(&dir).unwrap();
+        // No metrics yet: the error names the folder.
+        match load_run(&dir) {
+            Err(e @ CompareError::Metrics { .. }) => {
+                assert!(e.to_string().contains("old_run"), "{e}");
+            }
+            other => panic!("expected a metrics error naming the run, got {other:?}"),
+        }
+        let csv = dir.join(files::METRICS_CSV);
+        for r in run("x", &[10.0, 20.0]).rows {
+            report::append_row(&csv, &r).unwrap();
+        }
+        // A configuration this version cannot read (an older run's): compared all the same.
+        std::fs::write(dir.join(files::CONFIG), "{\"not\": \"a config\"}").unwrap();
+        let got = load_run(&dir).unwrap();
+        assert_eq!(got.rows.len(), 2, "both evaluations read back");
+        assert_eq!(got.mode, "?", "mode unknown without a readable config");
+        assert_eq!(got.warmup_end_s, None);
+    }
+
+    #[test]
     fn runs_evaluated_at_different_times_are_refused() {
         let mut late = run("late", &[10.0, 20.0, 30.0]);
         late.rows[2].seconds = 60.0;
