@@ -421,23 +421,18 @@ fn progress_bar(total: usize, what: &str) -> ProgressBar {
 }
 
 /// A stop flag that SIGINT/SIGTERM set, so Ctrl-C stops the rig cleanly (socket removed).
-/// Both signals are blocked in this thread before the rig starts its threads, which inherit
-/// the mask; a waiting thread takes them instead.
+/// Real handlers (`ctrlc`), not signals blocked in this thread and taken by a waiting one: a
+/// process-directed signal goes to any thread that does not block it, and libraries start
+/// threads before `main` runs (OpenBLAS, linked through OpenCV, starts its pool at load), so
+/// a mask set here does not cover them and the signal killed the rig with its socket left.
 fn stop_on_signals() -> Result<Arc<AtomicBool>> {
-    use nix::sys::signal::{SigSet, Signal};
-    let mut set = SigSet::empty();
-    set.add(Signal::SIGINT);
-    set.add(Signal::SIGTERM);
-    set.thread_block().context("blocking SIGINT/SIGTERM")?;
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
-    // Detached: it lives until a signal arrives or the process exits.
-    std::thread::spawn(move || {
-        if let Ok(sig) = set.wait() {
-            tracing::info!("{sig:?}: stopping");
-        }
+    ctrlc::set_handler(move || {
+        tracing::info!("SIGINT/SIGTERM: stopping");
         flag.store(true, Ordering::Relaxed);
-    });
+    })
+    .context("installing the SIGINT/SIGTERM handler")?;
     Ok(stop)
 }
 

@@ -78,9 +78,14 @@ fn synth_scene(dir: &Path) -> std::path::PathBuf {
 
 /// A finished run of `iters` iterations of `data` in `run`.
 fn finished_run(data: &Path, run: &Path, iters: u64) {
+    finished_run_with(data, run, &["--iters", &iters.to_string()]);
+}
+
+/// A finished run of `data` in `run` with the test's options and `extra`.
+fn finished_run_with(data: &Path, run: &Path, extra: &[&str]) {
     let out = bin()
         .args(train_args(data, run))
-        .args(["--iters", &iters.to_string()])
+        .args(extra)
         .output()
         .unwrap();
     assert!(
@@ -309,6 +314,39 @@ fn eval_json_and_compare_read_a_finished_run() {
         err.contains("no_such_run") && err.contains("no such run folder"),
         "the error names the entry: {err}"
     );
+}
+
+/// `--consist-weight` sets λc in the run's config (what `--resume` and `compare` read back);
+/// a weight that is not finite and ≥ 0 is refused with the flag named, before anything is
+/// written.
+#[test]
+fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
+    finished_run_with(&data, &run, &["--iters", "5", "--consist-weight", "0.002"]);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(
+        cfg["weights"]["consist"].as_f64(),
+        Some(0.002),
+        "config.json should record λc = 0.002: {}",
+        cfg["weights"]
+    );
+
+    let bad = tmp.path().join("bad");
+    let out = bin()
+        .args(train_args(&data, &bad))
+        .args(["--iters", "5", "--consist-weight", "-1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "a negative λc must be refused");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--consist-weight"),
+        "the error should name the flag: {err}"
+    );
+    assert!(!bad.exists(), "nothing should be written for a refused run");
 }
 
 #[test]

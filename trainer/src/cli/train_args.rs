@@ -9,7 +9,7 @@ use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{LoadOptions, Modality, ThermalUnits};
 use s3tir_trainer::train::{
     BackendKind, ConsistPartner, Densify, Joint, Mode, ResponseConfig, ResponseKind, RgbLoss,
-    TrainConfig,
+    TrainConfig, Weights,
 };
 
 /// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
@@ -119,6 +119,11 @@ pub struct TrainArgs {
     /// Compute the multi-view consistency loss every k-th iteration.
     #[arg(long, default_value_t = 1)]
     pub consist_every: u64,
+    /// Weight λc of the multi-view consistency loss (paper eq. 6: 0.01). 0 keeps the term's
+    /// pairing of views (and its cost) without its pull, to separate the two; --no-consist
+    /// turns both off.
+    #[arg(long, default_value_t = Weights::default().consist)]
+    pub consist_weight: f64,
     /// The consistency term's partner view: `previous` pairs consecutive steps (a random view,
     /// then a view overlapping it, warped into the G-buffers kept from the first: no extra
     /// render, the term on every second step); `render` renders the view's best-overlap
@@ -298,6 +303,7 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     for (flag, w) in [
         ("--thermal-weight", a.thermal_weight),
         ("--rgb-weight", a.rgb_weight),
+        ("--consist-weight", a.consist_weight),
     ] {
         if !(w >= 0.0 && w.is_finite()) {
             bail!("{flag} must be a finite weight ≥ 0, got {w}");
@@ -334,6 +340,7 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     cfg.seed = a.seed;
     cfg.bands = a.bands;
     cfg.consist = !a.no_consist;
+    cfg.weights.consist = a.consist_weight;
     cfg.sparse = !a.no_sparse;
     cfg.smooth = !a.no_smooth;
     cfg.eval_every_s = a.eval_every_s;
