@@ -337,7 +337,7 @@ fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
     let bad = tmp.path().join("bad");
     let out = bin()
         .args(train_args(&data, &bad))
-        .args(["--iters", "5", "--consist-weight", "-1"])
+        .args(["--iters", "5", "--consist-weight=-1"])
         .output()
         .unwrap();
     assert!(!out.status.success(), "a negative λc must be refused");
