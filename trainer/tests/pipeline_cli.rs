@@ -325,13 +325,13 @@ fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
     let data = synth_scene(tmp.path());
     let run = tmp.path().join("run");
     finished_run_with(&data, &run, &["--iters", "5", "--consist-weight", "0.002"]);
-    let cfg: serde_json::Value =
+    // Read back as `--resume` reads it.
+    let cfg: s3tir_trainer::train::TrainConfig =
         serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(
-        cfg["weights"]["consist"].as_f64(),
-        Some(0.002),
-        "config.json should record λc = 0.002: {}",
-        cfg["weights"]
+        cfg.weights.consist, 0.002,
+        "config.json should record λc = 0.002: {:?}",
+        cfg.weights
     );
 
     let bad = tmp.path().join("bad");
