@@ -16,8 +16,9 @@
 // - log-scales are clamped from below to min_log_scale after the update;
 // - nothing at all when a view's key total exceeds the key buffers' capacity (its render was
 //   incomplete: the host grows the buffers and repeats the step).
-// The host computes the bias corrections in f64: step[g] = lr_g / (1 - b1^t), bc2s =
-// sqrt(1 - b2^t).
+// The host computes each group's step size in f64, bias corrections included (Kingma & Ba's
+// efficient form, each group counting its own steps: train/adam.rs AdamState::step_sizes):
+// step[g] = lr_g * sqrt(1 - b2^t_g) / (1 - b1^t_g), and the update is step * m / (sqrt(v) + eps).
 #version 450
 #include "raster_common.glsl"
 
@@ -51,7 +52,6 @@ layout(push_constant) uniform Push {
     float b1;
     float b2;
     float eps;
-    float bc2s;
     float min_log_scale;
     // R_cam_from_world (row-major) and t.z of the reference view, and z-free NDC scales
     // W / (2 fx), H / (2 fy): the densification statistic (train::view_space_gradient).
@@ -90,7 +90,7 @@ float adam(uint k, float g, float step) {
     float b = pc.b2 * m2[k] + (1.0 - pc.b2) * g * g;
     m1[k] = a;
     m2[k] = b;
-    return step * a / (sqrt(b) / pc.bc2s + pc.eps);
+    return step * a / (sqrt(b) + pc.eps);
 }
 
 void update(uint k, float step) {

@@ -1,5 +1,7 @@
 //! Training checkpoints: `checkpoint.json` in the run folder is a small JSON header — the
-//! format version, the iteration, the training time so far, the Adam step, the loop state
+//! format version, the iteration, the training time so far, the Adam steps (the run's and each
+//! parameter group's: their bias corrections; headers without the latter read as every group
+//! at the run's count, which is what their runs used), the loop state
 //! (capacity decisions, responses, …), each parameter set's band and SH layout, and the name of
 //! the arrays file — and the parameter arrays (the primitives and both Adam moments: f32, the
 //! live-band counts u32) are a safetensors file beside it (`checkpoint.a.safetensors` or
@@ -41,6 +43,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::error::RenderError;
+use crate::primitive::Groups;
 use crate::primitive::Primitives;
 
 /// Format written into every checkpoint: 2 is the JSON header with a safetensors arrays file.
@@ -233,6 +236,11 @@ pub struct Checkpoint {
     pub adam_m: PrimitivesData,
     pub adam_v: PrimitivesData,
     pub adam_step: u64,
+    /// Each parameter group's Adam steps (its bias corrections, [`crate::train::adam`]).
+    /// Absent in checkpoints written before groups kept their own count: every group at
+    /// `adam_step`, the count their bias corrections used.
+    #[serde(default)]
+    pub adam_group_steps: Groups<u64>,
     /// Loop state that is not parameters (capacity decisions, …).
     pub state: serde_json::Value,
 }
@@ -251,6 +259,8 @@ struct Header {
     iteration: u64,
     train_seconds: f64,
     adam_step: u64,
+    #[serde(default)]
+    adam_group_steps: Groups<u64>,
     state: serde_json::Value,
     /// The arrays file, beside the header (a bare file name).
     arrays: String,
@@ -265,6 +275,9 @@ struct Probe {
     version: u32,
     #[serde(default)]
     arrays: Option<String>,
+    /// Whether the checkpoint has each group's Adam steps (see [`Header`]).
+    #[serde(default)]
+    adam_group_steps: Option<serde::de::IgnoredAny>,
 }
 
 /// The two arrays files beside `path` (`<stem>.a.safetensors`, `<stem>.b.safetensors`).
@@ -382,6 +395,7 @@ pub fn save(path: &Path, ck: &Checkpoint) -> Result<(), CheckpointError> {
         iteration: ck.iteration,
         train_seconds: ck.train_seconds,
         adam_step: ck.adam_step,
+        adam_group_steps: ck.adam_group_steps,
         state: ck.state.clone(),
         arrays: slot,
         primitives: ck.primitives.layout(),
@@ -425,7 +439,8 @@ pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
         reason,
     };
     let probe: Probe = serde_json::from_slice(&text).map_err(json)?;
-    let ck = match (probe.version, probe.arrays) {
+    let old_adam = probe.adam_group_steps.is_none();
+    let mut ck: Checkpoint = match (probe.version, probe.arrays) {
         (CHECKPOINT_VERSION_JSON, _) => serde_json::from_slice(&text).map_err(json)?,
         (CHECKPOINT_VERSION, Some(_)) => {
             let header: Header = serde_json::from_slice(&text).map_err(json)?;
@@ -441,6 +456,9 @@ pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
             )));
         }
     };
+    if old_adam {
+        ck.adam_group_steps = Groups::splat(ck.adam_step);
+    }
     for (set, d) in [
         ("primitives", &ck.primitives),
         ("adam_m", &ck.adam_m),
@@ -521,6 +539,7 @@ fn load_arrays(path: &Path, header: Header) -> Result<Checkpoint, CheckpointErro
         adam_m,
         adam_v,
         adam_step: header.adam_step,
+        adam_group_steps: header.adam_group_steps,
         state: header.state,
     })
 }
@@ -576,6 +595,10 @@ mod tests {
             adam_m: (&m).into(),
             adam_v: p.into(),
             adam_step: 1234,
+            adam_group_steps: Groups {
+                band_amp: 934,
+                ..Groups::splat(1234)
+            },
             state: serde_json::json!({"x": 1, "capacity": {"bands": [4, 3]}}),
         }
     }
@@ -626,6 +649,34 @@ mod tests {
         let header: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
         assert_eq!(header["iteration"], 1234);
         assert_eq!(header["version"], CHECKPOINT_VERSION);
+    }
+
+    #[test]
+    fn checkpoints_without_group_steps_resume_with_the_runs_count() {
+        // Written before each Adam group kept its own step count: every group's bias
+        // corrections used the run's count, so that is what a resumed run continues from.
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("checkpoint.json");
+        let ck = checkpoint(&primitives(5, 4, None));
+        assert_ne!(ck.adam_group_steps, Groups::splat(ck.adam_step));
+        save(&path, &ck).unwrap();
+        assert_eq!(load(&path).unwrap(), ck, "group steps round trip");
+        let strip = |text: &[u8]| {
+            let mut v: serde_json::Value = serde_json::from_slice(text).unwrap();
+            v.as_object_mut()
+                .unwrap()
+                .remove("adam_group_steps")
+                .expect("the header has the group steps");
+            serde_json::to_vec(&v).unwrap()
+        };
+        fs::write(&path, strip(&fs::read(&path).unwrap())).unwrap();
+        let back = load(&path).unwrap();
+        assert_eq!(back.adam_group_steps, Groups::splat(1234));
+        // Format 1 likewise.
+        let mut ck1 = ck.clone();
+        ck1.version = CHECKPOINT_VERSION_JSON;
+        fs::write(&path, strip(&serde_json::to_vec(&ck1).unwrap())).unwrap();
+        assert_eq!(load(&path).unwrap().adam_group_steps, Groups::splat(1234));
     }
 
     #[test]

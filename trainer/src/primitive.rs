@@ -42,6 +42,8 @@
 //!
 //! Spectrum `F(x) = ReLU(ω_low + Σ_j ω_j cos(2π f_jᵀ(x − μ) + φ_j))`.
 
+use serde::{Deserialize, Serialize};
+
 use crate::real::Real;
 
 /// Upper clamp of β. Above it the gradient w.r.t. `beta_raw` is zero.
@@ -441,4 +443,72 @@ pub fn quat_backward<T: Real>(unit: [T; 4], norm: T, g: &[T; 9]) -> [T; 4] {
         (gu[2] - d * y) / norm,
         (gu[3] - d * z) / norm,
     ]
+}
+
+/// One value per parameter group of [`Primitives`] (e.g. the optimiser's learning rates and
+/// step counts, `train::adam`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Groups<T> {
+    pub means: T,
+    pub log_scales: T,
+    pub quats: T,
+    pub opacity_logits: T,
+    /// `beta_raw`'s group (the optimiser steps it in β units).
+    pub beta: T,
+    pub omega_low: T,
+    pub band_amp: T,
+    pub band_freq: T,
+    pub band_phase: T,
+    pub sh: T,
+}
+
+impl<T: Copy> Groups<T> {
+    /// The value of a [`Primitives::groups`] name.
+    pub fn of(&self, group: &str) -> T {
+        match group {
+            "means" => self.means,
+            "log_scales" => self.log_scales,
+            "quats" => self.quats,
+            "opacity_logits" => self.opacity_logits,
+            "beta_raw" => self.beta,
+            "omega_low" => self.omega_low,
+            "band_amp" => self.band_amp,
+            "band_freq" => self.band_freq,
+            "band_phase" => self.band_phase,
+            _ => self.sh,
+        }
+    }
+
+    /// `v` in every group (e.g. a checkpoint written before groups kept their own step count:
+    /// its bias corrections all used the run's count).
+    pub fn splat(v: T) -> Self {
+        Groups {
+            means: v,
+            log_scales: v,
+            quats: v,
+            opacity_logits: v,
+            beta: v,
+            omega_low: v,
+            band_amp: v,
+            band_freq: v,
+            band_phase: v,
+            sh: v,
+        }
+    }
+
+    /// `f` of each group's pair of values.
+    pub fn zip_with<U: Copy, V>(&self, other: &Groups<U>, f: impl Fn(T, U) -> V) -> Groups<V> {
+        Groups {
+            means: f(self.means, other.means),
+            log_scales: f(self.log_scales, other.log_scales),
+            quats: f(self.quats, other.quats),
+            opacity_logits: f(self.opacity_logits, other.opacity_logits),
+            beta: f(self.beta, other.beta),
+            omega_low: f(self.omega_low, other.omega_low),
+            band_amp: f(self.band_amp, other.band_amp),
+            band_freq: f(self.band_freq, other.band_freq),
+            band_phase: f(self.band_phase, other.band_phase),
+            sh: f(self.sh, other.sh),
+        }
+    }
 }

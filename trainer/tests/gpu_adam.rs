@@ -19,7 +19,7 @@ use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{
     BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw,
 };
-use s3tir_trainer::train::{AdamParams, AdamState, GroupLrs, view_space_gradient};
+use s3tir_trainer::train::{AdamParams, AdamState, GroupLrs, Groups, view_space_gradient};
 
 const N: usize = 300;
 const M: usize = 3;
@@ -88,6 +88,14 @@ fn adam_kernel_takes_the_host_optimiser_step() {
         }
     }
     adam.step = 6;
+    // Groups released later (the bands and β at the warm-up's end) count their own steps: the
+    // kernel takes each group's bias corrections from the host's step sizes.
+    adam.group_steps = Groups {
+        beta: 2,
+        band_amp: 0,
+        band_freq: 1,
+        ..Groups::splat(6)
+    };
     let accum0: Vec<f64> = (0..N).map(|_| r.random_range(0.0..1e-3)).collect();
     let count0: Vec<u32> = (0..N).map(|_| r.random_range(0..20)).collect();
     let cam = common::front_camera(64, 48, 50.0);
@@ -138,9 +146,8 @@ fn adam_kernel_takes_the_host_optimiser_step() {
     opt.upload(&ctx, &p, &adam, &accum0, &count0).unwrap();
     opt.write_grads(&ctx, &g_i, Some(&g_j)).unwrap();
     let step = AdamStep {
-        lrs,
+        sizes: adam.step_sizes(&lrs, &hp),
         hp,
-        step: 7,
         min_log_scale,
     };
     // A step gated by a key total over the lists' room changes nothing: it runs first, and

@@ -491,9 +491,8 @@ fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths()
     assert!(uploaded, "a thermal state goes resident");
     let resident = ResidentStep {
         losses: step,
-        lrs: TrainConfig::new("unused".into()).lr,
+        sizes: TrainConfig::new("unused".into()).lr,
         hp: AdamParams::default(),
-        adam_step: 1,
         min_log_scale: -10.0,
     };
     refused(

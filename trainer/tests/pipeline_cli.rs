@@ -316,15 +316,26 @@ fn eval_json_and_compare_read_a_finished_run() {
     );
 }
 
-/// `--consist-weight` sets λc in the run's config (what `--resume` and `compare` read back);
-/// a weight that is not finite and ≥ 0 is refused with the flag named, before anything is
-/// written.
+/// `--consist-weight` sets λc (and `--band-ramp` the bands' ramp) in the run's config (what
+/// `--resume` and `compare` read back); a weight that is not finite and ≥ 0 is refused with the
+/// flag named, before anything is written.
 #[test]
 fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let data = synth_scene(tmp.path());
     let run = tmp.path().join("run");
-    finished_run_with(&data, &run, &["--iters", "5", "--consist-weight", "0.002"]);
+    finished_run_with(
+        &data,
+        &run,
+        &[
+            "--iters",
+            "5",
+            "--consist-weight",
+            "0.002",
+            "--band-ramp",
+            "3",
+        ],
+    );
     // Read back as `--resume` reads it.
     let cfg: s3tir_trainer::train::TrainConfig =
         serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
@@ -333,6 +344,7 @@ fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
         "config.json should record λc = 0.002: {:?}",
         cfg.weights
     );
+    assert_eq!(cfg.band_ramp, 3, "config.json should record --band-ramp 3");
 
     let bad = tmp.path().join("bad");
     let out = bin()

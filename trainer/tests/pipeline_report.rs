@@ -10,7 +10,7 @@ use s3tir_trainer::dataset::ThermalRange;
 use s3tir_trainer::dataset::ThermalUnits;
 use s3tir_trainer::dataset::images::ImageKind;
 use s3tir_trainer::metrics::{kelvin_errors, psnr, ssim};
-use s3tir_trainer::primitive::{PrimitiveInit, Primitives};
+use s3tir_trainer::primitive::{Groups, PrimitiveInit, Primitives};
 use s3tir_trainer::render::GBuffers;
 use s3tir_trainer::report::{self, CSV_HEADER, MetricsRow};
 
@@ -158,6 +158,7 @@ fn checkpoints_round_trip_and_replace_atomically() {
         adam_m: (&p.zeros_like()).into(),
         adam_v: (&p).into(),
         adam_step: 1234,
+        adam_group_steps: Groups::splat(1234),
         state: serde_json::json!({"x": 1}),
     };
     let path = tmp.path().join("checkpoint.json");

@@ -596,9 +596,8 @@ impl VulkanBackend {
         let (grads_i, grads_j) = opt.grads().ok_or_else(no_resident_state)?;
         let (acc_i, acc_j) = opt.scratch().ok_or_else(no_resident_state)?;
         let adam = AdamStep {
-            lrs: step.lrs,
+            sizes: step.sizes,
             hp: step.hp,
-            step: step.adam_step,
             min_log_scale: step.min_log_scale,
         };
         let gate = match sizing {

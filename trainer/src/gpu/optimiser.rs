@@ -17,10 +17,10 @@ use crate::primitive::Primitives;
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 const ADAM_WG: usize = 128;
-/// The optimiser kernel's push constants: 4 words of sizes and gate, 9 step sizes, 5 Adam and
+/// The optimiser kernel's push constants: 4 words of sizes and gate, 9 step sizes, 4 Adam and
 /// clamp constants, 12 for the densification statistic's camera (within Vulkan's guaranteed
 /// 128 bytes).
-pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 5 + 12);
+pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 4 + 12);
 
 /// The state on the GPU.
 #[derive(Debug)]
@@ -60,10 +60,10 @@ impl Resident {
 /// Adam settings of one step, as the host optimiser computes them.
 #[derive(Debug, Clone, Copy)]
 pub struct AdamStep {
-    pub lrs: GroupLrs,
+    /// Each group's step size, bias corrections included ([`AdamState::step_sizes`]; 0: the
+    /// group is frozen).
+    pub sizes: GroupLrs,
     pub hp: AdamParams,
-    /// Adam's step count including this step (for the bias corrections).
-    pub step: u64,
     /// Lower bound of every log-scale after the update.
     pub min_log_scale: f32,
 }
@@ -396,11 +396,8 @@ impl GpuOptimiser {
         if !grads_j_written {
             rec.fill_zero(&s.grads_j);
         }
-        let t = adam.step.max(1) as f64;
         let hp = adam.hp;
-        let bc1 = 1.0 - hp.beta1.powf(t);
-        let bc2s = (1.0 - hp.beta2.powf(t)).sqrt();
-        let l = adam.lrs;
+        let l = adam.sizes;
         let r = cam_i.rotation_cam_from_world();
         let tz = cam_i.cam_from_world.translation_m.z;
         let mut push: Vec<u8> = Vec::with_capacity(ADAM_PUSH_BYTES as usize);
@@ -412,19 +409,18 @@ impl GpuOptimiser {
             push.extend_from_slice(&u.to_le_bytes());
         }
         let floats = [
-            l.means / bc1,
-            l.log_scales / bc1,
-            l.quats / bc1,
-            l.opacity_logits / bc1,
-            l.beta / bc1,
-            l.omega_low / bc1,
-            l.band_amp / bc1,
-            l.band_freq / bc1,
-            l.band_phase / bc1,
+            l.means,
+            l.log_scales,
+            l.quats,
+            l.opacity_logits,
+            l.beta,
+            l.omega_low,
+            l.band_amp,
+            l.band_freq,
+            l.band_phase,
             hp.beta1,
             hp.beta2,
             hp.eps,
-            bc2s,
             f64::from(adam.min_log_scale),
             r[0],
             r[1],

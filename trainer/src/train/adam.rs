@@ -1,5 +1,18 @@
 //! Adam (Kingma & Ba) per parameter group, moments stored in the primitives' own layout.
 //!
+//! # Each group's own clock
+//! The bias corrections of a group count the steps *that group* has taken ([`GroupSteps`]:
+//! steps with its learning rate non-zero), not the run's steps. The bands and β are frozen
+//! through the warm-up and go live at its end with moments 0; with the run's count (~300 on a
+//! real scene) the second-moment correction is √(1−0.999³⁰⁰) ≈ 0.51 while their `v` has seen
+//! one gradient, so their first ~150 steps were 1.6–3.3× the learning rate, every band of every
+//! primitive at once. On the real facade that was most of held-out PSNR's drop after the
+//! warm-up: 12 s after it, 17.17 → 17.63 dB and SSIM 0.697 → 0.725 with this count (3dgs mode,
+//! which releases nothing: 17.79 dB, 0.737). Counting from the group's first step makes its
+//! first step exactly `lr·sign(g)`, as a fresh Adam would.
+//! The update is Kingma & Ba's efficient form (end of their §2): a step size
+//! `lr·√(1−β₂ᵗ)/(1−β₁ᵗ)` per group ([`AdamState::step_sizes`]) times `m/(√v + ε)`.
+//!
 //! The β group is optimised **in β units**, not in the renderer's `beta_raw` units: the
 //! parameterisation `β = 2 + softplus(beta_raw)` starts at `beta_raw = −10` where
 //! `dβ/dbeta_raw = 4.5e-5`, so a learning rate of 0.001 on `beta_raw` would take ~10⁴ steps to
@@ -14,6 +27,7 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::primitive::Groups;
 use crate::primitive::{BETA_MAX, Primitives, beta_of_raw, beta_raw_from_beta, is_beta_frozen};
 
 /// Adam hyper-parameters shared by every group.
@@ -36,44 +50,20 @@ impl Default for AdamParams {
 }
 
 /// Learning rate of every group (0: frozen).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct GroupLrs {
-    pub means: f64,
-    pub log_scales: f64,
-    pub quats: f64,
-    pub opacity_logits: f64,
-    /// In β units (see the module docs).
-    pub beta: f64,
-    pub omega_low: f64,
-    pub band_amp: f64,
-    pub band_freq: f64,
-    pub band_phase: f64,
-    pub sh: f64,
-}
+pub type GroupLrs = Groups<f64>;
 
-impl GroupLrs {
-    fn of(&self, group: &str) -> f64 {
-        match group {
-            "means" => self.means,
-            "log_scales" => self.log_scales,
-            "quats" => self.quats,
-            "opacity_logits" => self.opacity_logits,
-            "beta_raw" => self.beta,
-            "omega_low" => self.omega_low,
-            "band_amp" => self.band_amp,
-            "band_freq" => self.band_freq,
-            "band_phase" => self.band_phase,
-            _ => self.sh,
-        }
-    }
-}
+/// Adam steps each group has taken: steps with its learning rate non-zero (see the module docs).
+pub type GroupSteps = Groups<u64>;
 
-/// Moments and the step count.
+/// Moments and the step counts.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AdamState {
     pub m: Primitives<f32>,
     pub v: Primitives<f32>,
+    /// The run's Adam steps.
     pub step: u64,
+    /// Each group's steps, for its bias corrections.
+    pub group_steps: GroupSteps,
 }
 
 impl AdamState {
@@ -82,7 +72,28 @@ impl AdamState {
             m: like.zeros_like(),
             v: like.zeros_like(),
             step: 0,
+            group_steps: GroupSteps::default(),
         }
+    }
+
+    /// The step size of each group in the next step, `lr·√(1−β₂ᵗ)/(1−β₁ᵗ)` with `t` the
+    /// group's steps including that one (0 for a frozen group).
+    pub fn step_sizes(&self, lrs: &GroupLrs, hp: &AdamParams) -> GroupLrs {
+        lrs.zip_with(&self.group_steps, |lr, done| {
+            if lr == 0.0 {
+                return 0.0;
+            }
+            let t = (done + 1) as f64;
+            lr * (1.0 - hp.beta2.powf(t)).sqrt() / (1.0 - hp.beta1.powf(t))
+        })
+    }
+
+    /// Counts a step taken with `lrs`: the run's, and each group's whose rate is non-zero.
+    pub fn advance(&mut self, lrs: &GroupLrs) {
+        self.step += 1;
+        self.group_steps = self
+            .group_steps
+            .zip_with(lrs, |done, lr| if lr == 0.0 { done } else { done + 1 });
     }
 
     /// One Adam step of `params` along `grads` (same layout). Non-finite gradients count as 0.
@@ -93,10 +104,8 @@ impl AdamState {
         lrs: &GroupLrs,
         hp: &AdamParams,
     ) {
-        self.step += 1;
-        let t = self.step as f64;
-        let bc1 = 1.0 - hp.beta1.powf(t);
-        let bc2 = 1.0 - hp.beta2.powf(t);
+        let sizes = self.step_sizes(lrs, hp);
+        self.advance(lrs);
         let (b1, b2) = (hp.beta1 as f32, hp.beta2 as f32);
         let bands = params.bands;
         let live: Vec<usize> = (0..params.len()).map(|i| params.live_bands(i)).collect();
@@ -106,12 +115,10 @@ impl AdamState {
             .zip(grads.groups())
             .zip(self.m.groups_mut().into_iter().zip(self.v.groups_mut()));
         for (((name, p), (_, g)), ((_, m), (_, v))) in groups {
-            let lr = lrs.of(name);
-            if lr == 0.0 {
+            if lrs.of(name) == 0.0 {
                 continue;
             }
-            let step = (lr / bc1) as f32;
-            let bc2s = bc2.sqrt() as f32;
+            let step = sizes.of(name) as f32;
             let eps = hp.eps as f32;
             // Values per band slot in a band group (0: not a band group).
             let per_slot = match name {
@@ -143,7 +150,7 @@ impl AdamState {
                 }
                 m[i] = b1 * m[i] + (1.0 - b1) * gi;
                 v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                let delta = step * m[i] / (v[i].sqrt() / bc2s + eps);
+                let delta = step * m[i] / (v[i].sqrt() + eps);
                 if name == "beta_raw" {
                     let beta = beta_of_raw(f64::from(p[i])).0 - f64::from(delta);
                     p[i] = beta_raw_from_beta(beta.clamp(2.0, BETA_MAX)) as f32;
@@ -152,5 +159,96 @@ impl AdamState {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+    use crate::primitive::PrimitiveInit;
+
+    fn one_primitive() -> Primitives<f32> {
+        let mut p = Primitives::new(2, None);
+        p.push(&PrimitiveInit::default());
+        p
+    }
+
+    /// A constant gradient on every value.
+    fn constant_grads(like: &Primitives<f32>, g: f32) -> Primitives<f32> {
+        let mut grads = like.zeros_like();
+        for (_, v) in grads.groups_mut() {
+            v.fill(g);
+        }
+        grads
+    }
+
+    #[test]
+    fn a_group_released_late_starts_its_own_bias_corrections() {
+        // 300 steps of a warm-up with the band amplitudes frozen, then they go live.
+        let (lr_amp, lr_means) = (2.5e-3, 1e-4);
+        let frozen = GroupLrs {
+            means: lr_means,
+            ..GroupLrs::default()
+        };
+        let live = GroupLrs {
+            band_amp: lr_amp,
+            ..frozen
+        };
+        let hp = AdamParams::default();
+        let mut p = one_primitive();
+        let mut adam = AdamState::new(&p);
+        let grads = constant_grads(&p, 0.3);
+        for _ in 0..300 {
+            adam.step(&mut p, &grads, &frozen, &hp);
+        }
+        assert_eq!(adam.step, 300);
+        assert_eq!(
+            (adam.group_steps.means, adam.group_steps.band_amp),
+            (300, 0),
+            "only groups with a learning rate count steps"
+        );
+        assert_eq!(p.band_amp, vec![0.0, 0.0], "a frozen group does not move");
+
+        // The released group's first steps are lr·sign(g): a constant gradient moves it by
+        // exactly lr per step, as a fresh Adam (with the run's count, the first steps were
+        // 1.6× lr and the next ~100 up to 3×: v has seen one gradient, √(1−β₂³⁰⁰) ≈ 0.51).
+        for k in 1..=20 {
+            let before = p.band_amp[0];
+            adam.step(&mut p, &grads, &live, &hp);
+            let moved = f64::from(before - p.band_amp[0]);
+            assert!(
+                (moved - lr_amp).abs() < 1e-4 * lr_amp,
+                "step {k} after the release moved the amplitude by {moved}, expected lr {lr_amp}"
+            );
+        }
+        assert_eq!(adam.group_steps.band_amp, 20);
+        assert_eq!(adam.group_steps.means, 320);
+    }
+
+    #[test]
+    fn step_sizes_follow_each_groups_count() {
+        let hp = AdamParams::default();
+        let mut adam = AdamState::new(&one_primitive());
+        adam.group_steps = Groups {
+            beta: 0,
+            ..Groups::splat(999)
+        };
+        let lrs = GroupLrs {
+            sh: 0.0,
+            ..Groups::splat(0.01)
+        };
+        let s = adam.step_sizes(&lrs, &hp);
+        // t = 1: √(1−β₂)/(1−β₁) = √0.001/0.1.
+        assert!(
+            (s.beta - 0.01 * 0.001f64.sqrt() / 0.1).abs() < 1e-12,
+            "first step of β: {}",
+            s.beta
+        );
+        // t = 1000: √(1−0.999¹⁰⁰⁰)/(1−0.9¹⁰⁰⁰).
+        let late = 0.01 * (1.0 - 0.999f64.powi(1000)).sqrt();
+        assert!((s.means - late).abs() < 1e-12, "means: {}", s.means);
+        assert_eq!(s.sh, 0.0, "a frozen group has no step");
     }
 }

@@ -78,10 +78,9 @@ pub struct ResidentStepResult {
 #[derive(Debug, Clone, Copy)]
 pub struct ResidentStep<'a> {
     pub losses: DeviceStep<'a>,
-    pub lrs: GroupLrs,
+    /// Each group's step size, bias corrections included ([`AdamState::step_sizes`]).
+    pub sizes: GroupLrs,
     pub hp: AdamParams,
-    /// Adam's step count including this step (bias corrections).
-    pub adam_step: u64,
     /// Lower bound of every log-scale after the update.
     pub min_log_scale: f32,
 }

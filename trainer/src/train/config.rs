@@ -349,6 +349,11 @@ pub struct TrainConfig {
     pub time_budget_s: Option<f64>,
     /// Gaussian warm-up: β ≡ 2 and bands off until this iteration (paper: 3000).
     pub warmup: u64,
+    /// After the warm-up, the band learning rates rise linearly from 0 to their value over this
+    /// many iterations of the nominal run (0: all at once, as in the paper — the default, see
+    /// `train/schedule.rs`; configs written before this option read as 0).
+    #[serde(default)]
+    pub band_ramp: u64,
     /// Gabor bands per primitive in modes with bands (paper: M = 4).
     pub bands: usize,
     /// Hard primitive budget.
@@ -405,6 +410,7 @@ impl TrainConfig {
             iters: 30_000,
             time_budget_s: None,
             warmup: 3_000,
+            band_ramp: 0,
             bands: crate::primitive::DEFAULT_BANDS,
             budget: 100_000,
             seed: 0,

@@ -74,7 +74,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-pub use adam::{AdamParams, AdamState, GroupLrs};
+pub use adam::{AdamParams, AdamState, GroupLrs, GroupSteps, Groups};
 pub use backend::{
     Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
     ResidentStepResult, RunShape,
@@ -345,6 +345,7 @@ impl<B: Backend> Trainer<B> {
             m: ck.adam_m.into(),
             v: ck.adam_v.into(),
             step: ck.adam_step,
+            group_steps: ck.adam_group_steps,
         };
         t.iteration = ck.iteration;
         t.train_seconds = ck.train_seconds;
@@ -563,18 +564,18 @@ impl<B: Backend> Trainer<B> {
             thermal_step(&self.data, vi, pair, weights, &cam_i, response),
             self.resident && !self.host_losses_only(),
         ) {
+            let hp = AdamParams::default();
             let step = ResidentStep {
                 losses,
-                lrs,
-                hp: AdamParams::default(),
-                adam_step: self.adam.step + 1,
+                sizes: self.adam.step_sizes(&lrs, &hp),
+                hp,
                 min_log_scale: self.min_log_scale,
             };
             resident_loss = self.backend.resident_step(&self.prims, &step).transpose()?;
         }
         let (loss, response_grad) = match resident_loss {
             Some(r) => {
-                self.adam.step += 1;
+                self.adam.advance(&lrs);
                 self.keep(vi, pair.is_some(), None);
                 (r.loss, r.response)
             }
@@ -734,6 +735,7 @@ impl<B: Backend> Trainer<B> {
             adam_m: (&self.adam.m).into(),
             adam_v: (&self.adam.v).into(),
             adam_step: self.adam.step,
+            adam_group_steps: self.adam.group_steps,
             state: serde_json::to_value(&self.state).unwrap_or(serde_json::Value::Null),
         };
         checkpoint::save(&self.run_dir.join(files::CHECKPOINT), &ck)?;
@@ -892,6 +894,59 @@ mod tests {
         let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
         let run = dir.join(format!("run-{partner}-{lambda_consist}"));
         Trainer::new(c, data, CpuBackend::default(), &run).unwrap()
+    }
+
+    /// The band learning rates are 0 through the warm-up, then rise linearly to their value
+    /// over `band_ramp` iterations; 0 (the default) releases them at once.
+    #[test]
+    fn band_learning_rates_ramp_up_after_the_warmup() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut t = trainer(tmp.path(), ConsistPartner::Previous, 0.01);
+        assert_eq!(t.cfg.band_ramp, 0, "no ramp by default");
+        t.cfg.warmup = 10;
+        t.cfg.band_ramp = 10;
+        assert!(t.prims.bands > 0, "s3tir mode has bands");
+        let full = t.cfg.lr;
+        let share = |t: &mut Trainer<CpuBackend>, it: u64| {
+            t.iteration = it;
+            let lr = t.lrs();
+            let s = lr.band_amp / full.band_amp;
+            for (what, v, f) in [
+                ("freq", lr.band_freq, full.band_freq),
+                ("phase", lr.band_phase, full.band_phase),
+            ] {
+                assert!((v / f - s).abs() < 1e-12, "{what} ramps with the amplitude");
+            }
+            assert_eq!(
+                lr.log_scales, full.log_scales,
+                "other groups are not ramped"
+            );
+            s
+        };
+        assert_eq!(share(&mut t, 9), 0.0, "bands frozen in the warm-up");
+        assert!((share(&mut t, 10) - 0.1).abs() < 1e-12, "first step: 1/10");
+        assert!((share(&mut t, 14) - 0.5).abs() < 1e-12, "fifth step: 1/2");
+        assert_eq!(share(&mut t, 19), 1.0, "full rate after the ramp");
+        assert_eq!(share(&mut t, 50), 1.0);
+        t.cfg.band_ramp = 20;
+        assert!((share(&mut t, 14) - 0.25).abs() < 1e-12, "a 20-step ramp");
+        t.cfg.warmup = 0;
+        assert_eq!(
+            share(&mut t, 0),
+            1.0,
+            "no warm-up: bands at full rate from the start"
+        );
+        t.cfg.warmup = 10;
+        t.cfg.band_ramp = 0;
+        assert_eq!(share(&mut t, 9), 0.0);
+        assert_eq!(share(&mut t, 10), 1.0, "--band-ramp 0: all at once");
+
+        // A config written before the option ran its bands at once, and resumes so.
+        t.cfg.band_ramp = 7;
+        let mut v = serde_json::to_value(&t.cfg).unwrap();
+        v.as_object_mut().unwrap().remove("band_ramp").unwrap();
+        let old: TrainConfig = serde_json::from_value(v).unwrap();
+        assert_eq!(old.band_ramp, 0);
     }
 
     /// With `previous`, a step on a random view is followed by a step on its overlap partner
