@@ -115,10 +115,11 @@ impl AdamState {
             .zip(grads.groups())
             .zip(self.m.groups_mut().into_iter().zip(self.v.groups_mut()));
         for (((name, p), (_, g)), ((_, m), (_, v))) in groups {
-            if lrs.of(name) == 0.0 {
+            // 0 exactly when the group's learning rate is (a frozen group).
+            let step = sizes.of(name) as f32;
+            if step == 0.0 {
                 continue;
             }
-            let step = sizes.of(name) as f32;
             let eps = hp.eps as f32;
             // Values per band slot in a band group (0: not a band group).
             let per_slot = match name {
