@@ -280,11 +280,55 @@ fn paths_take_the_same_steps(partner: ConsistPartner, response: ResponseKind) {
             host.len(),
             "{name}: primitive count after density control"
         );
-        assert_eq!(
-            p.band_count, host.band_count,
-            "{name}: live bands per primitive after capacity adaptation"
+        assert_eq!(p.bands, host.bands, "{name}: band slots after compaction");
+        // Capacity adaptation drops a band whose |amplitude| is below the threshold: a band
+        // that sits within the atomics-order noise of it may drop on one path and not the
+        // other (CI saw one primitive of 300 keep 2 bands on the resident path and 3 on the
+        // host's). Such a near-tie may differ by one band on at most 1 % of the primitives,
+        // and the band only one path kept must be within the parameters' noise bound of the
+        // threshold; those primitives' bands are then compared no further.
+        let thr = config(&data_dir).capacity.band_amp_threshold;
+        let mut p = canonical_bands(p);
+        let differing: Vec<usize> = (0..p.len())
+            .filter(|&i| p.band_count[i] != host.band_count[i])
+            .collect();
+        assert!(
+            differing.len() <= p.len() / 100,
+            "{name}: {} of {} primitives have other live band counts than the host path's \
+             (at most 1 % may, as threshold near-ties): {differing:?}",
+            differing.len(),
+            p.len()
         );
-        let p = &canonical_bands(p);
+        eprintln!(
+            "{name} vs host path: {} primitives with other live band counts",
+            differing.len()
+        );
+        let m = p.bands;
+        for &i in &differing {
+            let (a, b) = (p.live_bands(i), host.live_bands(i));
+            assert!(
+                a.abs_diff(b) == 1,
+                "{name}: primitive {i} keeps {a} bands, the host path {b} (a near-tie differs by one)"
+            );
+            let keeper = if a > b { &p } else { host };
+            let weakest = (0..keeper.live_bands(i))
+                .map(|j| f64::from(keeper.band_amp[m * i + j].abs()))
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                weakest <= thr + bound("band_amp"),
+                "{name}: primitive {i}: the path with {} bands keeps none near the drop \
+                 threshold {thr:.1e} (weakest |amplitude| {weakest:.3e}): not a near-tie",
+                a.max(b)
+            );
+            p.band_count[i] = host.band_count[i];
+            for j in m * i..m * (i + 1) {
+                p.band_amp[j] = host.band_amp[j];
+                p.band_phase[j] = host.band_phase[j];
+            }
+            p.band_freq[3 * m * i..3 * m * (i + 1)]
+                .copy_from_slice(&host.band_freq[3 * m * i..3 * m * (i + 1)]);
+        }
+        let p = &p;
         for ((group, a), (_, b)) in p.groups().into_iter().zip(host.groups()) {
             let value = |x: f32| {
                 if group == "beta_raw" {
