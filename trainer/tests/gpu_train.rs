@@ -284,18 +284,20 @@ fn paths_take_the_same_steps(partner: ConsistPartner, response: ResponseKind) {
         // Capacity adaptation drops a band whose |amplitude| is below the threshold: a band
         // that sits within the atomics-order noise of it may drop on one path and not the
         // other (CI saw one primitive of 300 keep 2 bands on the resident path and 3 on the
-        // host's). Such a near-tie may differ by one band on at most 1 % of the primitives,
-        // and the band only one path kept must be within the parameters' noise bound of the
-        // threshold; those primitives' bands are then compared no further.
+        // host's). Such a near-tie may differ by one band on at most 2 % of the primitives
+        // (15 runs here, per path against the host's: 0 primitives in 21 of the 30
+        // comparisons with capacity checks, 1 in 4, 2 in 5), and the band only one path
+        // kept must be within the parameters' noise bound of the threshold; those
+        // primitives' bands are then compared no further.
         let thr = config(&data_dir).capacity.band_amp_threshold;
         let mut p = canonical_bands(p);
         let differing: Vec<usize> = (0..p.len())
             .filter(|&i| p.band_count[i] != host.band_count[i])
             .collect();
         assert!(
-            differing.len() <= p.len() / 100,
+            differing.len() <= p.len() / 50,
             "{name}: {} of {} primitives have other live band counts than the host path's \
-             (at most 1 % may, as threshold near-ties): {differing:?}",
+             (at most 2 % may, as threshold near-ties): {differing:?}",
             differing.len(),
             p.len()
         );
