@@ -84,10 +84,11 @@ check-features:
 	$(CARGO) check -p s3tir-trainer --no-default-features --features session
 	./scripts/check-deps.sh
 
-# What this project's CI machine has (scripts/install-deps.sh installs spirv-tools and systemd;
-# the kernel gives /dev/full): a test that would skip for lack of one of these fails instead
-# (capture/src/skip.rs). No camera is attached, so `camera` skips visibly.
-S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze
+# What this project's CI machine has (scripts/install-deps.sh installs spirv-tools, systemd and
+# the LPIPS weights with their reference pairs; the kernel gives /dev/full): a test that would
+# skip for lack of one of these fails instead (capture/src/skip.rs). No camera is attached, so
+# `camera` skips visibly.
+S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze,lpips
 export S3TIR_REQUIRE
 
 test: deps lint check-features

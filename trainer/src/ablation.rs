@@ -157,9 +157,10 @@ pub fn markdown(rows: &[AblationRow]) -> String {
     let k = rows.first().map_or(0, |r| r.score.scale);
     let mut s = format!(
         "| run | thermal PSNR / SSIM / MAE (input) | thermal PSNR / SSIM / MAE ({k}×) | \
-         bicubic {k}× PSNR / SSIM / MAE | fused {k}× PSNR / SSIM / MAE | RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
+         bicubic {k}× PSNR / SSIM / MAE | fused {k}× PSNR / SSIM / MAE | LPIPS input / {k}× / bicubic / fused | \
+         RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
          mesh Chamfer / F-score / vertex MAE | iterations | primitives |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n"
+         |---|---|---|---|---|---|---|---|---|---|---|\n"
     );
     for r in rows {
         let t = &r.score;
@@ -179,8 +180,17 @@ pub fn markdown(rows: &[AblationRow]) -> String {
                 )
             },
         );
+        // LPIPS: "—" where it is not defined (no weights installed, or under 31 px).
+        let lp = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:.3}"));
+        let lpips = format!(
+            "{} / {} / {} / {}",
+            lp(t.thermal.lpips),
+            lp(t.thermal_sr.lpips),
+            lp(t.bicubic_sr.lpips),
+            lp(t.fused_sr.lpips)
+        );
         s.push_str(&format!(
-            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
+            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {} | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
             r.variant.slug(),
             t.thermal.psnr,
             t.thermal.ssim,
@@ -194,6 +204,7 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             t.fused_sr.psnr,
             t.fused_sr.ssim,
             t.fused_sr.kelvin_mae,
+            lpips,
             rgb,
             t.depth_rgb.mae_m * 1000.0,
             t.depth_rgb.coverage * 100.0,

@@ -220,6 +220,7 @@ pub fn group_curve(group: &Group) -> Result<Curve, CompareError> {
             ssim: spread(&|r| r.ssim),
             kelvin_mae: all(&|r| r.kelvin_mae),
             kelvin_mae_aligned: all(&|r| r.kelvin_mae_aligned),
+            lpips: all(&|r| r.lpips),
             primitives: mean(&|r| r.primitives as f64),
         });
     }
@@ -230,25 +231,26 @@ pub fn group_curve(group: &Group) -> Result<Curve, CompareError> {
     })
 }
 
-/// Where the first curve stands against another one on one figure (higher is better: PSNR),
-/// over the evaluations at or after `from_s`.
+/// Where the first curve stands against another one on one figure (PSNR: higher is better;
+/// LPIPS: lower is better), over the evaluations at or after `from_s`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Lead {
     pub leader: String,
     pub other: String,
-    /// `psnr` or `psnr_aligned`.
+    /// `psnr`, `psnr_aligned` or `lpips`.
     pub metric: &'static str,
     /// Evaluations compared (both curves have the figure there).
     pub evaluations: usize,
-    /// Evaluations where the leader's mean is at or above the other's.
+    /// Evaluations where the leader's mean is as good as the other's or better.
     pub ahead: usize,
-    /// Evaluations where the leader's worst run is at or above the other's best (a lead beyond
-    /// the run-to-run range).
+    /// Evaluations where the leader's worst run is as good as the other's best or better (a
+    /// lead beyond the run-to-run range).
     pub ahead_beyond_range: usize,
     /// With as many runs in both groups, paired in the order given (the same seed or scene):
-    /// evaluations where the leader's run is at or above its partner in every pair.
+    /// evaluations where the leader's run is as good as its partner or better in every pair.
     pub ahead_in_every_pair: Option<usize>,
-    /// Smallest and largest difference of the means (leader − other, dB).
+    /// Smallest and largest lead of the means, in the figure's unit and signed so that positive
+    /// is better for the leader (PSNR: leader − other, dB; LPIPS: other − leader).
     pub min_lead: f64,
     pub max_lead: f64,
     /// The leader's mean lead at the last evaluation compared.
@@ -256,7 +258,7 @@ pub struct Lead {
 }
 
 /// The first group against each other group (`curves[i]` is [`group_curve`] of `groups[i]`), on
-/// held-out PSNR and (when both curves have it) aligned PSNR, over the evaluations at or after
+/// held-out PSNR and (when both curves have them) aligned PSNR and LPIPS, over the evaluations at or after
 /// `from_s` training seconds (e.g. the warm-up's end). Curves are matched evaluation by
 /// evaluation, and with as many runs per group, runs pair up in the order given.
 pub fn leads(groups: &[Group], curves: &[Curve], from_s: f64) -> Vec<Lead> {
@@ -267,14 +269,16 @@ pub fn leads(groups: &[Group], curves: &[Curve], from_s: f64) -> Vec<Lead> {
     };
     type Get = fn(&CurvePoint) -> Option<Spread>;
     type GetRow = fn(&MetricsRow) -> Option<f64>;
-    let metrics: [(&'static str, Get, GetRow); 2] = [
-        ("psnr", |p| Some(p.psnr), |r| Some(r.psnr)),
-        ("psnr_aligned", |p| p.psnr_aligned, |r| r.psnr_aligned),
+    // (name, figure of a curve point, of a row, +1: higher is better / −1: lower is better)
+    let metrics: [(&'static str, Get, GetRow, f64); 3] = [
+        ("psnr", |p| Some(p.psnr), |r| Some(r.psnr), 1.0),
+        ("psnr_aligned", |p| p.psnr_aligned, |r| r.psnr_aligned, 1.0),
+        ("lpips", |p| p.lpips, |r| r.lpips, -1.0),
     ];
     let mut out = Vec::new();
     for (other_group, other) in other_runs.iter().zip(others) {
         let paired = leader_runs.runs.len() == other_group.runs.len();
-        for (metric, get, get_row) in metrics {
+        for (metric, get, get_row, sign) in metrics {
             let pairs: Vec<(usize, Spread, Spread)> = leader
                 .points
                 .iter()
@@ -286,7 +290,18 @@ pub fn leads(groups: &[Group], curves: &[Curve], from_s: f64) -> Vec<Lead> {
             if pairs.is_empty() {
                 continue;
             }
-            let diffs: Vec<f64> = pairs.iter().map(|(_, a, b)| a.mean - b.mean).collect();
+            let diffs: Vec<f64> = pairs
+                .iter()
+                .map(|(_, a, b)| sign * (a.mean - b.mean))
+                .collect();
+            // The leader's worst run against the other's best, in the figure's direction.
+            let beyond = |a: &Spread, b: &Spread| {
+                if sign > 0.0 {
+                    a.min >= b.max
+                } else {
+                    a.max <= b.min
+                }
+            };
             // Every pair of runs at evaluation k: the leader's run at or above its partner.
             let every_pair = |k: usize| {
                 leader_runs
@@ -298,7 +313,7 @@ pub fn leads(groups: &[Group], curves: &[Curve], from_s: f64) -> Vec<Lead> {
                             a.rows.get(k).and_then(get_row),
                             b.rows.get(k).and_then(get_row),
                         ) {
-                            (Some(x), Some(y)) => x >= y,
+                            (Some(x), Some(y)) => sign * (x - y) >= 0.0,
                             _ => false,
                         }
                     })
@@ -309,7 +324,7 @@ pub fn leads(groups: &[Group], curves: &[Curve], from_s: f64) -> Vec<Lead> {
                 metric,
                 evaluations: pairs.len(),
                 ahead: diffs.iter().filter(|d| **d >= 0.0).count(),
-                ahead_beyond_range: pairs.iter().filter(|(_, a, b)| a.min >= b.max).count(),
+                ahead_beyond_range: pairs.iter().filter(|(_, a, b)| beyond(a, b)).count(),
                 ahead_in_every_pair: paired
                     .then(|| pairs.iter().filter(|(k, _, _)| every_pair(*k)).count()),
                 min_lead: diffs.iter().copied().fold(f64::INFINITY, f64::min),
@@ -340,6 +355,7 @@ mod tests {
             memory_bytes: 1000,
             psnr_aligned: Some(psnr + 0.5),
             kelvin_mae_aligned: None,
+            lpips: None,
         }
     }
 

@@ -13,7 +13,8 @@
 //! - [`train`]: the training loop, its configuration and its run errors (`TrainError`).
 //! - [`checkpoint`]: checkpoints — a JSON header with the arrays in a safetensors file.
 //! - [`ply`]: the primitives as a 3DGS-compatible PLY.
-//! - [`metrics`]: PSNR, SSIM and kelvin errors of held-out views.
+//! - [`metrics`]: PSNR, SSIM, LPIPS and kelvin errors of held-out views.
+//! - [`lpips`]: the LPIPS perceptual error (AlexNet, v0.1) on the CPU, from installed weights.
 //! - [`report`]: metrics logs and plots of a run.
 //! - [`compare`]: runs compared — repeated runs of a configuration as one mean-and-range curve,
 //!   and where one configuration leads another after the warm-up.
@@ -44,6 +45,7 @@ pub mod sh;
 pub mod checkpoint;
 pub mod compare;
 pub mod dataset;
+pub mod lpips;
 pub mod metrics;
 pub mod ply;
 pub mod report;

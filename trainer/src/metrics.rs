@@ -1,6 +1,7 @@
 //! Image-quality metrics on normalised planes (data range 1): PSNR, SSIM (the core's 11×11,
-//! σ = 1.5 Gaussian SSIM, [`crate::loss::photometric::ssim`]), and temperature errors in kelvin
-//! through the scene's [`ThermalRange`].
+//! σ = 1.5 Gaussian SSIM, [`crate::loss::photometric::ssim`]), LPIPS ([`crate::lpips`], filled
+//! in by the evaluation that holds the network) and temperature errors in kelvin through the
+//! scene's [`ThermalRange`].
 //!
 //! Each view is measured **raw** (the render as it is) and **aligned**: for PSNR and SSIM the
 //! render under the affine map `a·x + c` fitted to the view's image in closed form (least
@@ -112,6 +113,10 @@ pub struct ViewMetrics {
     pub kelvin_mae_aligned: Option<f64>,
     #[serde(default)]
     pub align_offset_kelvin: Option<f64>,
+    /// LPIPS (AlexNet, v0.1) of the raw render against the frame, both over the dataset's
+    /// normalised range; absent without the weights or under 31 px ([`crate::lpips`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
 }
 
 /// Per-view metrics and their means.
@@ -128,6 +133,9 @@ pub struct EvalSummary {
     pub ssim_aligned: Option<f64>,
     #[serde(default)]
     pub kelvin_mae_aligned: Option<f64>,
+    /// Mean LPIPS of the views (absent when any view lacks it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
     pub views: Vec<ViewMetrics>,
     /// Means over the held-out RGB views of a run with colour (PSNR over the three planes,
     /// SSIM the planes' mean); `None` without RGB views.
@@ -155,6 +163,7 @@ impl EvalSummary {
             psnr_aligned: opt_mean(&|v| v.psnr_aligned),
             ssim_aligned: opt_mean(&|v| v.ssim_aligned),
             kelvin_mae_aligned: opt_mean(&|v| v.kelvin_mae_aligned),
+            lpips: opt_mean(&|v| v.lpips),
             views,
             rgb_psnr: None,
             rgb_ssim: None,
@@ -207,6 +216,7 @@ pub fn view_metrics(
         align_offset: Some(c),
         kelvin_mae_aligned: ka.map(|x| x.0),
         align_offset_kelvin: ka.map(|x| x.1),
+        lpips: None,
     }
 }
 

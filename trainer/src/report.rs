@@ -42,8 +42,11 @@ pub enum ReportError {
 
 /// Header of `metrics.csv`.
 /// `psnr_aligned` and `kelvin_mae_aligned` are the held-out figures under each view's fitted
-/// affine map / median offset ([`crate::metrics`]).
+/// affine map / median offset ([`crate::metrics`]). A log whose first row has LPIPS ends with
+/// one more column, [`LPIPS_COLUMN`]; without the LPIPS weights there is no such column.
 pub const CSV_HEADER: &str = "iteration,seconds,loss,psnr,ssim,kelvin_mae,kelvin_rmse,primitives,memory_bytes,psnr_aligned,kelvin_mae_aligned";
+/// The held-out mean LPIPS column of `metrics.csv` ([`crate::lpips`]).
+pub const LPIPS_COLUMN: &str = "lpips";
 
 /// One row of `metrics.csv`: held-out metrics at a training wall time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,13 +69,22 @@ pub struct MetricsRow {
     /// Held-out kelvin MAE under each view's median offset.
     #[serde(default)]
     pub kelvin_mae_aligned: Option<f64>,
+    /// Held-out mean LPIPS (`None`: no LPIPS weights installed, or images under 31 px).
+    #[serde(default)]
+    pub lpips: Option<f64>,
 }
 
 impl MetricsRow {
-    fn to_csv(&self) -> String {
+    /// The row under a header with (`with_lpips`) or without the LPIPS column.
+    fn to_csv(&self, with_lpips: bool) -> String {
         let o = |x: Option<f64>| x.map_or_else(String::new, |v| format!("{v:.6}"));
+        let lpips = if with_lpips {
+            format!(",{}", o(self.lpips))
+        } else {
+            String::new()
+        };
         format!(
-            "{},{:.3},{:.6},{:.4},{:.5},{},{},{},{},{},{}",
+            "{},{:.3},{:.6},{:.4},{:.5},{},{},{},{},{},{}{lpips}",
             self.iteration,
             self.seconds,
             self.loss,
@@ -94,6 +106,16 @@ pub fn append_row(path: &Path, row: &MetricsRow) -> Result<(), ReportError> {
         path: path.to_path_buf(),
         source,
     };
+    // The log keeps the columns its header was written with: a run resumed after the LPIPS
+    // weights were installed (or removed) leaves its column set as it began.
+    let with_lpips = match fs::read_to_string(path) {
+        Ok(text) => text
+            .lines()
+            .next()
+            .is_some_and(|h| h.split(',').any(|c| c == LPIPS_COLUMN)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => row.lpips.is_some(),
+        Err(e) => return Err(io(e)),
+    };
     let new = !path.exists();
     let mut f = fs::OpenOptions::new()
         .create(true)
@@ -101,9 +123,14 @@ pub fn append_row(path: &Path, row: &MetricsRow) -> Result<(), ReportError> {
         .open(path)
         .map_err(io)?;
     if new {
-        writeln!(f, "{CSV_HEADER}").map_err(io)?;
+        let extra = if with_lpips {
+            format!(",{LPIPS_COLUMN}")
+        } else {
+            String::new()
+        };
+        writeln!(f, "{CSV_HEADER}{extra}").map_err(io)?;
     }
-    writeln!(f, "{}", row.to_csv()).map_err(io)?;
+    writeln!(f, "{}", row.to_csv(with_lpips)).map_err(io)?;
     Ok(())
 }
 
@@ -134,7 +161,11 @@ pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, ReportError> {
         need("primitives")?,
         need("memory_bytes")?,
     );
-    let (cpa, cka) = (col("psnr_aligned"), col("kelvin_mae_aligned"));
+    let (cpa, cka, clp) = (
+        col("psnr_aligned"),
+        col("kelvin_mae_aligned"),
+        col(LPIPS_COLUMN),
+    );
     let mut rows = Vec::new();
     for (n, l) in lines.enumerate() {
         if l.trim().is_empty() {
@@ -160,6 +191,7 @@ pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, ReportError> {
             memory_bytes: f(cm)? as usize,
             psnr_aligned: fo(cpa),
             kelvin_mae_aligned: fo(cka),
+            lpips: fo(clp),
         });
     }
     Ok(rows)
@@ -238,6 +270,8 @@ pub struct CurvePoint {
     pub ssim: Spread,
     pub kelvin_mae: Option<Spread>,
     pub kelvin_mae_aligned: Option<Spread>,
+    /// Held-out LPIPS (`None` where a run's log has no LPIPS column).
+    pub lpips: Option<Spread>,
     /// Mean primitives.
     pub primitives: f64,
 }
@@ -267,6 +301,7 @@ impl Curve {
                     ssim: Spread::one(r.ssim),
                     kelvin_mae: r.kelvin_mae.map(Spread::one),
                     kelvin_mae_aligned: r.kelvin_mae_aligned.map(Spread::one),
+                    lpips: r.lpips.map(Spread::one),
                     primitives: r.primitives as f64,
                 })
                 .collect(),
@@ -274,8 +309,8 @@ impl Curve {
     }
 }
 
-/// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
-/// seconds, one line per run: `runs = [(label, rows)]`.
+/// Plots held-out PSNR (left), kelvin MAE (SSIM when not radiometric) and, when the logs have it,
+/// LPIPS (right) against training seconds, one line per run: `runs = [(label, rows)]`.
 pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), ReportError> {
     let curves: Vec<Curve> = runs
         .iter()
@@ -284,14 +319,17 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
     plot_curves(path, &curves)
 }
 
-/// Plots held-out PSNR (left) and kelvin MAE (right; SSIM when not radiometric) against training
-/// seconds, one line per curve: the mean of its runs, with the range of the raw figure shaded
-/// where a curve holds several runs, and the aligned figure dashed where the logs have it.
+/// Plots held-out PSNR (left), kelvin MAE (SSIM when not radiometric) and, when the logs have it,
+/// LPIPS (right; a third 550-px panel) against training seconds, one line per curve: the mean of
+/// its runs, with the range of the raw figure shaded where a curve holds several runs, and the
+/// aligned figure dashed where the logs have it.
 pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
-    draw_png(path, (1100, 450), |root| {
+    let all: Vec<&CurvePoint> = curves.iter().flat_map(|c| c.points.iter()).collect();
+    let with_lpips = all.iter().any(|p| p.lpips.is_some());
+    let width = if with_lpips { 1650 } else { 1100 };
+    draw_png(path, (width, 450), |root| {
         root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-        let (left, right) = root.split_horizontally(550);
-        let all: Vec<&CurvePoint> = curves.iter().flat_map(|c| c.points.iter()).collect();
+        let areas = root.split_evenly((1, if with_lpips { 3 } else { 2 }));
         let t_max = all.iter().map(|p| p.seconds).fold(1e-3, f64::max);
         let radiometric = all.iter().any(|p| p.kelvin_mae.is_some());
         let range = |vals: Vec<f64>| {
@@ -307,7 +345,7 @@ pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
         type Getter = Box<dyn Fn(&CurvePoint) -> Option<Spread>>;
         // Each panel: the raw figure (solid, its range shaded) and, when the log has it, the
         // aligned one (dashed).
-        let panels: [(&str, Getter, Getter); 2] = [
+        let mut panels: Vec<(&str, Getter, Getter)> = vec![
             (
                 "held-out PSNR (dB); dashed: affine-aligned",
                 Box::new(|p| Some(p.psnr)),
@@ -327,7 +365,14 @@ pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
                 )
             },
         ];
-        for (area, (label, get, get_aligned)) in [left, right].iter().zip(panels.iter()) {
+        if with_lpips {
+            panels.push((
+                "held-out LPIPS (AlexNet; lower is better)",
+                Box::new(|p| p.lpips),
+                Box::new(|_| None),
+            ));
+        }
+        for (area, (label, get, get_aligned)) in areas.iter().zip(panels.iter()) {
             let (lo, hi) = range(
                 all.iter()
                     .flat_map(|p| [get(p), get_aligned(p)])

@@ -36,6 +36,10 @@ pub struct ThermalScore {
     pub psnr: f64,
     pub ssim: f64,
     pub kelvin_mae: f64,
+    /// LPIPS over the scene's normalised range ([`crate::lpips`]); `None` without the weights or
+    /// under 31 px (a table's input-resolution column of a tiny scene).
+    #[serde(default)]
+    pub lpips: Option<f64>,
 }
 
 /// Depth figures against truth.
@@ -138,6 +142,7 @@ fn thermal_score(
         psnr: m.psnr,
         ssim: m.ssim,
         kelvin_mae: m.kelvin_mae.unwrap_or(f64::NAN),
+        lpips: crate::lpips::installed().and_then(|l| l.plane_distance(pred, truth, w, h)),
     }
 }
 
@@ -163,6 +168,11 @@ fn mean_score(s: &[ThermalScore]) -> ThermalScore {
         psnr: s.iter().map(|x| x.psnr).sum::<f64>() / n,
         ssim: s.iter().map(|x| x.ssim).sum::<f64>() / n,
         kelvin_mae: s.iter().map(|x| x.kelvin_mae).sum::<f64>() / n,
+        lpips: s
+            .iter()
+            .map(|x| x.lpips)
+            .sum::<Option<f64>>()
+            .map(|t| t / n),
     }
 }
 

@@ -75,6 +75,7 @@ fn metrics_csv_round_trips_and_plots_are_written() {
             memory_bytes: 1000,
             psnr_aligned: Some(21.0 + i as f64),
             kelvin_mae_aligned: if i == 0 { None } else { Some(0.5 / i as f64) },
+            lpips: None,
         })
         .collect();
     for r in &rows {
@@ -111,7 +112,52 @@ fn metrics_csv_round_trips_and_plots_are_written() {
     let png = tmp.path().join("p.png");
     report::plot_runs(&png, &[("a".into(), back.clone()), ("b".into(), back)]).unwrap();
     let img = image::open(&png).unwrap();
-    assert_eq!((img.width(), img.height()), (1100, 450));
+    assert_eq!(
+        (img.width(), img.height()),
+        (1100, 450),
+        "two panels without LPIPS"
+    );
+
+    // With LPIPS: one more column, read back, and a third panel in the plot.
+    let with = tmp.path().join("lpips.csv");
+    let lp_rows: Vec<MetricsRow> = rows
+        .iter()
+        .enumerate()
+        .map(|(i, r)| MetricsRow {
+            lpips: Some(0.4 - 0.05 * i as f64),
+            ..r.clone()
+        })
+        .collect();
+    for r in &lp_rows {
+        report::append_row(&with, r).unwrap();
+    }
+    let text = std::fs::read_to_string(&with).unwrap();
+    assert_eq!(
+        text.lines().next().unwrap(),
+        format!("{CSV_HEADER},{}", report::LPIPS_COLUMN),
+        "a log whose first row has LPIPS has the column"
+    );
+    let lp_back = report::read_rows(&with).unwrap();
+    assert!(
+        (lp_back[3].lpips.unwrap() - 0.25).abs() < 1e-6,
+        "LPIPS round-trips: {:?}",
+        lp_back[3].lpips
+    );
+    // A log begun without the column keeps its columns when a row with LPIPS follows.
+    report::append_row(&csv, &lp_rows[1]).unwrap();
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(
+        text.lines().all(|l| l.split(',').count() == 11),
+        "every line keeps the 11 columns the log began with:\n{text}"
+    );
+    let png3 = tmp.path().join("p3.png");
+    report::plot_runs(&png3, &[("a".into(), lp_back)]).unwrap();
+    let img = image::open(&png3).unwrap();
+    assert_eq!(
+        (img.width(), img.height()),
+        (1650, 450),
+        "a third panel for LPIPS"
+    );
     let hist = tmp.path().join("h.png");
     report::plot_beta_histogram(&hist, &[2.0, 2.0, 2.1, 5.0, 30.0, 64.0]).unwrap();
     assert!(std::fs::metadata(&hist).unwrap().len() > 1000);

@@ -1,5 +1,5 @@
-//! `s3tir-train bench`: training steps/s of the Vulkan and CPU backends, or (`--mesh`) the
-//! stages of meshing.
+//! `s3tir-train bench`: training steps/s of the Vulkan and CPU backends, (`--mesh`) the stages
+//! of meshing, or (`--lpips`) what LPIPS adds to an evaluation.
 
 use anyhow::Result;
 #[cfg(not(feature = "vulkan"))]
@@ -46,14 +46,22 @@ pub struct BenchArgs {
     /// Benchmark `mesh` instead of training: seconds per stage (render, fuse, extract) and
     /// peak memory of meshing 100 views of 640×512 with 30 000 primitives on the CPU backend
     /// (--width, --height, --views, --primitives change it).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "lpips")]
     mesh: bool,
+    /// Benchmark LPIPS in evaluations instead of training: milliseconds per held-out view of
+    /// 640×512 (first evaluation: the network on render and frame; later ones: on the render,
+    /// the frame's features kept) against the CPU render of the same view with 30 000
+    /// primitives (--width, --height, --views, --primitives change it).
+    #[arg(long)]
+    lpips: bool,
 }
 
 /// `bench`: the training benchmark, or the mesh benchmark with `--mesh`.
 pub fn run(a: &BenchArgs) -> Result<()> {
     if a.mesh {
         mesh_bench_cmd(a)
+    } else if a.lpips {
+        lpips_bench_cmd(a)
     } else {
         bench_cmd(a)
     }
@@ -157,6 +165,32 @@ fn bench_cmd(_: &BenchArgs) -> Result<()> {
     bail!(
         "this s3tir-train was built without the `vulkan` feature: there is nothing to compare the CPU with"
     )
+}
+
+/// `bench --lpips`: LPIPS's cost per view (see `s3tir_trainer::lpips::bench`).
+fn lpips_bench_cmd(a: &BenchArgs) -> Result<()> {
+    let lpips = s3tir_trainer::lpips::Lpips::load_installed()?;
+    let size = (
+        a.width.unwrap_or(640),
+        a.height.unwrap_or(512),
+        a.views.unwrap_or(12),
+        a.primitives.unwrap_or(30_000),
+    );
+    let r = s3tir_trainer::lpips::bench::run(&lpips, size, &mut |line| eprintln!("bench: {line}"))?;
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+        return Ok(());
+    }
+    println!(
+        "lpips: {} views of {}x{}, {} primitives, {} threads",
+        r.views, r.width, r.height, r.primitives, r.threads
+    );
+    println!(
+        "  CPU render {:.1} ms/view; LPIPS first evaluation {:.1} ms/view ({:.2}x the render), \
+         later evaluations {:.1} ms/view ({:.2}x)",
+        r.render_ms, r.lpips_first_ms, r.first_over_render, r.lpips_cached_ms, r.cached_over_render
+    );
+    Ok(())
 }
 
 /// `bench --mesh`: the mesh benchmark (see `s3tir_trainer::mesh::bench`).

@@ -107,7 +107,7 @@ pub fn run(a: &CompareArgs) -> Result<()> {
                 |n| n.to_string_lossy().into_owned(),
             );
             println!(
-                "{name:<20} {:<6} iter {:>6}  {:8.1} s  PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {}  {} primitives",
+                "{name:<20} {:<6} iter {:>6}  {:8.1} s  PSNR {:6.2} dB (aligned {})  SSIM {:.4}  LPIPS {}  MAE {}  {} primitives",
                 r.mode,
                 last.iteration,
                 last.seconds,
@@ -115,6 +115,7 @@ pub fn run(a: &CompareArgs) -> Result<()> {
                 last.psnr_aligned
                     .map_or_else(|| "—".into(), |v| format!("{v:.2} dB")),
                 last.ssim,
+                last.lpips.map_or_else(|| "—".into(), |v| format!("{v:.4}")),
                 last.kelvin_mae
                     .map_or_else(|| "—".into(), |v| format!("{v:.3} K")),
                 last.primitives
@@ -136,9 +137,15 @@ pub fn run(a: &CompareArgs) -> Result<()> {
             let pairs = l.ahead_in_every_pair.map_or_else(String::new, |n| {
                 format!(", {n}/{} in every pair of runs", l.evaluations)
             });
+            // PSNR leads in dB; LPIPS leads (other − leader, lower is better) unitless.
+            let (unit, digits) = if l.metric == "lpips" {
+                ("", 4)
+            } else {
+                (" dB", 2)
+            };
             println!(
                 "  {} vs {} on {}: ahead at {}/{} evaluations on the mean ({}/{} beyond the \
-                 runs' range{pairs}), lead {:+.2} … {:+.2} dB, {:+.2} dB at the last",
+                 runs' range{pairs}), lead {:+.digits$} … {:+.digits$}{unit}, {:+.digits$}{unit} at the last",
                 l.leader,
                 l.other,
                 l.metric,
@@ -156,7 +163,8 @@ pub fn run(a: &CompareArgs) -> Result<()> {
     Ok(())
 }
 
-/// Per evaluation: time and each group's mean held-out PSNR with its range.
+/// Per evaluation: time and each group's mean held-out PSNR with its range (and mean LPIPS where
+/// the logs have it).
 fn print_table(groups: &[Group], curves: &[Curve]) {
     print!("{:>8}", "s");
     for (g, c) in groups.iter().zip(curves) {
@@ -171,9 +179,12 @@ fn print_table(groups: &[Group], curves: &[Curve]) {
         print!("{:>8.1}", curves[0].points[k].seconds);
         for c in curves {
             let p = c.points[k].psnr;
+            let lpips = c.points[k]
+                .lpips
+                .map_or_else(String::new, |l| format!(" {:.3}", l.mean));
             print!(
                 "  {:>24}",
-                format!("{:.2} ({:.2}–{:.2})", p.mean, p.min, p.max)
+                format!("{:.2} ({:.2}–{:.2}){lpips}", p.mean, p.min, p.max)
             );
         }
         println!();

@@ -1,4 +1,4 @@
-//! `s3tir-train eval`: a run's held-out views scored (PSNR, SSIM, kelvin), or (`--truth`) the
+//! `s3tir-train eval`: a run's held-out views scored (PSNR, SSIM, LPIPS, kelvin), or (`--truth`) the
 //! run scored against its dataset's truth.
 
 use std::path::{Path, PathBuf};
@@ -15,8 +15,8 @@ pub struct EvalArgs {
     /// Run folder written by training.
     pub run_dir: PathBuf,
     /// Print one JSON object (`psnr`, `ssim`, `kelvin_mae` (null when not radiometric),
-    /// `kelvin_rmse`, the aligned `psnr_aligned` and `kelvin_mae_aligned`, `primitives`,
-    /// `views`, `backend`).
+    /// `kelvin_rmse`, the aligned `psnr_aligned` and `kelvin_mae_aligned`, `lpips` (absent
+    /// without the LPIPS weights: scripts/install-lpips.py), `primitives`, `views`, `backend`).
     #[arg(long)]
     pub json: bool,
     /// Backend that renders the held-out views: `cpu` (the reference renderer) or `vulkan`
@@ -61,27 +61,30 @@ fn eval_cmd(
     }
     let k = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:.3} K"));
     let db = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:6.2} dB"));
+    let lp = |x: Option<f64>| x.map_or_else(|| "—".to_owned(), |v| format!("{v:.4}"));
     println!(
         "raw: the render as it is; aligned: under the view's fitted affine map (PSNR) or median offset (MAE)"
     );
     for v in &e.views {
         println!(
-            "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {} (aligned {})  RMSE {}",
+            "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  LPIPS {}  MAE {} (aligned {})  RMSE {}",
             v.name,
             v.psnr,
             db(v.psnr_aligned),
             v.ssim,
+            lp(v.lpips),
             k(v.kelvin_mae),
             k(v.kelvin_mae_aligned),
             k(v.kelvin_rmse)
         );
     }
     println!(
-        "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  MAE {} (aligned {})  RMSE {}  ({} views, {} primitives, mode {})",
+        "{:<24} PSNR {:6.2} dB (aligned {})  SSIM {:.4}  LPIPS {}  MAE {} (aligned {})  RMSE {}  ({} views, {} primitives, mode {})",
         "mean",
         e.psnr,
         db(e.psnr_aligned),
         e.ssim,
+        lp(e.lpips),
         k(e.kelvin_mae),
         k(e.kelvin_mae_aligned),
         k(e.kelvin_rmse),

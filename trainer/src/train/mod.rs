@@ -212,6 +212,8 @@ pub struct Trainer<B: Backend> {
     /// Each training view's partner of the other modality (joint runs), see
     /// [`Joint::pair_steps`].
     modality_partners: Vec<Option<usize>>,
+    /// The held-out frames' LPIPS features, computed at the first evaluation.
+    frame_features: crate::lpips::FrameFeatures,
 }
 
 /// A training view's G-buffers kept from its step for the next step's consistency term.
@@ -415,6 +417,7 @@ impl<B: Backend> Trainer<B> {
             rgb_train,
             rgb_mean,
             modality_partners,
+            frame_features: crate::lpips::FrameFeatures::default(),
         }
     }
 

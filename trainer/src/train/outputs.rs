@@ -40,14 +40,24 @@ impl<B: Backend> Trainer<B> {
             match (&v.thermal, &v.rgb) {
                 (Some(target), _) => {
                     let gb = self.backend.render(&self.prims, &v.camera)?;
-                    out.push(view_metrics(
+                    let mut m = view_metrics(
                         &v.name,
                         &gb.thermal,
                         target,
                         gb.width,
                         gb.height,
                         self.data.range.as_ref(),
-                    ));
+                    );
+                    m.lpips = crate::lpips::installed().and_then(|l| {
+                        self.frame_features.plane_lpips(
+                            l,
+                            i,
+                            &gb.thermal,
+                            target,
+                            (gb.width, gb.height),
+                        )
+                    });
+                    out.push(m);
                 }
                 (None, Some(target)) if !self.prims.sh.is_empty() => {
                     let gb = self.backend.render(&self.prims, &v.camera)?;
@@ -88,6 +98,7 @@ impl<B: Backend> Trainer<B> {
             memory_bytes: self.memory_bytes(),
             psnr_aligned: e.psnr_aligned,
             kelvin_mae_aligned: e.kelvin_mae_aligned,
+            lpips: e.lpips,
         };
         report::append_row(&self.run_dir.join(files::METRICS_CSV), &row)?;
         self.state.last_eval_s = self.train_seconds;
