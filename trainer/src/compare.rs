@@ -507,4 +507,53 @@ mod tests {
         let curves: Vec<Curve> = three.iter().map(|g| group_curve(g).unwrap()).collect();
         assert_eq!(leads(&three, &curves, 5.0)[0].ahead_in_every_pair, None);
     }
+
+    /// LPIPS is lower-is-better: a leader with the lower LPIPS leads, by `other − leader`.
+    #[test]
+    fn an_lpips_lead_is_the_lower_figure() {
+        let with_lpips = |name: &str, lpips: &[f64]| {
+            let mut r = run(name, &[20.0, 20.0, 20.0]);
+            for (row, &l) in r.rows.iter_mut().zip(lpips) {
+                row.lpips = Some(l);
+            }
+            r
+        };
+        let groups = [
+            Group {
+                label: "s3tir".into(),
+                runs: vec![with_lpips("s1", &[0.5, 0.30, 0.20])],
+            },
+            Group {
+                label: "3dgs".into(),
+                runs: vec![with_lpips("g1", &[0.5, 0.25, 0.26])],
+            },
+        ];
+        let curves: Vec<Curve> = groups.iter().map(|g| group_curve(g).unwrap()).collect();
+        let l = leads(&groups, &curves, 5.0);
+        let lp = l
+            .iter()
+            .find(|l| l.metric == "lpips")
+            .expect("both groups log LPIPS: an lpips lead");
+        assert_eq!(lp.evaluations, 2, "{lp:?}");
+        assert_eq!(
+            lp.ahead, 1,
+            "lower LPIPS only at the last evaluation: {lp:?}"
+        );
+        assert_eq!(lp.ahead_beyond_range, 1, "{lp:?}");
+        assert_eq!(lp.ahead_in_every_pair, Some(1), "{lp:?}");
+        assert!((lp.final_lead - 0.06).abs() < 1e-12, "0.26 − 0.20: {lp:?}");
+        assert!((lp.min_lead - (-0.05)).abs() < 1e-12, "0.25 − 0.30: {lp:?}");
+        // Without LPIPS in the logs there is no lpips lead (the first test's groups).
+        let plain = [groups[0].clone(), groups[1].clone()].map(|mut g| {
+            g.runs[0].rows.iter_mut().for_each(|r| r.lpips = None);
+            g
+        });
+        let curves: Vec<Curve> = plain.iter().map(|g| group_curve(g).unwrap()).collect();
+        assert!(
+            leads(&plain, &curves, 5.0)
+                .iter()
+                .all(|l| l.metric != "lpips"),
+            "no LPIPS logged, no LPIPS lead"
+        );
+    }
 }
