@@ -1,7 +1,8 @@
 //! Proves: `read_ply` refuses hostile headers before they size anything (a vertex count whose
 //! byte size overflows, a band count or SH degree far beyond what the trainer writes) with an
-//! error naming the file, and a valid file with random byte edits or cuts reads or fails, never
-//! panics. Cases per property: 256 in `make test` (`PROPTEST_CASES=N` for a longer run).
+//! error naming the file, and a valid file with random byte edits or cuts never panics: it fails
+//! with an error naming the file, or reads at most its two records (never, with its header
+//! intact, when cut short). Cases per property: 256 in `make test` (`PROPTEST_CASES=N` for a longer run).
 #![allow(clippy::unwrap_used)]
 
 use std::sync::OnceLock;
@@ -85,8 +86,12 @@ proptest! {
         cut in prop::option::of(any::<prop::sample::Index>()),
     ) {
         let mut b = valid().clone();
+        let full = b.len();
+        let header_end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let mut header_edited = false;
         for (at, byte) in &edits {
             let i = at.index(b.len());
+            header_edited |= i < header_end && b[i] != *byte;
             b[i] = *byte;
         }
         if let Some(c) = cut {
@@ -96,6 +101,22 @@ proptest! {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("e.ply");
         std::fs::write(&path, &b).unwrap();
-        let _ = read_ply(&path);
+        match read_ply(&path) {
+            Ok(p) => {
+                // The data holds two records: nothing can read more.
+                prop_assert!(p.len() <= 2, "{} primitives from a two-record file", p.len());
+                // With the header intact, a file cut short cannot read.
+                prop_assert!(
+                    header_edited || b.len() == full,
+                    "a file cut from {full} to {} bytes read as {} primitives",
+                    b.len(),
+                    p.len()
+                );
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                prop_assert!(msg.contains("e.ply"), "the error names the file: {msg}");
+            }
+        }
     }
 }

@@ -502,6 +502,38 @@ fn a_format_1_checkpoint_still_resumes() {
     assert_eq!(back.primitives.bands, ck.primitives.bands);
 }
 
+/// A checkpoint whose loop state does not read is refused by `--resume` with the file named,
+/// and the run is left as it was (no silent restart with a default state).
+#[test]
+fn a_damaged_checkpoint_state_is_refused_and_the_run_left_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synth_scene(tmp.path());
+    let run = tmp.path().join("run");
+    finished_run(&data, &run, 30);
+    let header = run.join("checkpoint.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&header).unwrap()).unwrap();
+    v["state"] = serde_json::json!({"capacity": 5});
+    let damaged = serde_json::to_vec(&v).unwrap();
+    std::fs::write(&header, &damaged).unwrap();
+    let out = bin()
+        .args(train_args(&data, &run))
+        .args(["--resume", "--iters", "40"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a damaged state must not resume");
+    assert!(
+        stderr.contains("checkpoint.json") && stderr.contains("loop state does not read"),
+        "the error names the file and the problem: {stderr}"
+    );
+    assert_eq!(
+        std::fs::read(&header).unwrap(),
+        damaged,
+        "the refused checkpoint is left as it was"
+    );
+}
+
 /// Without the `session` feature a recorded session is refused, saying what to do instead.
 #[cfg(not(feature = "session"))]
 #[test]

@@ -11,16 +11,12 @@
 use super::context::{ComputeKernel, GpuBuffer, GpuContext, MemoryLocation, Recorder};
 use super::error::GpuError;
 use super::raster::{GpuRasterizer, parameter_block, parameter_count};
-use super::shaders;
+use super::shaders::{self, ADAM_PUSH_BYTES};
 use crate::camera::PinholeCamera;
 use crate::primitive::Primitives;
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 const ADAM_WG: usize = 128;
-/// The optimiser kernel's push constants: 4 words of sizes and gate, 9 step sizes, 4 Adam and
-/// clamp constants, 12 for the densification statistic's camera (within Vulkan's guaranteed
-/// 128 bytes).
-pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 4 + 12);
 
 /// The state on the GPU.
 #[derive(Debug)]

@@ -5,6 +5,12 @@
 use super::context::{Binding, Capabilities, ComputeKernel, GpuContext, TexelFormat};
 use super::error::GpuError;
 
+/// The optimiser kernel's push constants: 4 words of sizes and gate, 9 step sizes, 4 Adam and
+/// clamp constants, 12 for the densification statistic's camera (within Vulkan's guaranteed
+/// 128 bytes). Declared with the kernel table, which every kernel's module reads (the
+/// optimiser fills them), so the table imports no kernel module.
+pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 4 + 12);
+
 include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
 
 /// The host-side interface of a kernel. Shared memory is not listed: every kernel stays within
@@ -235,7 +241,7 @@ pub const KERNELS: &[KernelSpec] = &[
         name: "adam",
         bindings: 9,
         texel: &[],
-        push_constant_bytes: super::optimiser::ADAM_PUSH_BYTES,
+        push_constant_bytes: ADAM_PUSH_BYTES,
         needs_subgroup_arithmetic: false,
         needs_float_atomic_add: false,
     },

@@ -924,7 +924,8 @@ mod tests {
         ))]
 
         /// Random byte edits (half of them in the header) and cuts of a valid file: the reader
-        /// reads or refuses, never panics nor allocates from a hostile count.
+        /// refuses with the file named, or reads no more vertices than the file holds; it never
+        /// panics nor allocates from a hostile count.
         #[test]
         fn edited_mesh_files_read_or_fail(
             edits in proptest::collection::vec(
@@ -951,7 +952,19 @@ mod tests {
             let dir = tempfile::tempdir().unwrap();
             let path = dir.path().join("e.ply");
             fs::write(&path, &b).unwrap();
-            let _ = read_mesh_ply(&path);
+            let most = mesh(true).positions.len();
+            match read_mesh_ply(&path) {
+                // The data holds `most` vertices: a hostile count cannot read more.
+                Ok(m) => prop_assert!(
+                    m.positions.len() <= most,
+                    "{} vertices from a file holding {most}",
+                    m.positions.len()
+                ),
+                Err(e) => {
+                    let msg = e.to_string();
+                    prop_assert!(msg.contains("e.ply"), "the error names the file: {msg}");
+                }
+            }
         }
     }
 }

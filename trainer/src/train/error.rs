@@ -43,6 +43,16 @@ pub enum TrainError {
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// A checkpoint's loop state (warm-up end, capacity decisions, responses) does not read.
+    #[error(
+        "{path}: the loop state does not read (a damaged checkpoint, or one from another \
+         version of s3tir): not resumed, nothing changed; start a new run with another --out"
+    )]
+    CheckpointState {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
     #[error("configuration: {reason}")]
     Config { reason: String },
     #[error("run {run_dir}: {reason}")]

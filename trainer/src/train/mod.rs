@@ -351,7 +351,12 @@ impl<B: Backend> Trainer<B> {
         };
         t.iteration = ck.iteration;
         t.train_seconds = ck.train_seconds;
-        t.state = serde_json::from_value(ck.state).unwrap_or_default();
+        // A state that does not read (a damaged or foreign checkpoint) is an error: resuming
+        // with a default state would silently forget the warm-up's end, the capacity decisions
+        // and the learned responses.
+        let path = run_dir.join(files::CHECKPOINT);
+        t.state = serde_json::from_value(ck.state)
+            .map_err(|source| TrainError::CheckpointState { path, source })?;
         // Checkpoints written before the warm-up's end was recorded: an iteration-counted
         // run past it ended it at exactly `warmup`.
         if t.state.warmup_ended_at.is_none()
