@@ -14,6 +14,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::atomic::AtomicBool;
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use s3tir_trainer::camera::PinholeCamera;
 use s3tir_trainer::dataset::synth::{self, SynthConfig};
@@ -21,6 +22,23 @@ use s3tir_trainer::dataset::{Dataset, LoadOptions};
 use s3tir_trainer::train::{
     CapacityReport, CpuBackend, Mode, TrainConfig, Trainer, files, view_space_gradient,
 };
+
+/// The time-budget test counts the iterations 4 s of training reach, so it takes the machine to
+/// itself: it holds this lock for writing, every other test of the binary for reading (they
+/// still run beside each other). Measured here (2026-11-28, 2 cores, idle machine): beside its
+/// seven siblings it reached 253–296 iterations, under its floor of 300, and failed; holding
+/// the machine, 346–360 (it prints its count).
+static CPU: RwLock<()> = RwLock::new(());
+
+fn shared_cpu() -> RwLockReadGuard<'static, ()> {
+    CPU.read()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn whole_cpu() -> RwLockWriteGuard<'static, ()> {
+    CPU.write()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
 
 /// The built-in wall (a sharp emissivity step and a heated pipe) at 64×48, seeded with 12
 /// points: a handful of primitives for a scene with edges.
@@ -64,6 +82,7 @@ fn read_capacity(run: &std::path::Path) -> CapacityReport {
 
 #[test]
 fn default_threshold_densifies_an_under_reconstructed_scene() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -120,6 +139,7 @@ fn default_threshold_densifies_an_under_reconstructed_scene() {
 
 #[test]
 fn growth_stops_at_the_budget_and_reports_what_it_left_out() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -149,6 +169,7 @@ fn growth_stops_at_the_budget_and_reports_what_it_left_out() {
 /// candidates it leaves out are reported like those beyond the budget.
 #[test]
 fn growth_per_round_is_capped() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -192,6 +213,7 @@ fn growth_per_round_is_capped() {
 /// by opacity — and clones or splits as many candidates in their place; with 0 it does not.
 #[test]
 fn a_full_budget_relocates_its_weakest_primitives() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -274,6 +296,7 @@ fn a_full_budget_relocates_its_weakest_primitives() {
 
 #[test]
 fn transparent_primitives_are_pruned() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -301,6 +324,7 @@ fn transparent_primitives_are_pruned() {
 
 #[test]
 fn the_statistic_is_in_ndc_whatever_the_resolution() {
+    let _cpu = shared_cpu();
     let cam = |w: usize, f: f64| PinholeCamera {
         fx_px: f,
         fy_px: f,
@@ -332,6 +356,7 @@ fn the_statistic_is_in_ndc_whatever_the_resolution() {
 
 #[test]
 fn time_budget_stops_on_time_with_outputs_and_a_scaled_schedule() {
+    let _cpu = whole_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
@@ -348,6 +373,10 @@ fn time_budget_stops_on_time_with_outputs_and_a_scaled_schedule() {
         }
     })
     .unwrap();
+    eprintln!(
+        "time budget: {} iterations in {:.2} s of training",
+        t.iteration, t.train_seconds
+    );
     assert!(
         (4.0..=4.2).contains(&t.train_seconds),
         "a 4 s budget must stop within 5 %: trained {:.3} s",
@@ -403,6 +432,7 @@ fn time_budget_stops_on_time_with_outputs_and_a_scaled_schedule() {
 
 #[test]
 fn bands_are_off_during_the_warm_up_and_live_after_it() {
+    let _cpu = shared_cpu();
     let tmp = tempfile::tempdir().unwrap();
     let data_dir = tmp.path().join("scene");
     sparse_scene(&data_dir);
