@@ -10,7 +10,7 @@ fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let pairs = if full { 50 } else { 6 };
     let dir = tempfile::tempdir().expect("temp dir");
-    let bars = s3tir_calib::progress_bars::ProgressBars::new();
+    let bars = s3tir_calib::progress::bars::ProgressBars::new();
     let figures =
         s3tir_calib::bench::run(dir.path(), pairs, 7, false, &bars).expect("benchmark run");
     println!("{figures}");

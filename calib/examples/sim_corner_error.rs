@@ -8,9 +8,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use glam::{DMat3, DQuat, DVec2, DVec3};
-use s3tir_calib::board::BoardSpec;
-use s3tir_calib::frontend::detect_board;
-use s3tir_calib::scalar::load_scalar;
+use s3tir_calib::detect::board::BoardSpec;
+use s3tir_calib::detect::frontend::detect_board;
+use s3tir_calib::detect::scalar::load_scalar;
 use s3tir_calib::{CameraModel, Rigid3};
 
 fn main() {

@@ -24,17 +24,17 @@ use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 
 use opencv::calib3d;
 
-use crate::board::{BoardSpec, Camera, list_views};
-use crate::detect::{classic_sub_pix, mat_from_luma, read_grey};
+use crate::detect::board::{BoardSpec, Camera, list_views};
+use crate::detect::chessboard::{classic_sub_pix, mat_from_luma, read_grey};
+use crate::detect::frontend::{BoardDetection, detect_board};
+use crate::detect::scalar::load_scalar;
+use crate::detect::views::DetectedSet;
 use crate::error::{CalibError, cv};
-use crate::frontend::{BoardDetection, detect_board};
-use crate::pipeline::{
+use crate::progress::Progress;
+use crate::solve::pipeline::{
     PipelineOptions, ViewCorners, calibrate_detections, cv_points, detect_folder, model_from_opencv,
 };
-use crate::progress::Progress;
-use crate::scalar::load_scalar;
 use crate::synth::{self, SynthOptions};
-use crate::views::DetectedSet;
 
 /// Benchmark figures.
 #[derive(Debug, Clone, Copy)]

@@ -4,15 +4,17 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use s3tir_calib::pairs::PairThresholds;
-use s3tir_calib::pipeline::{self, PipelineOptions};
-use s3tir_calib::progress_bars::ProgressBars;
-use s3tir_calib::session::SessionOptions;
-use s3tir_calib::solve::SolveOptions;
+use s3tir_calib::bench;
+use s3tir_calib::detect::chessboard;
+use s3tir_calib::detect::session::SessionOptions;
+use s3tir_calib::progress::bars::ProgressBars;
+use s3tir_calib::report::{document, export};
+use s3tir_calib::solve::lm::SolveOptions;
+use s3tir_calib::solve::pairs::PairThresholds;
+use s3tir_calib::solve::pipeline::{self, PipelineOptions};
 use s3tir_calib::tags::{self, TagConfig, TagDetector};
-use s3tir_calib::{bench, detect, export, report};
 
-mod cli_poses;
+mod cli;
 
 /// Calibrate a thermal + RGB camera rig with an emissivity-coated checkerboard.
 ///
@@ -61,7 +63,7 @@ struct CalibrateArgs {
     session_interval_s: f64,
     /// Session input: most pairs used, spread evenly over the recording (0 = all). Keeps the
     /// memory of a long session bounded: only the chosen frames' pixels are held.
-    #[arg(long, default_value_t = s3tir_calib::session::DEFAULT_MAX_VIEWS)]
+    #[arg(long, default_value_t = s3tir_calib::detect::session::DEFAULT_MAX_VIEWS)]
     session_max_views: usize,
     /// Where to write calibration.yaml; the exports (OpenCV, Kalibr, COLMAP, ROS) go beside it.
     #[arg(long, default_value = "calibration.yaml")]
@@ -91,7 +93,7 @@ struct CalibrateArgs {
 enum Command {
     /// Turn a recorded session into a posed thermal dataset for s3tir-train (COLMAP on the RGB
     /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic).
-    Poses(Box<cli_poses::PosesArgs>),
+    Poses(Box<cli::poses::PosesArgs>),
     /// Detect a chessboard in each image and print its corners (pixels, origin at the centre
     /// of the top-left pixel). Exits non-zero if any image has no board.
     Detect {
@@ -164,9 +166,9 @@ fn parse_corners(text: &str) -> Result<(u32, u32), String> {
 fn run_detect(cols: u32, rows: u32, images: &[PathBuf]) -> Result<()> {
     let mut missing = 0usize;
     for path in images {
-        let grey = detect::read_grey(path)?;
-        let mat = detect::mat_from_luma(&grey)?;
-        match detect::find_chessboard(&mat, cols, rows)
+        let grey = chessboard::read_grey(path)?;
+        let mat = chessboard::mat_from_luma(&grey)?;
+        match chessboard::find_chessboard(&mat, cols, rows)
             .with_context(|| format!("detecting the board in {}", path.display()))?
         {
             Some(d) => {
@@ -239,7 +241,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         export::write_summary(&cal, path)?;
     }
     if let Some(report_dir) = &args.report {
-        report::write_report(&cal, report_dir)?;
+        document::write_report(&cal, report_dir)?;
         println!(
             "report: {} and {}",
             report_dir.join("report.md").display(),
@@ -354,7 +356,7 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.command {
-        Some(Command::Poses(a)) => cli_poses::run(&a),
+        Some(Command::Poses(a)) => cli::poses::run(&a),
         Some(Command::Detect {
             inner_corners: (cols, rows),
             images,

@@ -13,11 +13,11 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::board::{BoardSpec, ThermalPolarity};
-use crate::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::detect::board::{BoardSpec, ThermalPolarity};
+use crate::detect::scalar::{Palette, palette_lut};
 use crate::error::CalibError;
-use crate::geometry::Rigid3;
-use crate::scalar::{Palette, palette_lut};
+use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::model::geometry::Rigid3;
 
 /// A synthetic rig: two cameras and the extrinsic between them.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -196,7 +196,7 @@ pub fn default_board() -> BoardSpec {
         thermal_polarity: ThermalPolarity::Auto,
         thermal_palette: Palette::Auto,
         apriltag_ids: Vec::new(),
-        apriltag_ratio: crate::board::DEFAULT_APRILTAG_RATIO,
+        apriltag_ratio: crate::detect::board::DEFAULT_APRILTAG_RATIO,
     }
 }
 

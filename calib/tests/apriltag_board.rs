@@ -15,13 +15,13 @@ use glam::{DQuat, DVec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use s3tir_calib::Rigid3;
-use s3tir_calib::board::{BoardSpec, Camera};
-use s3tir_calib::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board};
-use s3tir_calib::pipeline::{PipelineOptions, calibrate_detections};
+use s3tir_calib::detect::board::{BoardSpec, Camera};
+use s3tir_calib::detect::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board};
+use s3tir_calib::detect::scalar::{ScalarImage, SourceKind};
+use s3tir_calib::detect::views::{DetectedSet, detect_folder};
 use s3tir_calib::progress::NoProgress;
-use s3tir_calib::scalar::{ScalarImage, SourceKind};
+use s3tir_calib::solve::pipeline::{PipelineOptions, calibrate_detections};
 use s3tir_calib::synth::{self, Shades, SynthOptions, SynthRig, SynthTruth};
-use s3tir_calib::views::{DetectedSet, detect_folder};
 
 fn tag_board(cols: u32, rows: u32) -> BoardSpec {
     let mut b = synth::default_board();

@@ -138,7 +138,7 @@ fn calibrate_command_writes_summary_exports_and_report() {
     );
     // calibration.yaml reads back through the reader the poses stage and the trainer use, with
     // the models the COLMAP export carries.
-    let cal = s3tir_calib::calfile::CalibrationFile::read(&out)
+    let cal = s3tir_calib::model::calfile::CalibrationFile::read(&out)
         .unwrap_or_else(|e| panic!("calibration.yaml must read back: {e}"));
     let (thermal, rgb) = (cal.thermal.expect("thermal"), cal.rgb.expect("rgb"));
     assert!(cal.rgb_from_thermal.is_some(), "the extrinsic reads back");
@@ -185,8 +185,9 @@ fn calibrate_command_writes_summary_exports_and_report() {
         );
     }
     // The COLMAP export reads back through the codec the trainer loads datasets with.
-    let cams = s3tir_calib::colmap::read_cameras_text(&dir.join("calibration.colmap-cameras.txt"))
-        .unwrap_or_else(|e| panic!("the COLMAP export must read back: {e}"));
+    let cams =
+        s3tir_calib::model::colmap::read_cameras_text(&dir.join("calibration.colmap-cameras.txt"))
+            .unwrap_or_else(|e| panic!("the COLMAP export must read back: {e}"));
     assert_eq!(cams.len(), 2, "thermal and rgb cameras expected: {cams:?}");
     for c in &cams {
         let want = if c.id == 1 { thermal } else { rgb };

@@ -10,8 +10,8 @@
 use std::path::Path;
 
 use proptest::prelude::*;
-use s3tir_calib::board::BoardFile;
-use s3tir_calib::colmap::{read_binary_model, read_text_model};
+use s3tir_calib::detect::board::BoardFile;
+use s3tir_calib::model::colmap::{read_binary_model, read_text_model};
 
 const CAMERAS: &str = "# c\n1 PINHOLE 64 48 50 50 32 24\n";
 const POINTS: &str = "1 0.1 0.2 3.0 128 128 128 0.5 1 0\n";

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
-use s3tir_calib::detect::{self, Detector};
+use s3tir_calib::detect::chessboard::{self, Detector};
 
 fn data_dir() -> PathBuf {
     let dir = std::env::var_os("S3TIR_SHARED_DIR")
@@ -27,10 +27,10 @@ fn data_dir() -> PathBuf {
 #[test]
 fn finds_all_54_corners_in_left01() {
     let path = data_dir().join("left01.jpg");
-    let grey = detect::read_grey(&path).unwrap();
+    let grey = chessboard::read_grey(&path).unwrap();
     assert_eq!(grey.dimensions(), (640, 480));
-    let mat = detect::mat_from_luma(&grey).unwrap();
-    let det = detect::find_chessboard(&mat, 9, 6)
+    let mat = chessboard::mat_from_luma(&grey).unwrap();
+    let det = chessboard::find_chessboard(&mat, 9, 6)
         .unwrap()
         .unwrap_or_else(|| panic!("no 9x6 board found in {}", path.display()));
     assert_eq!(det.corners_px.len(), 54, "want 9x6 = 54 corners");
@@ -67,8 +67,8 @@ fn opencv_calibration_on_our_detections_matches_the_reference() {
     ];
     for n in names {
         let path = dir.join(format!("left{n}.jpg"));
-        let mat = detect::mat_from_luma(&detect::read_grey(&path).unwrap()).unwrap();
-        let det = detect::find_chessboard(&mat, 9, 6)
+        let mat = chessboard::mat_from_luma(&chessboard::read_grey(&path).unwrap()).unwrap();
+        let det = chessboard::find_chessboard(&mat, 9, 6)
             .unwrap()
             .unwrap_or_else(|| panic!("board not found in {}", path.display()));
         image_points.push(

@@ -12,7 +12,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
+use s3tir_calib::solve::pipeline::{PipelineOptions, calibrate_folder};
 
 const MARGIN_PX: f64 = 0.01;
 

@@ -18,8 +18,8 @@
 use std::path::Path;
 use std::process::Command;
 
-use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder, calibrate_session};
-use s3tir_calib::session::SessionOptions;
+use s3tir_calib::detect::session::SessionOptions;
+use s3tir_calib::solve::pipeline::{PipelineOptions, calibrate_folder, calibrate_session};
 use s3tir_calib::synth::{self, SynthOptions};
 use s3tir_capture::frame::{
     CapturedFrame, FfcState, FrameTime, RgbFrame, RgbPayload, ThermalFrame, ThermalUnits,
@@ -264,7 +264,7 @@ fn a_recorded_session_calibrates_like_its_folder() {
 #[test]
 fn the_committed_capture_session_reads_as_views() {
     let session = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/sim_lepton_rgb.mcap");
-    let views = s3tir_calib::session::read_views(
+    let views = s3tir_calib::detect::session::read_views(
         &session,
         &SessionOptions {
             min_interval_s: 0.0,
@@ -295,11 +295,11 @@ fn the_committed_capture_session_reads_as_views() {
     };
     let thermal = views
         .images
-        .load(t, s3tir_calib::board::Camera::Thermal)
+        .load(t, s3tir_calib::detect::board::Camera::Thermal)
         .unwrap();
     let rgb = views
         .images
-        .load(r, s3tir_calib::board::Camera::Rgb)
+        .load(r, s3tir_calib::detect::board::Camera::Rgb)
         .unwrap();
     assert_eq!(
         (thermal.width_px, thermal.height_px),

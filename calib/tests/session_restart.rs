@@ -14,9 +14,9 @@
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use s3tir_calib::board::Camera;
+use s3tir_calib::detect::board::Camera;
+use s3tir_calib::detect::session::{SessionOptions, read_views};
 use s3tir_calib::progress::Progress;
-use s3tir_calib::session::{SessionOptions, read_views};
 use s3tir_capture::backend::synth::{Script, SynthRig, ThermalSynth};
 use s3tir_capture::session::pairing::PairingMode;
 use s3tir_capture::session::pipeline::Pipeline;

@@ -12,10 +12,10 @@ use glam::{DQuat, DVec2, DVec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use s3tir_calib::board::Camera;
-use s3tir_calib::camera::{BrownConrady, CameraModel};
-use s3tir_calib::geometry::Rigid3;
-use s3tir_calib::solve::{Observation, PoseFrame, Problem, SolveOptions, solve};
+use s3tir_calib::detect::board::Camera;
+use s3tir_calib::model::camera::{BrownConrady, CameraModel};
+use s3tir_calib::model::geometry::Rigid3;
+use s3tir_calib::solve::lm::{Observation, PoseFrame, Problem, SolveOptions, solve};
 use s3tir_calib::synth::{self, SynthOptions};
 
 fn perturbed(m: &CameraModel) -> CameraModel {

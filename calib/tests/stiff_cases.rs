@@ -9,9 +9,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use s3tir_calib::CalibError;
-use s3tir_calib::pipeline::{Calibration, PipelineOptions, calibrate_folder, detect_folder};
+use s3tir_calib::detect::scalar::{Palette, SourceKind};
 use s3tir_calib::progress::NoProgress;
-use s3tir_calib::scalar::{Palette, SourceKind};
+use s3tir_calib::solve::pipeline::{Calibration, PipelineOptions, calibrate_folder, detect_folder};
 use s3tir_calib::synth::{self, SynthOptions, ThermalFormat};
 
 fn small_rig() -> synth::SynthRig {
@@ -35,7 +35,7 @@ fn finite_everywhere(cal: &Calibration) {
             "extrinsic not finite: {t:?}"
         );
     }
-    let yaml = s3tir_calib::export::calibration_yaml(cal);
+    let yaml = s3tir_calib::report::export::calibration_yaml(cal);
     assert!(!yaml.contains("nan"), "calibration.yaml has NaN:\n{yaml}");
 }
 
@@ -167,8 +167,8 @@ fn pseudo_colour_thermal_images_are_inverted_through_the_palette() {
         "thermal images should be recognised as ironbow: {:?}",
         set.source_kinds
     );
-    let cal =
-        s3tir_calib::pipeline::calibrate_detections(&set, &PipelineOptions::default()).unwrap();
+    let cal = s3tir_calib::solve::pipeline::calibrate_detections(&set, &PipelineOptions::default())
+        .unwrap();
     finite_everywhere(&cal);
     assert_eq!(
         cal.pairs_used, 14,

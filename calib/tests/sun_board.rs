@@ -21,8 +21,8 @@ mod common;
 
 use std::path::PathBuf;
 
-use s3tir_calib::pairs::PairTest;
-use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
+use s3tir_calib::solve::pairs::PairTest;
+use s3tir_calib::solve::pipeline::{PipelineOptions, calibrate_folder};
 
 fn data_dir() -> PathBuf {
     common::shared_data("sun-board")

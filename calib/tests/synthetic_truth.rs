@@ -12,7 +12,7 @@
 
 mod common;
 
-use s3tir_calib::pipeline::{PipelineOptions, calibrate_folder};
+use s3tir_calib::solve::pipeline::{PipelineOptions, calibrate_folder};
 use s3tir_calib::synth::{self, SynthOptions};
 
 #[test]

@@ -44,7 +44,7 @@ pub enum SimError {
     #[error("writing the COLMAP model: {source}")]
     Colmap {
         #[source]
-        source: Box<s3tir_calib::colmap::ColmapError>,
+        source: Box<s3tir_calib::model::colmap::ColmapError>,
     },
     #[error("invalid parameter {parameter} = {value}: {why}")]
     InvalidParameter {

@@ -12,7 +12,7 @@
 //! - [`dataset`]: the `board` calibration set writer.
 //! - [`scene`]: trainer datasets of simple thermal scenes with truth (`scene`): their objects,
 //!   camera paths, rendering, sensors, per-frame response effects ([`scene::response`]), truth
-//!   surface ([`scene::truth`]), dataset writers (COLMAP model through `s3tir_calib::colmap`)
+//!   surface ([`scene::truth`]), dataset writers (COLMAP model through `s3tir_calib::model::colmap`)
 //!   and the joint thermal + RGB layout ([`scene::joint`], `scene --rgb-scale K`).
 //! - [`serve`]: the live rig (`run`).
 //! - [`walk`]: the rig walking through a textured room (`run --walk`), with the truth

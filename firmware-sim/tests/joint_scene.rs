@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use glam::DVec3;
-use s3tir_calib::colmap::read_model;
+use s3tir_calib::model::colmap::read_model;
 use s3tir_firmware_sim::scene::joint::{JointOptions, write_joint_scene_set};
 use s3tir_firmware_sim::scene::response::ResponseEffects;
 use s3tir_firmware_sim::scene::{SceneConfig, SceneLayout, scene_camera};

@@ -129,7 +129,7 @@ pub fn rigid_from_json(v: &Value) -> s3tir_calib::Rigid3 {
 #[derive(Debug, Clone)]
 pub struct WalkTruth {
     /// The rig's true calibration.
-    pub cal: s3tir_calib::calfile::CalibrationFile,
+    pub cal: s3tir_calib::model::calfile::CalibrationFile,
     /// Diameter of the scene's bounding sphere, metres.
     pub extent_m: f64,
     /// Thermal frames: sequence → world_from_cam.
@@ -161,7 +161,7 @@ pub fn read_walk_truth(path: &Path) -> WalkTruth {
     // A walk recorded without RGB has `"rgb": null`: a thermal-only calibration.
     let has_rgb = !v["rgb"].is_null();
     WalkTruth {
-        cal: s3tir_calib::calfile::CalibrationFile {
+        cal: s3tir_calib::model::calfile::CalibrationFile {
             thermal: Some(model("thermal")),
             rgb: has_rgb.then(|| model("rgb")),
             rgb_from_thermal: has_rgb.then(|| rigid_from_json(&v["rgb_from_thermal"])),

@@ -15,7 +15,7 @@
 use std::process::Command;
 
 use glam::{DMat3, DQuat, DVec3};
-use s3tir_calib::calfile::CalibrationFile;
+use s3tir_calib::model::calfile::CalibrationFile;
 use s3tir_calib::{CameraModel, Rigid3};
 use s3tir_tests::bin;
 use serde_json::Value;

@@ -24,7 +24,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use s3tir_calib::colmap::read_model;
+use s3tir_calib::model::colmap::read_model;
 use s3tir_capture::tools::Digest;
 use s3tir_tests::{bin, read_walk_truth, run_ok, thermal_sequence};
 use serde_json::Value;

@@ -13,8 +13,10 @@
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
-use s3tir_calib::calfile::CalibrationFile;
-use s3tir_calib::colmap::{ColmapCamera, ColmapImage, ColmapModel, read_model, write_text_model};
+use s3tir_calib::model::calfile::CalibrationFile;
+use s3tir_calib::model::colmap::{
+    ColmapCamera, ColmapImage, ColmapModel, read_model, write_text_model,
+};
 use s3tir_calib::poses::{self, PosesError, PosesOptions};
 use s3tir_calib::{BrownConrady, CameraModel, Intrinsics, Rigid3};
 use s3tir_capture::frame::{

@@ -39,7 +39,7 @@ use std::process::Command;
 
 use glam::{DMat3, DQuat, DVec3};
 use s3tir_calib::Rigid3;
-use s3tir_calib::colmap::read_model;
+use s3tir_calib::model::colmap::read_model;
 use s3tir_tests::{
     WalkTruth as Truth, bin, read_walk_truth as read_truth, run_ok, thermal_sequence,
 };
@@ -228,7 +228,8 @@ fn posed_copy(
     for p in &mut model.points {
         p.position_m = (s * (r * DVec3::from_array(p.position_m)) + t).to_array();
     }
-    s3tir_calib::colmap::write_text_model(&out.join("sparse/0"), &model).expect("write model");
+    s3tir_calib::model::colmap::write_text_model(&out.join("sparse/0"), &model)
+        .expect("write model");
     std::fs::copy(dataset.join("holdout.txt"), out.join("holdout.txt")).expect("holdout");
     let images = out.join("images");
     std::fs::create_dir_all(&images).expect("images");

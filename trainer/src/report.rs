@@ -12,7 +12,7 @@ use plotters::series::DashedLineSeries;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use s3tir_calib::plot::PngCanvas;
+use s3tir_calib::report::plot::PngCanvas;
 
 use crate::primitive::BETA_MAX;
 

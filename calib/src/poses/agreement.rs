@@ -17,7 +17,7 @@ use glam::DQuat;
 use serde::Serialize;
 
 use super::fiducials::TagPose;
-use crate::geometry::Rigid3;
+use crate::model::geometry::Rigid3;
 
 /// A keyframe whose SfM-to-tag rotation is farther than this from the common one disagrees.
 pub const DISAGREE_DEG: f64 = 1.0;

@@ -150,8 +150,8 @@ impl BoardFiducial {
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
-    use crate::camera::{BrownConrady, CameraModel, Intrinsics};
-    use crate::geometry::Rigid3;
+    use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+    use crate::model::geometry::Rigid3;
     use glam::DQuat;
 
     fn board() -> BoardFiducial {

@@ -37,8 +37,8 @@ use std::path::Path;
 use super::frames::{FrameInfo, Pixels, Stream, for_frames};
 use super::select::{RgbView, ThermalView};
 use super::{PosesError, PosesReport};
-use crate::camera::CameraModel;
-use crate::colmap::{
+use crate::model::camera::CameraModel;
+use crate::model::colmap::{
     ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, colmap_params, write_text_model,
 };
 
@@ -169,7 +169,7 @@ pub fn write(
         model: *model,
     };
     let mut cameras = vec![camera(THERMAL_CAMERA_ID, thermal)];
-    let mut entries: Vec<(u32, String, crate::geometry::Rigid3)> = views
+    let mut entries: Vec<(u32, String, crate::model::geometry::Rigid3)> = views
         .iter()
         .map(|v| {
             (

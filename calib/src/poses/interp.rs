@@ -2,7 +2,7 @@
 //! both cameras of a rig): rotation by slerp, camera centre linearly, between the two
 //! registered keyframes around the time, when they are at most `max_gap_s` apart.
 
-use crate::geometry::Rigid3;
+use crate::model::geometry::Rigid3;
 
 /// Registered keyframes in time order: `(monotonic_ns, world_from_cam)`.
 #[derive(Debug, Clone)]

@@ -99,7 +99,7 @@ use std::sync::Arc;
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::calfile::CalibrationFile;
+use crate::model::calfile::CalibrationFile;
 use crate::progress::{self, Progress};
 use output::{finish_output, start_output};
 pub use report::{PosesReport, StageTimes, summary};
@@ -170,7 +170,7 @@ pub enum PosesError {
     Model {
         path: PathBuf,
         #[source]
-        source: crate::colmap::ColmapError,
+        source: crate::model::colmap::ColmapError,
     },
     #[error("session {path}: {reason}")]
     Nothing { path: PathBuf, reason: String },
@@ -259,7 +259,7 @@ pub struct PosesOptions {
     /// CPU threads COLMAP may use.
     pub threads: usize,
     /// Receives the stage's progress (`None`: nobody watches); a binary passes
-    /// [`crate::progress_bars::ProgressBars`] to draw bars.
+    /// [`crate::progress::bars::ProgressBars`] to draw bars.
     #[serde(skip)]
     pub progress: Option<Arc<dyn Progress>>,
     /// Also write the posed RGB keyframes (`images/rgb_SEQUENCE.png`, a second camera) for
@@ -446,17 +446,19 @@ pub fn session_to_dataset(
     }
 
     let (pose_source, registered, sfm_points, sfm_jumps) = if fast_path {
-        let registered: Vec<(u64, crate::geometry::Rigid3)> = tag_posed
+        let registered: Vec<(u64, crate::model::geometry::Rigid3)> = tag_posed
             .iter()
             .map(|(t, p)| (*t, p.world_from_cam))
             .collect();
         (fiducial_source, registered, Vec::new(), Vec::new())
     } else {
         let model = match &opts.user_model {
-            Some(dir) => crate::colmap::read_model(dir).map_err(|source| PosesError::Model {
-                path: dir.clone(),
-                source,
-            })?,
+            Some(dir) => {
+                crate::model::colmap::read_model(dir).map_err(|source| PosesError::Model {
+                    path: dir.clone(),
+                    source,
+                })?
+            }
             None => {
                 if may_skip_colmap {
                     sfm::check_colmap(&opts.colmap)?;
@@ -532,7 +534,7 @@ pub fn session_to_dataset(
     }
     let tag_scale = match &tag_map {
         Some(m) if !fast_path => {
-            let by_time: BTreeMap<u64, crate::geometry::Rigid3> =
+            let by_time: BTreeMap<u64, crate::model::geometry::Rigid3> =
                 registered.iter().copied().collect();
             fiducials::scale_from_tags(m, &sfm_camera, &seen, &by_time)
         }
@@ -583,11 +585,11 @@ pub fn session_to_dataset(
     // rgb_from_thermal with its translation in world units: world_from_thermal =
     // world_from_rgb(t) ∘ sfm_from_thermal.
     let sfm_from_thermal = match rig.rgb {
-        Some((_, rgb_from_thermal)) => crate::geometry::Rigid3::new(
+        Some((_, rgb_from_thermal)) => crate::model::geometry::Rigid3::new(
             rgb_from_thermal.rotation,
             rgb_from_thermal.translation_m * units_per_metre,
         ),
-        None => crate::geometry::Rigid3::IDENTITY,
+        None => crate::model::geometry::Rigid3::IDENTITY,
     };
     let (views, mut decisions, skipped) =
         select::thermal_views(&candidates, &track, &sfm_from_thermal, &points, opts);

@@ -3,9 +3,9 @@
 
 use super::PosesError;
 use super::frames::SessionScan;
-use crate::calfile::CalibrationFile;
-use crate::camera::CameraModel;
-use crate::geometry::Rigid3;
+use crate::model::calfile::CalibrationFile;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
 
 /// Everything the stage needs of a calibration, checked against the session.
 #[derive(Debug, Clone, Copy)]

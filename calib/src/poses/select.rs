@@ -9,7 +9,7 @@ use serde::Serialize;
 use super::PosesOptions;
 use super::frames::FrameInfo;
 use super::interp::Track;
-use crate::geometry::Rigid3;
+use crate::model::geometry::Rigid3;
 
 /// What happened to one frame (`poses.json`).
 #[derive(Debug, Clone, Serialize)]

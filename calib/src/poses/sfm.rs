@@ -1,6 +1,6 @@
 //! Structure from motion with COLMAP as an external process (Debian's `colmap` 3.8, CPU SIFT):
 //! feature extraction with the calibrated camera fixed (one camera, the calibration's model in
-//! COLMAP's words through [`crate::colmap::colmap_params`]), exhaustive or sequential matching,
+//! COLMAP's words through [`crate::model::colmap::colmap_params`]), exhaustive or sequential matching,
 //! the incremental mapper with focal length, principal point and distortion held fixed; the
 //! largest reconstruction is kept. Each step's output goes to `colmap/STEP.log`.
 
@@ -11,9 +11,9 @@ use std::time::Instant;
 
 use super::frames::{FrameInfo, Stream};
 use super::{Matcher, PosesError, PosesOptions, StageTimes};
-use crate::camera::CameraModel;
-use crate::colmap::{ColmapModel, colmap_params, read_model};
-use crate::geometry::Rigid3;
+use crate::model::camera::CameraModel;
+use crate::model::colmap::{ColmapModel, colmap_params, read_model};
+use crate::model::geometry::Rigid3;
 
 fn run_step(
     program: &Path,

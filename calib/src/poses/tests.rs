@@ -19,8 +19,8 @@ use s3tir_capture::session::{SessionInfo, SessionRecord, SessionWriter};
 
 use super::frames::Stream;
 use super::{PosesError, PosesOptions, session_to_dataset};
-use crate::calfile::CalibrationFile;
-use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, read_model, write_text_model};
+use crate::model::calfile::CalibrationFile;
+use crate::model::colmap::{ColmapCamera, ColmapImage, ColmapModel, read_model, write_text_model};
 use crate::{BrownConrady, CameraModel, Intrinsics, Rigid3};
 
 const T_W: u32 = 80;

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
-use s3tir_calib::board::Camera;
-use s3tir_calib::pipeline::Calibration;
+use s3tir_calib::detect::board::Camera;
+use s3tir_calib::solve::pipeline::Calibration;
 use s3tir_calib::synth::SynthRig;
 
 /// Errors of a calibration against the truth.

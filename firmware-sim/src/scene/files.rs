@@ -1,12 +1,12 @@
 //! Writing the files of a scene dataset: PNG images (16-bit, 8-bit grey, sRGB), the truth's
 //! depth and temperature words, JSON documents, the response effects' files and the COLMAP text
-//! model (through the workspace's codec, [`s3tir_calib::colmap`]).
+//! model (through the workspace's codec, [`s3tir_calib::model::colmap`]).
 
 use std::fs;
 use std::path::Path;
 
 use glam::DVec3;
-use s3tir_calib::colmap::{
+use s3tir_calib::model::colmap::{
     ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, colmap_params, write_text_model,
 };
 use s3tir_calib::{CameraModel, Rigid3};

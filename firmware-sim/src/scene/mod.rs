@@ -77,7 +77,7 @@
 //!   corrections, with their truth (`response.json`);
 //! - [`truth`]: the truth surface both layouts write (`truth/surface.ply`);
 //! - `meta` (private; its joint types are re-exported by [`joint`]): the `scene.json` schema;
-//! - `files` (private): PNG, JSON, response and COLMAP files (through `s3tir_calib::colmap`);
+//! - `files` (private): PNG, JSON, response and COLMAP files (through `s3tir_calib::model::colmap`);
 //! - `write` (private, re-exported here): the thermal dataset writer ([`write_scene_set_with`]);
 //! - [`joint`]: the joint RGB + thermal dataset writer (`scene --rgb-scale K`).
 

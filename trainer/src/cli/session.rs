@@ -8,7 +8,7 @@ use super::train_args::TrainArgs;
 
 /// `s3tir-train SESSION.mcap`: the poses stage (calib's, in-process) writes the dataset first.
 pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf> {
-    use s3tir_calib::calfile::CalibrationFile;
+    use s3tir_calib::model::calfile::CalibrationFile;
     use s3tir_calib::poses::{self, PosesOptions};
     if out.exists() {
         bail!(
@@ -31,7 +31,7 @@ pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf
         with_rgb: a.with_rgb,
         holdout_every: a.holdout,
         progress: Some(std::sync::Arc::new(
-            s3tir_calib::progress_bars::ProgressBars::new(),
+            s3tir_calib::progress::bars::ProgressBars::new(),
         )),
         ..PosesOptions::default()
     };

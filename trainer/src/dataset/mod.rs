@@ -24,7 +24,7 @@
 
 pub mod images;
 /// The COLMAP codec lives in calib's OpenCV-free layer (one codec for every stage).
-pub use s3tir_calib::colmap;
+pub use s3tir_calib::model::colmap;
 pub mod synth;
 
 use std::path::{Path, PathBuf};
@@ -51,7 +51,7 @@ pub enum DatasetError {
     },
     /// The COLMAP model could not be read (file and line in the error).
     #[error(transparent)]
-    Colmap(#[from] s3tir_calib::colmap::ColmapError),
+    Colmap(#[from] s3tir_calib::model::colmap::ColmapError),
     /// The image could not be decoded or encoded.
     #[error("image {path}: {source}")]
     Image {

@@ -267,8 +267,8 @@ pub fn detect_upscaled(
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
-    use crate::camera::{BrownConrady, CameraModel, Intrinsics};
-    use crate::geometry::Rigid3;
+    use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+    use crate::model::geometry::Rigid3;
     use glam::{DMat3, DQuat};
 
     fn camera() -> CameraModel {

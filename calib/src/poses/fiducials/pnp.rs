@@ -9,8 +9,8 @@ use glam::{DMat3, DQuat, DVec2, DVec3};
 use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector6};
 
 use super::TagMap;
-use crate::camera::CameraModel;
-use crate::geometry::Rigid3;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
 use crate::tags::TagDetection;
 
 /// A keyframe is posed by PnP only with at least this many mapped tags in view (module docs).

@@ -9,8 +9,8 @@ use serde::Serialize;
 
 use super::pnp::normalised;
 use super::{SeenTags, TagMap};
-use crate::camera::CameraModel;
-use crate::geometry::Rigid3;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
 
 /// A triangulated tag corner needs rays spanning at least this angle, degrees.
 pub const MIN_TRIANGULATION_DEG: f64 = 2.0;

@@ -6,8 +6,8 @@
 use glam::DVec2;
 
 use super::detection::{BoardOrder, DetectFailure, Refinement};
-use crate::board::BoardSpec;
-use crate::scalar::ScalarImage;
+use crate::detect::board::BoardSpec;
+use crate::detect::scalar::ScalarImage;
 
 /// Puts `pts` and every variant of them (row-major, `board`'s cols × rows) into canonical
 /// order (see the front end's overview, step 6) and returns what fixed the order and the

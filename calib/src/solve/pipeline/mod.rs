@@ -7,8 +7,8 @@
 //!
 //! This module runs the steps and builds the [`Calibration`] with its warnings; `init` holds
 //! the per-camera OpenCV initialisation (and the model ↔ OpenCV conversions), `solves` the
-//! mono solves and the joint problem assembled from them; the pair tests are [`crate::pairs`],
-//! detection over a folder or session [`crate::views`].
+//! mono solves and the joint problem assembled from them; the pair tests are [`crate::solve::pairs`],
+//! detection over a folder or session [`crate::detect::views`].
 
 mod init;
 mod solves;
@@ -20,22 +20,22 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::board::{BoardSpec, Camera, FileProblem};
-use crate::camera::CameraModel;
-use crate::error::CalibError;
-use crate::frontend::Refinement;
-use crate::geometry::Rigid3;
-use crate::pairs::{
-    InconsistentPair, MAX_RESIDUAL_ROUNDS, PairEvidence, PairTest, PairThresholds, residual_fails,
-    rotation_diff_deg, transfer_test,
+use crate::detect::board::{BoardSpec, Camera, FileProblem};
+use crate::detect::frontend::Refinement;
+use crate::detect::session::SessionOptions;
+pub use crate::detect::views::{
+    DetectedSet, DetectedView, detect_folder, detect_session, detect_views, is_session,
 };
+use crate::error::CalibError;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
 use crate::progress::{self, Progress};
-use crate::session::SessionOptions;
-use crate::solve::{
+use crate::solve::lm::{
     ExtrinsicSigma, IntrinsicSigma, IterationLog, PoseFrame, RejectedCorner, SolveOptions, solve,
 };
-pub use crate::views::{
-    DetectedSet, DetectedView, detect_folder, detect_session, detect_views, is_session,
+use crate::solve::pairs::{
+    InconsistentPair, MAX_RESIDUAL_ROUNDS, PairEvidence, PairTest, PairThresholds, residual_fails,
+    rotation_diff_deg, transfer_test,
 };
 use init::init_camera;
 pub use init::{INIT_VIEWS, ViewCorners, cv_points, model_from_opencv, opencv_k_dist};
@@ -95,7 +95,7 @@ pub struct Calibration {
     pub pairs_used: usize,
     /// Pairs (views with the board in both cameras) before the consistency tests.
     pub pairs_found: usize,
-    /// Pairs left out of the extrinsic, with their figures ([`crate::pairs`]).
+    /// Pairs left out of the extrinsic, with their figures ([`crate::solve::pairs`]).
     pub pairs_inconsistent: Vec<InconsistentPair>,
     pub pair_thresholds: PairThresholds,
     pub warnings: Vec<String>,
@@ -122,10 +122,10 @@ fn tilt_deg(cam_from_board: &Rigid3) -> f64 {
 #[derive(Debug, Clone, Default)]
 pub struct PipelineOptions {
     pub solve: SolveOptions,
-    /// Thresholds of the pair-consistency tests ([`crate::pairs`]).
+    /// Thresholds of the pair-consistency tests ([`crate::solve::pairs`]).
     pub pairs: PairThresholds,
     /// Receives detection's progress (`None`: nobody watches); the binary passes
-    /// [`crate::progress_bars::ProgressBars`] to draw a bar.
+    /// [`crate::progress::bars::ProgressBars`] to draw a bar.
     pub progress: Option<Arc<dyn Progress>>,
 }
 
@@ -435,7 +435,7 @@ pub fn calibrate_detections(
         ));
     }
     // Per-camera results.
-    let res = crate::solve::residuals(&problem);
+    let res = crate::solve::lm::residuals(&problem);
     let mut out_cameras: [Option<CameraResult>; 2] = [None, None];
     let mut corner_res: [Vec<CornerResidual>; 2] = [Vec::new(), Vec::new()];
     let (mut all_ss, mut all_n) = (0.0, 0usize);

@@ -32,11 +32,11 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::board::Camera;
-use crate::camera::CameraModel;
+use crate::detect::board::Camera;
 use crate::error::CalibError;
-use crate::geometry::Rigid3;
-use crate::pipeline::{Calibration, CameraResult};
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
+use crate::solve::pipeline::{Calibration, CameraResult};
 
 fn rot_rows(t: &Rigid3) -> [[f64; 3]; 3] {
     let m = t.rotation_matrix();
@@ -117,7 +117,7 @@ fn q(s: &str) -> String {
     serde_json::to_string(s).unwrap_or_else(|_| "\"\"".into())
 }
 
-use crate::calfile::yaml_number as f;
+use crate::model::calfile::yaml_number as f;
 
 fn arr(v: &[f64]) -> String {
     format!(
@@ -145,7 +145,7 @@ pub fn calibration_yaml(c: &Calibration) -> String {
     let _ = writeln!(s, "cameras:");
     for r in c.cameras.iter().flatten() {
         let sg = r.sigma;
-        crate::calfile::write_camera_block(&mut s, r.camera.name(), &r.model);
+        crate::model::calfile::write_camera_block(&mut s, r.camera.name(), &r.model);
         let _ = writeln!(
             s,
             "    sigma: {{fx: {}, fy: {}, cx: {}, cy: {}, k1: {}, k2: {}, p1: {}, p2: {}, k3: {}}}",
@@ -163,7 +163,7 @@ pub fn calibration_yaml(c: &Calibration) -> String {
         let _ = writeln!(s, "    views_used: {}", r.views_used);
     }
     if let Some(t) = c.rgb_from_thermal {
-        crate::calfile::write_extrinsic_block(&mut s, &t);
+        crate::model::calfile::write_extrinsic_block(&mut s, &t);
         if let Some(sg) = c.extrinsic_sigma {
             let _ = writeln!(s, "  sigma_rotation_deg: {}", arr(&sg.rotation_deg));
             let _ = writeln!(s, "  sigma_translation_m: {}", arr(&sg.translation_m));
@@ -278,22 +278,22 @@ pub fn kalibr_camchain(c: &Calibration) -> String {
 }
 
 /// COLMAP `cameras.txt` (camera 1 = thermal, 2 = rgb when present), written by the workspace's
-/// one COLMAP codec ([`crate::colmap::cameras_text`]: PINHOLE, OPENCV or FULL_OPENCV by the
+/// one COLMAP codec ([`crate::model::colmap::cameras_text`]: PINHOLE, OPENCV or FULL_OPENCV by the
 /// distortion, cx, cy shifted by +0.5 to COLMAP's pixel-corner origin), so the trainer's and
 /// COLMAP's readers take it.
 pub fn colmap_cameras(c: &Calibration) -> String {
-    let cameras: Vec<crate::colmap::ColmapCamera> = c
+    let cameras: Vec<crate::model::colmap::ColmapCamera> = c
         .cameras
         .iter()
         .flatten()
-        .map(|r| crate::colmap::ColmapCamera {
+        .map(|r| crate::model::colmap::ColmapCamera {
             id: r.camera.index() as u32 + 1,
-            model_name: crate::colmap::colmap_params(&r.model).0.to_owned(),
+            model_name: crate::model::colmap::colmap_params(&r.model).0.to_owned(),
             model: r.model,
         })
         .collect();
     let mut s = String::from("# 1 = thermal, 2 = rgb (when present)\n");
-    s.push_str(&crate::colmap::cameras_text(&cameras));
+    s.push_str(&crate::model::colmap::cameras_text(&cameras));
     s
 }
 

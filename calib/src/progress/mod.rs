@@ -1,8 +1,12 @@
 //! Progress events of the library's long runs (detection over a folder or session, the
 //! session scan of the poses stage, the real-set benchmark): the library emits them, the
-//! binaries draw them (calib's and the trainer's through the adapter `progress_bars`).
+//! binaries draw them (calib's and the trainer's through the adapter [`bars`], feature `poses`,
+//! which no other library module uses).
 //!
 //! Thread-safe: detection reports from rayon's workers.
+
+#[cfg(feature = "poses")]
+pub mod bars;
 
 use std::sync::Arc;
 

@@ -5,15 +5,15 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use s3tir_calib::board::BoardSpec;
-use s3tir_calib::calfile::CalibrationFile;
-use s3tir_calib::frontend::detect_board;
+use s3tir_calib::detect::board::BoardSpec;
+use s3tir_calib::detect::frontend::detect_board;
+use s3tir_calib::detect::scalar::load_scalar;
+use s3tir_calib::model::calfile::CalibrationFile;
 use s3tir_calib::poses::board::BoardFiducial;
 use s3tir_calib::poses::frames::Stream;
 use s3tir_calib::poses::{self, Matcher, PosesOptions};
 use s3tir_calib::progress::Progress;
-use s3tir_calib::progress_bars::ProgressBars;
-use s3tir_calib::scalar::load_scalar;
+use s3tir_calib::progress::bars::ProgressBars;
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum MatcherArg {

@@ -6,12 +6,12 @@
 use glam::DVec3;
 
 use super::init::ViewCorners;
-use crate::board::Camera;
-use crate::camera::CameraModel;
-use crate::frontend::BoardDetection;
-use crate::geometry::Rigid3;
-use crate::solve::{Observation, PoseFrame, Problem, SolveOptions, solve};
-use crate::views::DetectedSet;
+use crate::detect::board::Camera;
+use crate::detect::frontend::BoardDetection;
+use crate::detect::views::DetectedSet;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
+use crate::solve::lm::{Observation, PoseFrame, Problem, SolveOptions, solve};
 
 /// One camera calibrated alone on its own views (robust LM with the joint solver's rejection).
 #[derive(Debug, Clone)]
@@ -68,7 +68,7 @@ pub(super) fn solve_mono(
             .collect(),
     };
     solve(&mut problem, opts);
-    let res = crate::solve::residuals(&problem);
+    let res = crate::solve::lm::residuals(&problem);
     let (mut ss, mut n, mut ss_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
     let mut view_rms = Vec::new();
     for (o, r) in problem.observations.iter().zip(&res) {
@@ -170,7 +170,7 @@ pub(super) fn joint_problem(
 /// Inlier RMS per solver view and camera (`[thermal, rgb]`, NaN where the camera is absent).
 pub(super) fn view_rms(p: &Problem) -> Vec<[f64; 2]> {
     let mut out = vec![[f64::NAN; 2]; p.poses.len()];
-    for (o, r) in p.observations.iter().zip(crate::solve::residuals(p)) {
+    for (o, r) in p.observations.iter().zip(crate::solve::lm::residuals(p)) {
         let (ss, n) = r
             .iter()
             .zip(&o.inlier)

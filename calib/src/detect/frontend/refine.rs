@@ -1,5 +1,5 @@
 //! Sub-pixel corner refinement (the front end's step 4): the unquantised float image,
-//! `cornerSubPix` on it, the saddle-model fit of [`crate::saddle`], and the set of refinements
+//! `cornerSubPix` on it, the saddle-model fit of [`crate::detect::saddle`], and the set of refinements
 //! of one board with the one kept (the smallest planar fit).
 
 use glam::DVec2;
@@ -9,9 +9,9 @@ use opencv::prelude::*;
 
 use super::detection::Refinement;
 use super::grid::{median_spacing, min_spacing, planar_fit_rms};
+use crate::detect::saddle::EdgeWidth;
+use crate::detect::scalar::{ScalarImage, quantiles};
 use crate::error::{CalibError, cv};
-use crate::saddle::EdgeWidth;
-use crate::scalar::{ScalarImage, quantiles};
 
 /// The saddle fit runs only on boards whose median corner spacing is below this (px): on the
 /// simulated Lepton boards (5–9 px squares) it takes the corner error from 0.19 px
@@ -19,7 +19,7 @@ use crate::scalar::{ScalarImage, quantiles};
 /// 15–40 px squares) it never ranked first and cost 0.2 s per image.
 pub const SADDLE_MAX_SPACING_PX: f64 = f64::INFINITY;
 
-/// Float copy of the image stretched like [`crate::scalar::stretch_to_u8`] (0..255, not
+/// Float copy of the image stretched like [`crate::detect::scalar::stretch_to_u8`] (0..255, not
 /// quantised): the image the refinements run on, and quantised, the one the detectors search.
 pub(super) fn stretched_f32(img: &ScalarImage) -> Result<Mat, CalibError> {
     let (a, b) = quantiles(&img.values, 0.005, 0.995);
@@ -111,7 +111,7 @@ pub(super) fn refine(
         .collect())
 }
 
-/// Refines every corner by the saddle-model fit ([`crate::saddle`]) on the float image at its
+/// Refines every corner by the saddle-model fit ([`crate::detect::saddle`]) on the float image at its
 /// own resolution, starting from the `cornerSubPix` corner and, when that fit is rejected, from
 /// the detector's unrefined corner (`raw`); the grid directions and spacing come from `raw`
 /// (a `cornerSubPix` corner that slid towards a neighbour would shrink the window). Corners
@@ -128,7 +128,7 @@ fn saddle_refine(
     let values = float_img
         .data_typed::<f32>()
         .map_err(cv("float image data"))?;
-    let img = crate::saddle::FloatImage {
+    let img = crate::detect::saddle::FloatImage {
         width_px,
         height_px,
         values,
@@ -207,7 +207,7 @@ fn saddle_refine(
     }
     let fit = |i: usize, start: DVec2, width: EdgeWidth| {
         let l = &local[i];
-        crate::saddle::fit_saddle(img, start, l.step_row, l.step_col, width)
+        crate::detect::saddle::fit_saddle(img, start, l.step_row, l.step_col, width)
     };
     // The image's edge width: median over (at most 12, spread over the board) corners of a
     // short free-width fit.

@@ -9,7 +9,7 @@
 //!   rotation increment `exp([δω]×)·R` and an additive translation.
 //! * **Jacobian.** Central differences per parameter block (each residual touches at most
 //!   9 + 6 + 6 parameters); block-sparse normal equations solved through the Schur complement
-//!   onto the ≤ 24 global parameters ([`crate::schur`]: linear in the number of views),
+//!   onto the ≤ 24 global parameters ([`crate::solve::schur`]: linear in the number of views),
 //!   Marquardt damping `(H + λ·diag H) δ = −g`.
 //! * **Robust loss.** Huber on the corner's residual length with threshold `huber_px`
 //!   (IRLS weights); after convergence corners with |r| > max(k·σ of their camera, 0.1 px)
@@ -38,12 +38,12 @@ use std::time::Instant;
 use glam::{DQuat, DVec2, DVec3};
 use nalgebra::DVector;
 
-use crate::schur::{BlockNormal, ResidualJacobian};
+use crate::solve::schur::{BlockNormal, ResidualJacobian};
 use serde::Serialize;
 
-use crate::board::Camera;
-use crate::camera::{BrownConrady, CameraModel, Intrinsics};
-use crate::geometry::Rigid3;
+use crate::detect::board::Camera;
+use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::model::geometry::Rigid3;
 
 /// Frame of a view's board pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

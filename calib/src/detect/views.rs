@@ -1,7 +1,7 @@
 //! Board detection over a whole board folder or recorded session: every image decoded and
 //! searched (in parallel), the outcomes collected in listing order with a stated reason for
 //! every image that gives no board, and the thermal corner order made to agree with RGB.
-//! Single-image detection is [`crate::frontend`]; the calibration pipeline solves from the
+//! Single-image detection is [`crate::detect::frontend`]; the calibration pipeline solves from the
 //! [`DetectedSet`].
 
 use std::path::{Path, PathBuf};
@@ -11,13 +11,15 @@ use glam::DVec2;
 
 use rayon::prelude::*;
 
-use crate::board::ThermalPolarity;
-use crate::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
+use crate::detect::board::ThermalPolarity;
+use crate::detect::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
+use crate::detect::frontend::{
+    BoardDetection, BoardOrder, DetectFailure, detect_board, rotate_180,
+};
+use crate::detect::scalar::{ScalarImage, SourceKind, load_scalar};
+use crate::detect::session::{SessionOptions, SessionViews};
 use crate::error::CalibError;
-use crate::frontend::{BoardDetection, BoardOrder, DetectFailure, detect_board, rotate_180};
 use crate::progress::Progress;
-use crate::scalar::{ScalarImage, SourceKind, load_scalar};
-use crate::session::{SessionOptions, SessionViews};
 
 /// One view's files and detections.
 #[derive(Debug, Clone)]
@@ -81,7 +83,7 @@ pub fn detect_folder(dir: &Path, progress: &dyn Progress) -> Result<DetectedSet,
     )
 }
 
-/// Reads a recorded session (see [`crate::session`]) and detects the board described by
+/// Reads a recorded session (see [`crate::detect::session`]) and detects the board described by
 /// `board_toml` in its views.
 pub fn detect_session(
     session: &Path,
@@ -95,7 +97,7 @@ pub fn detect_session(
         images,
         mut problems,
         notes,
-    } = crate::session::read_views(session, session_opts)?;
+    } = crate::detect::session::read_views(session, session_opts)?;
     let mut set = detect_views(
         session,
         board,
@@ -390,7 +392,7 @@ fn resolve_thermal_order(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frontend::Refinement;
+    use crate::detect::frontend::Refinement;
 
     /// A whole 9x5 board seen fronto-parallel, 10 px squares, corner 0 at `origin`, the corner
     /// index growing along `+x`/`+y` (`turned`: along `-x`/`-y`).

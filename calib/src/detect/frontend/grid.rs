@@ -43,7 +43,7 @@ pub(super) fn planar_fit_rms(corners: &[DVec2], cols: usize) -> Result<f64, Cali
     let grid: Vec<DVec2> = (0..corners.len())
         .map(|i| DVec2::new((i % cols) as f64, (i / cols) as f64))
         .collect();
-    crate::homography::planar_fit_rms(&grid, corners)
+    crate::detect::homography::planar_fit_rms(&grid, corners)
 }
 
 /// Smallest distance between neighbouring corners along rows (px).

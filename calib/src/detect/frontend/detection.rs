@@ -65,7 +65,7 @@ pub enum Refinement {
     Detector,
     /// `cornerSubPix` on the unquantised stretched image.
     CornerSubPix,
-    /// The blurred-saddle model fit of [`crate::saddle`].
+    /// The blurred-saddle model fit of [`crate::detect::saddle`].
     Saddle,
 }
 

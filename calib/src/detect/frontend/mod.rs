@@ -1,10 +1,10 @@
 //! Board detection front end shared by thermal and RGB images.
 //!
-//! 1. **Decode to a scalar image** ([`crate::scalar::load_scalar`]): 16-bit counts kept, 8-bit
+//! 1. **Decode to a scalar image** ([`crate::detect::scalar::load_scalar`]): 16-bit counts kept, 8-bit
 //!    grey, photos as luminance, pseudo-colour thermal images inverted through a palette.
 //! 2. **Robust 8-bit normalisation**: a percentile stretch (0.5 % → 0, 99.5 % → 255), so a
 //!    hot object in a 16-bit frame does not squash the board's few counts of contrast
-//!    ([`crate::scalar::stretch_to_u8`]; the float copy the refinements use: `refine`).
+//!    ([`crate::detect::scalar::stretch_to_u8`]; the float copy the refinements use: `refine`).
 //! 3. **Detection** (`search`): small images (longest side < 480 px, e.g. Lepton 160×120) are
 //!    upscaled by an integer factor with cubic interpolation for the search, large ones (> 1000 px)
 //!    searched at half size; if nothing is found, once more at the next finer scale (one step more
@@ -20,7 +20,7 @@
 //!    unquantised float copy of the stretched image (at full resolution, or cubic-upscaled
 //!    like the search for small images), window half-size 0.4 × the smallest corner spacing
 //!    (0.5 for upscaled small images; a move of more than a quarter square is discarded); and
-//!    the saddle-model fit of [`crate::saddle`] on the float image at its own resolution (the
+//!    the saddle-model fit of [`crate::detect::saddle`] on the float image at its own resolution (the
 //!    image's edge width is the median of short free-width fits on up to 12 corners, then
 //!    every corner is fitted with that width held fixed, starting from its `cornerSubPix`
 //!    position, else the detector's, else where its neighbours put it). No refinement wins
@@ -43,7 +43,7 @@
 //!    detections are collected, `views`). For colour-symmetric boards (cols + rows even) the 180°
 //!    choice falls back to "corner 0 nearest the image's top-left", which is only consistent
 //!    between cameras mounted the same way up.
-//! 7. **AprilTags** (boards whose `board.toml` lists `apriltag_ids`, see [`crate::tagboard`]):
+//! 7. **AprilTags** (boards whose `board.toml` lists `apriltag_ids`, see [`crate::detect::tagboard`]):
 //!    the tags are decoded in the 8-bit image *before* step 3 and painted over for every
 //!    sub-pixel refinement. Where any of the board's tags is seen, the board is grown from its
 //!    tags (whole or partial: [`BoardDetection::corner_ids`]) and steps 3–6 are skipped:
@@ -66,10 +66,10 @@ use opencv::calib3d;
 use opencv::core::{Point2f, Size};
 use opencv::prelude::*;
 
-use crate::board::BoardSpec;
-use crate::detect::Detector;
+use crate::detect::board::BoardSpec;
+use crate::detect::chessboard::Detector;
+use crate::detect::scalar::ScalarImage;
 use crate::error::{CalibError, cv};
-use crate::scalar::ScalarImage;
 pub use detection::{BoardDetection, BoardOrder, DetectFailure, Refinement, rotate_180};
 use grid::{min_spacing, planar_fit_rms, roughness};
 pub use refine::SADDLE_MAX_SPACING_PX;
@@ -102,16 +102,16 @@ pub fn detect_board(
     // directly. The decoded tags are painted over with the paper around them before any
     // sub-pixel refinement (a tag's border inside a refinement window pulls the corner).
     let tags = if board.has_tags() {
-        crate::tagboard::find_tags(&grey)?
+        crate::detect::tagboard::find_tags(&grey)?
     } else {
         Vec::new()
     };
-    let float_img = crate::tagboard::mask_tags(stretched, board, &tags)?;
+    let float_img = crate::detect::tagboard::mask_tags(stretched, board, &tags)?;
     let mut from_tags = None;
     if tags.iter().any(|t| board.tag_corners_sq(t.id).is_some()) {
         let sample = |p: DVec2| img.sample(p);
         let size = (img.width_px, img.height_px);
-        match crate::tagboard::partial_from_tags(&sample, size, &float_img, board, &tags)? {
+        match crate::detect::tagboard::partial_from_tags(&sample, size, &float_img, board, &tags)? {
             Ok(found) => {
                 let mut refined = Refined {
                     fit: found.planar_fit_px,
@@ -234,9 +234,9 @@ pub fn detect_board(
         if !board.has_tags() {
             return Ok(Err(DetectFailure::NotFound));
         }
-        return Ok(Err(DetectFailure::NoPartial(
-            from_tags.unwrap_or_else(|| crate::tagboard::no_board_tags(&tags)),
-        )));
+        return Ok(Err(DetectFailure::NoPartial(from_tags.unwrap_or_else(
+            || crate::detect::tagboard::no_board_tags(&tags),
+        ))));
     };
     let rough = roughness(&pts, cols, rows);
     if min_spacing(&pts, cols) < 2.0 {
@@ -271,7 +271,12 @@ pub fn detect_board(
         order,
     };
     if board.has_tags() {
-        match crate::tagboard::order_by_tags(board, &det.corners_px, &det.corner_ids, &tags)? {
+        match crate::detect::tagboard::order_by_tags(
+            board,
+            &det.corners_px,
+            &det.corner_ids,
+            &tags,
+        )? {
             Err(why) => return Ok(Err(DetectFailure::Ambiguous(why))),
             Ok(Some(turn)) => {
                 if turn {

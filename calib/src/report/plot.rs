@@ -15,7 +15,7 @@ use plotters::style::FontStyle;
 pub const FONT_FAMILY: &str = "sans-serif";
 
 /// DejaVu Sans, bundled (licence beside it in `assets/fonts/`).
-static FONT_TTF: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+static FONT_TTF: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {

@@ -35,8 +35,8 @@
 use glam::{DQuat, DVec2, DVec3};
 use serde::Serialize;
 
-use crate::camera::CameraModel;
-use crate::geometry::Rigid3;
+use crate::model::camera::CameraModel;
+use crate::model::geometry::Rigid3;
 
 /// Thresholds of the two tests (module docs): one residual rule for both.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -302,13 +302,13 @@ mod tests {
         CameraModel {
             width_px: 640,
             height_px: 480,
-            intrinsics: crate::camera::Intrinsics {
+            intrinsics: crate::model::camera::Intrinsics {
                 fx: 650.0,
                 fy: 650.0,
                 cx: 320.0,
                 cy: 240.0,
             },
-            distortion: crate::camera::BrownConrady::default(),
+            distortion: crate::model::camera::BrownConrady::default(),
         }
     }
 

@@ -36,8 +36,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use crate::detect::scalar::Palette;
 use crate::error::CalibError;
-use crate::scalar::Palette;
 
 /// Contents of `board.toml`.
 #[derive(Debug, Clone, Serialize, Deserialize)]

@@ -15,8 +15,8 @@ use glam::{DMat3, DQuat, DVec3};
 use thiserror::Error;
 use yaml_rust2::{Yaml, YamlLoader};
 
-use crate::camera::{BrownConrady, CameraModel, Intrinsics};
-use crate::geometry::Rigid3;
+use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::model::geometry::Rigid3;
 
 /// The format line every calibration file carries.
 pub const FORMAT: &str = "s3tir-calibration/1";

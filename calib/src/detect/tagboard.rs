@@ -1,4 +1,4 @@
-//! AprilTags on the calibration board (layout in [`crate::board`]): board identity, corner
+//! AprilTags on the calibration board (layout in [`crate::detect::board`]): board identity, corner
 //! order, and the corners of a partly visible board.
 //!
 //! - **Identity and order** ([`order_by_tags`]): a whole-board detection is mapped back to
@@ -36,9 +36,9 @@ use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use crate::board::BoardSpec;
+use crate::detect::board::BoardSpec;
+use crate::detect::homography::{Homography, planar_fit_rms};
 use crate::error::{CalibError, cv};
-use crate::homography::{Homography, planar_fit_rms};
 use crate::tags::{TagConfig, TagDetection, TagDetector, tag36h11_cells};
 
 /// A decoded tag matches its square when its centre maps within this many squares of the

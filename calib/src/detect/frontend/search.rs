@@ -10,7 +10,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use super::grid::{median_spacing, planar_fit_rms};
-use crate::detect::{Detector, mat_from_luma};
+use crate::detect::chessboard::{Detector, mat_from_luma};
 use crate::error::{CalibError, cv};
 
 /// An SB detection whose corners are further than this fraction of the corner spacing (RMS)

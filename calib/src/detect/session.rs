@@ -32,9 +32,9 @@ use s3tir_capture::session::{
     FrameWindow, SessionItem, SessionSequences, parse_recorded, read_session,
 };
 
-use crate::board::{Camera, FileProblem, ViewFiles};
+use crate::detect::board::{Camera, FileProblem, ViewFiles};
+use crate::detect::scalar::{ScalarImage, SourceKind, luminance};
 use crate::error::CalibError;
-use crate::scalar::{ScalarImage, SourceKind, luminance};
 
 /// How frames are taken from a session.
 #[derive(Debug, Clone, Copy, PartialEq)]

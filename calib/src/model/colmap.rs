@@ -21,8 +21,8 @@ use std::path::{Path, PathBuf};
 use glam::{DQuat, DVec3};
 use thiserror::Error;
 
-use crate::camera::{BrownConrady, CameraModel, Intrinsics};
-use crate::geometry::Rigid3;
+use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::model::geometry::Rigid3;
 
 /// Errors of reading or writing a COLMAP model. Each names the file (and line, in text files).
 #[derive(Debug, Error)]

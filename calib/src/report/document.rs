@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::plot::PngCanvas;
+use crate::report::plot::PngCanvas;
 
-use crate::board::Camera;
+use crate::detect::board::Camera;
 use crate::error::CalibError;
-use crate::pipeline::{Calibration, CameraResult};
+use crate::solve::pipeline::{Calibration, CameraResult};
 
 /// The error of writing `path`, keeping its cause.
 fn write_err<E: std::error::Error + Send + Sync + 'static>(

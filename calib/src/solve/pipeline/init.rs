@@ -6,9 +6,9 @@ use glam::{DQuat, DVec2, DVec3};
 use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
 
-use crate::camera::{BrownConrady, CameraModel, Intrinsics};
 use crate::error::{CalibError, cv};
-use crate::geometry::Rigid3;
+use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
+use crate::model::geometry::Rigid3;
 
 /// A rigid transform from OpenCV's rotation vector and translation.
 fn rigid_from_rvec_tvec(r: &Mat, t: &Mat) -> Result<Rigid3, CalibError> {
