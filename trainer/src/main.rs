@@ -63,8 +63,8 @@ enum Command {
     /// Benchmark training steps/s: Vulkan backend vs CPU backend on the same scene and budget,
     /// full s3tir mode vs 3dgs mode, and the GPU time per kernel (timestamp queries).
     Bench(BenchArgs),
-    /// Evaluate a run on its held-out views: PSNR, SSIM and (radiometric data) kelvin MAE/RMSE,
-    /// per view and mean.
+    /// Evaluate a run on its held-out views: PSNR, SSIM, LPIPS (when its weights are installed)
+    /// and (radiometric data) kelvin MAE/RMSE, per view and mean.
     Eval(EvalArgs),
     /// The TGA-GS ablation on a dataset with truth (`s3tir-firmware-sim scene --rgb-scale K`):
     /// four runs with the training options given — thermal-only, joint, joint without the

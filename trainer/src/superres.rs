@@ -17,7 +17,7 @@
 //! render). The sensor's optical blur is not modelled in `D` (the simulated Lepton's PSF,
 //! σ 0.45 px, made the fused image 0.1 dB better in PSNR and 0.01 worse in SSIM: not worth a
 //! parameter a rig would have to know). What TGA-GS's learned SR networks add beyond this is
-//! in the README (none is built: no weights can be fetched on a rig).
+//! in `trainer/README.md` (none is built: no weights can be fetched on a rig).
 
 /// Back-projection iterations: the first removes most of the residual (measured: MAE and
 /// SSIM best after one or two, PSNR flat after two).
