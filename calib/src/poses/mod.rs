@@ -76,7 +76,9 @@
 //! Around the steps: `rig` takes the calibration (given or attached to the session) and checks
 //! it against the session's frames, `output` keeps the output folder safe as above, `report`
 //! holds what the stage did ([`PosesReport`]) and the lines the CLIs print ([`summary`]);
-//! [`session_to_dataset`] runs it all.
+//! `stages` has one function per step above, each taking what the earlier ones returned
+//! (checked inputs, keyframes, fiducials, registration, track, scale, views, the dataset);
+//! [`session_to_dataset`] runs them in order and builds the report.
 
 pub mod agreement;
 pub mod board;
@@ -89,10 +91,10 @@ mod report;
 mod rig;
 pub mod select;
 pub mod sfm;
+mod stages;
 #[cfg(test)]
 mod tests;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -100,7 +102,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::model::calfile::CalibrationFile;
-use crate::progress::{self, Progress};
+use crate::progress::Progress;
 use output::{finish_output, start_output};
 pub use report::{PosesReport, StageTimes, summary};
 pub use rig::{RigModels, attached_calibration, rig_models};
@@ -309,399 +311,60 @@ pub fn session_to_dataset(
 ) -> Result<PosesReport, PosesError> {
     let t_all = std::time::Instant::now();
     let mut times = StageTimes::default();
-
-    let t = std::time::Instant::now();
-    let scan = frames::scan_session(session, progress::or_silent(&opts.progress))?;
-    times.scan_s = t.elapsed().as_secs_f64();
-    if scan.thermal.is_empty() {
-        return Err(PosesError::Nothing {
-            path: session.to_path_buf(),
-            reason: "no readable thermal frame".into(),
-        });
-    }
-    let attached;
-    let cal = match cal {
-        Some(c) => c,
-        None => {
-            attached = attached_calibration(&scan)?;
-            &attached
-        }
-    };
-    let rig = rig_models(cal, &scan)?;
-    // `--with-rgb` needs RGB frames: refused before anything is written (dataset module docs).
-    let rgb_camera = match (opts.with_rgb, rig.rgb) {
-        (false, _) => None,
-        (true, Some((camera, _))) if !scan.rgb.is_empty() => Some(camera),
-        (true, _) => {
-            return Err(PosesError::Nothing {
-                path: session.to_path_buf(),
-                reason: "--with-rgb asks for the posed RGB keyframes, but the session records no (readable) RGB frame: a thermal-only session gives a thermal dataset, pose it without --with-rgb".into(),
-            });
-        }
-    };
-    // One fiducial map: the tags' (world = the map's) or the board's (world = the board's).
-    let tag_map = match (&opts.tags, &opts.board) {
-        (Some(tags), Some(board)) => {
-            return Err(PosesError::Tags {
-                path: tags.clone(),
-                reason: format!(
-                    "give either an AprilTag map or the board ({}), not both: their worlds differ",
-                    board.path.display()
-                ),
-            });
-        }
-        (Some(tags), None) => Some(fiducials::TagMap::read(tags)?),
-        (None, Some(board)) => Some(board.as_tag_map()),
-        (None, None) => None,
-    };
-    // What the fiducials are called in the report.
-    let (fiducial, fiducial_source) = match &opts.board {
-        Some(_) => ("the board", "board"),
-        None => ("AprilTags", "apriltags"),
-    };
-    // With a tag layout COLMAP may not be needed: checked when it is.
-    let may_skip_colmap = tag_map
-        .as_ref()
-        .is_some_and(|m| m.has_layout() && opts.tag_poses);
-    if opts.user_model.is_none() && !may_skip_colmap {
-        sfm::check_colmap(&opts.colmap)?;
-    }
+    let inputs = stages::check_inputs(session, cal, opts, &mut times)?;
     // Only now (inputs checked) is anything created: in OUT.partial, renamed to OUT at the end,
     // so a failed run leaves its COLMAP logs there and never a half dataset under OUT.
     let final_out = out;
     let out = &start_output(final_out)?;
-
+    let keys = stages::choose_keyframes(&inputs, out, opts, &mut times)?;
+    let seen = stages::find_fiducials(&inputs, &keys, opts, &mut times)?;
+    let reg = stages::register_keyframes(&inputs, &keys, &seen, opts, &mut times)?;
     let t = std::time::Instant::now();
-    let sfm_stream = if rig.rgb.is_some() && !scan.rgb.is_empty() {
-        frames::Stream::Rgb
-    } else {
-        frames::Stream::Thermal
-    };
-    let sfm_frames = match sfm_stream {
-        frames::Stream::Rgb => &scan.rgb,
-        frames::Stream::Thermal => &scan.thermal,
-    };
-    let mut candidates = select::thermal_candidates(&scan.thermal, opts);
-    if sfm_stream == frames::Stream::Rgb {
-        select::fit_keyframe_budget(&mut candidates, opts.max_keyframes / 2);
-    }
-    let keyframes = match sfm_stream {
-        // The RGB frames around each thermal candidate: its pose is interpolated over one RGB
-        // period, not across a hand's jitter.
-        frames::Stream::Rgb => {
-            select::keyframes_near(sfm_frames, &candidates.0, opts.max_sync_s, opts)
-        }
-        frames::Stream::Thermal => select::keyframes(sfm_frames, opts),
-    };
-    times.keyframes_s = t.elapsed().as_secs_f64();
-    if keyframes.len() < 5 {
-        return Err(PosesError::TooFewRegistered {
-            registered: 0,
-            keyframes: keyframes.len(),
-            needed: 5,
-            workspace: out.join("colmap"),
-        });
-    }
-
-    let sfm_camera = match (sfm_stream, rig.rgb) {
-        (frames::Stream::Rgb, Some((rgb, _))) => rgb,
-        _ => rig.thermal,
-    };
-    let workspace = out.join("colmap");
-    frames::write_keyframes(session, sfm_stream, &keyframes, &workspace.join("images"))?;
-    let needed = ((keyframes.len() as f64 * opts.min_registered).ceil() as usize).max(5);
-
-    // AprilTags in the keyframes: PnP poses (fast path) and, for COLMAP's world, the scale.
-    let t = std::time::Instant::now();
-    let seen = match (&tag_map, &opts.board) {
-        (Some(_), Some(board)) => {
-            board.detect_in_keyframes(&workspace.join("images"), sfm_stream, &keyframes)?
-        }
-        (Some(m), None) => fiducials::detect_in_keyframes(
-            &workspace.join("images"),
-            sfm_stream,
-            &keyframes,
-            m.has_layout().then(|| m.corners.keys().copied().collect()),
-        )?,
-        (None, _) => Vec::new(),
-    };
-    let mut tag_posed: BTreeMap<u64, fiducials::TagPose> = match &tag_map {
-        Some(m) if may_skip_colmap && opts.user_model.is_none() => seen
-            .iter()
-            .filter_map(|s| Some((s.monotonic_ns, fiducials::pnp(m, &sfm_camera, &s.tags)?)))
-            .collect(),
-        _ => BTreeMap::new(),
-    };
-    let jumps: std::collections::BTreeSet<u64> =
-        fiducials::drop_jumps(&mut tag_posed).into_iter().collect();
-    times.tags_s = t.elapsed().as_secs_f64();
-    let fast_path = !tag_posed.is_empty() && tag_posed.len() >= needed;
-    if may_skip_colmap && opts.user_model.is_none() && !fast_path {
-        tracing::info!(
-            posed = tag_posed.len(),
-            keyframes = keyframes.len(),
-            needed,
-            "too few keyframes are posed by {fiducial}: structure from motion runs"
-        );
-    }
-
-    let (pose_source, registered, sfm_points, sfm_jumps) = if fast_path {
-        let registered: Vec<(u64, crate::model::geometry::Rigid3)> = tag_posed
-            .iter()
-            .map(|(t, p)| (*t, p.world_from_cam))
-            .collect();
-        (fiducial_source, registered, Vec::new(), Vec::new())
-    } else {
-        let model = match &opts.user_model {
-            Some(dir) => {
-                crate::model::colmap::read_model(dir).map_err(|source| PosesError::Model {
-                    path: dir.clone(),
-                    source,
-                })?
-            }
-            None => {
-                if may_skip_colmap {
-                    sfm::check_colmap(&opts.colmap)?;
-                }
-                sfm::run_colmap(&workspace, &sfm_camera, keyframes.len(), opts, &mut times)?
-            }
-        };
-        let source = if opts.user_model.is_some() {
-            "user model"
-        } else {
-            "colmap"
-        };
-        let mut registered = sfm::registered_keyframes(&model, sfm_frames);
-        let positions: Vec<[f64; 3]> = model.points.iter().map(|p| p.position_m).collect();
-        let jumps = sfm::drop_jumps(&mut registered, &positions);
-        if !jumps.is_empty() {
-            tracing::warn!(
-                dropped = jumps.len(),
-                registered = registered.len(),
-                "registered keyframes whose poses jump from their neighbours' in time are not used"
-            );
-        }
-        (source, registered, model.points, jumps)
-    };
-    if registered.len() < needed {
-        return Err(PosesError::TooFewRegistered {
-            registered: registered.len(),
-            keyframes: keyframes.len(),
-            needed,
-            workspace,
-        });
-    }
-
-    let t = std::time::Instant::now();
-    // With RGB, a thermal frame is interpolated only between its own bracketing keyframes
-    // (step 2): across a missing one, a hand's roll makes the slerp wrong by degrees (2.3°
-    // on the simulated walk when a bracket keyframe saw too few tags).
-    let max_gap_s = match sfm_stream {
-        frames::Stream::Rgb => opts.max_gap_s.min(2.0 * opts.max_sync_s + 0.02),
-        frames::Stream::Thermal => opts.max_gap_s,
-    };
-    let track = interp::Track::new(&registered, max_gap_s);
+    let track = stages::track(&keys, &reg, opts);
     times.interpolate_s = t.elapsed().as_secs_f64();
-
     let t = std::time::Instant::now();
-    // Scene depth for thinning: the SfM points, or the mapped tags on the fast path.
-    let points: Vec<[f64; 3]> = if fast_path {
-        tag_map
-            .iter()
-            .flat_map(|m| m.corners.values().flatten().map(|p| p.to_array()))
-            .collect()
-    } else {
-        sfm_points.iter().map(|p| p.position_m).collect()
-    };
-    // The model against the tags' own PnP poses (module docs, step 3).
-    let tag_agreement = match &tag_map {
-        Some(m) if !fast_path => {
-            let pnp: BTreeMap<u64, fiducials::TagPose> = seen
-                .iter()
-                .filter_map(|s| Some((s.monotonic_ns, fiducials::pnp(m, &sfm_camera, &s.tags)?)))
-                .collect();
-            agreement::rotation_agreement(&registered, &pnp)
-        }
-        _ => None,
-    };
-    if let Some(a) = tag_agreement.as_ref().filter(|a| !a.agrees) {
-        tracing::warn!(
-            median_deg = a.median_deg,
-            disagreeing = a.disagreeing,
-            keyframes = a.keyframes,
-            "the structure-from-motion model disagrees with the poses from {fiducial}"
-        );
-    }
-    let tag_scale = match &tag_map {
-        Some(m) if !fast_path => {
-            let by_time: BTreeMap<u64, crate::model::geometry::Rigid3> =
-                registered.iter().copied().collect();
-            fiducials::scale_from_tags(m, &sfm_camera, &seen, &by_time)
-        }
-        _ => None,
-    };
-    let (metres_per_unit, scale_source) = match (fast_path, opts.metres_per_unit, &tag_scale) {
-        (true, _, _) => (
-            Some(1.0),
-            format!(
-                "metric: the keyframes were posed by {fiducial} ({}; metres)",
-                tag_map.as_ref().map_or(Path::new(""), |m| &m.path).display()
-            ),
-        ),
-        (false, Some(m), _) => (Some(m), format!("given: {m} m per world unit")),
-        (false, None, Some(ts)) => (
-            Some(ts.metres_per_unit),
-            format!(
-                "measured from {fiducial} ({}): {:.5} m per world unit ({} {}, {} lengths, spread {:.2} %)",
-                ts.method,
-                ts.metres_per_unit,
-                ts.tags,
-                if opts.board.is_some() { "squares" } else { "tags" },
-                ts.lengths,
-                100.0 * ts.spread
-            ),
-        ),
-        (false, None, None) => (
-            None,
-            match (rig.rgb, &tag_map) {
-                (None, _) => {
-                    "unknown: thermal-only structure from motion, world units are COLMAP's (no lever arm to scale)".to_owned()
-                }
-                (Some((_, e)), map) => format!(
-                    "unknown: COLMAP's world has no metric scale{}, so the {:.3} m thermal-to-RGB lever arm is not applied (thermal centre = RGB centre); pass --metres-per-unit or --tags to apply it",
-                    if map.is_some() {
-                        " (no tag was seen in three registered keyframes with parallax)"
-                    } else {
-                        ""
-                    },
-                    e.translation_m.length()
-                ),
-            },
-        ),
-    };
-    let units_per_metre = metres_per_unit.map_or(0.0, |m| 1.0 / m);
+    let scale = stages::scale(&inputs, &keys, &seen, &reg, opts);
     times.scale_s = t.elapsed().as_secs_f64();
-
-    // rgb_from_thermal with its translation in world units: world_from_thermal =
-    // world_from_rgb(t) ∘ sfm_from_thermal.
-    let sfm_from_thermal = match rig.rgb {
-        Some((_, rgb_from_thermal)) => crate::model::geometry::Rigid3::new(
-            rgb_from_thermal.rotation,
-            rgb_from_thermal.translation_m * units_per_metre,
-        ),
-        None => crate::model::geometry::Rigid3::IDENTITY,
-    };
-    let (views, mut decisions, skipped) =
-        select::thermal_views(&candidates, &track, &sfm_from_thermal, &points, opts);
-    let registered_at: std::collections::BTreeSet<u64> = registered.iter().map(|r| r.0).collect();
-    decisions.extend(keyframes.iter().map(|k| select::FrameDecision {
-        stream: sfm_stream.name(),
-        sequence: k.sequence,
-        monotonic_ns: k.monotonic_ns,
-        decision: match (fast_path, tag_posed.get(&k.monotonic_ns)) {
-            (true, Some(p)) => format!(
-                "keyframe: posed by {fiducial} ({} {}, corner rms {:.2} px)",
-                p.tags,
-                if opts.board.is_some() { "squares" } else { "tags" },
-                p.rms_px
-            ),
-            (true, None) if jumps.contains(&k.monotonic_ns) => format!(
-                "keyframe: not posed (its pose from {fiducial} is more than {}° or {} m off its neighbours' in time)",
-                fiducials::OUTLIER_DEG,
-                fiducials::OUTLIER_M
-            ),
-            (true, None) => format!(
-                "keyframe: not posed (fewer than {} mapped {} found, or their corners fit no pose within {} px)",
-                fiducials::MIN_PNP_TAGS,
-                if opts.board.is_some() { "board squares" } else { "AprilTags" },
-                fiducials::MAX_PNP_RMS_PX
-            ),
-            (false, _) if registered_at.contains(&k.monotonic_ns) => {
-                "keyframe: registered by structure from motion".into()
-            }
-            (false, _) if sfm_jumps.contains(&k.monotonic_ns) => format!(
-                "keyframe: registered by structure from motion, not used (its pose is more than {}° or its centre more than the larger of its neighbours' distance apart and {} × the scene depth off their interpolation in time)",
-                sfm::OUTLIER_DEG,
-                sfm::OUTLIER_DEPTH
-            ),
-            (false, _) => "keyframe: not registered by structure from motion".into(),
-        },
-    }));
-    decisions.sort_by_key(|d| (d.monotonic_ns, d.stream));
-    if views.iter().filter(|v| !v.held_out).count() == 0 {
-        return Err(PosesError::Nothing {
-            path: session.to_path_buf(),
-            reason: format!(
-                "no thermal frame falls between registered keyframes ({} registered of {})",
-                registered.len(),
-                keyframes.len()
-            ),
-        });
-    }
-
-    // `--with-rgb`: the track's own keys, the poses the thermal views were interpolated from
-    // (one world for both sets; dataset module docs).
-    let rgb_views = match rgb_camera {
-        Some(_) => select::rgb_views(&track, &scan.rgb, &views, opts.max_sync_s),
-        None => Vec::new(),
-    };
-    if rgb_camera.is_some() {
-        let written: BTreeMap<u64, bool> = rgb_views
-            .iter()
-            .map(|v| (v.monotonic_ns, v.held_out))
-            .collect();
-        for d in decisions.iter_mut().filter(|d| d.stream == "rgb") {
-            match written.get(&d.monotonic_ns) {
-                Some(true) => d.decision.push_str("; held-out RGB view"),
-                Some(false) => d.decision.push_str("; RGB view"),
-                None => {}
-            }
-        }
-    }
-
+    let views = stages::select_views(&inputs, &keys, &seen, &reg, &track, &scale, opts)?;
     let t = std::time::Instant::now();
-    let fresh = dataset::fresh_after_ffc(&scan.thermal, &views);
-    let rgb = rgb_camera.as_ref().map(|camera| dataset::RgbViews {
-        camera,
-        views: &rgb_views,
-    });
-    dataset::write(session, out, &rig.thermal, &views, rgb, &sfm_points, &fresh)?;
+    stages::write_dataset(out, &inputs, &views, &reg)?;
     times.write_s = t.elapsed().as_secs_f64();
     times.total_s = t_all.elapsed().as_secs_f64();
 
     let report = PosesReport {
         session: session.to_path_buf(),
         dataset: final_out.to_path_buf(),
-        sfm_stream: sfm_stream.name(),
-        pose_source,
-        session_truncated: scan.truncated,
-        session_note: scan.note.clone(),
-        thermal_frames: scan.thermal.len(),
-        rgb_frames: scan.rgb.len(),
-        dropped_frames: scan.dropped,
-        keyframes: keyframes.len(),
-        registered: registered.len(),
-        outlier_keyframes: if fast_path {
-            jumps.len()
+        sfm_stream: keys.sfm_stream.name(),
+        pose_source: reg.pose_source,
+        session_truncated: inputs.scan.truncated,
+        session_note: inputs.scan.note.clone(),
+        thermal_frames: inputs.scan.thermal.len(),
+        rgb_frames: inputs.scan.rgb.len(),
+        dropped_frames: inputs.scan.dropped,
+        keyframes: keys.keyframes.len(),
+        registered: reg.registered.len(),
+        outlier_keyframes: if seen.fast_path {
+            seen.jumps.len()
         } else {
-            sfm_jumps.len()
+            reg.sfm_jumps.len()
         },
-        sfm_points: sfm_points.len(),
-        metres_per_unit,
-        scale_source,
+        sfm_points: reg.sfm_points.len(),
+        metres_per_unit: scale.metres_per_unit,
+        scale_source: scale.scale_source,
         board: opts.board.is_some(),
-        tag_keyframes: tag_map
+        tag_keyframes: inputs
+            .tag_map
             .as_ref()
-            .map(|_| seen.iter().filter(|s| !s.tags.is_empty()).count()),
-        tag_scale,
-        tag_agreement,
-        views: views.iter().filter(|v| !v.held_out).count(),
-        held_out: views.iter().filter(|v| v.held_out).count(),
-        rgb_views: rgb_views.len(),
-        rgb_held_out: rgb_views.iter().filter(|v| v.held_out).count(),
-        skipped,
+            .map(|_| seen.tags.iter().filter(|s| !s.tags.is_empty()).count()),
+        tag_scale: scale.tag_scale,
+        tag_agreement: scale.tag_agreement,
+        views: views.thermal.iter().filter(|v| !v.held_out).count(),
+        held_out: views.thermal.iter().filter(|v| v.held_out).count(),
+        rgb_views: views.rgb.len(),
+        rgb_held_out: views.rgb.iter().filter(|v| v.held_out).count(),
+        skipped: views.skipped,
         times,
-        frames: decisions,
+        frames: views.decisions,
     };
     dataset::write_report(out, &report)?;
     finish_output(out, final_out)?;
