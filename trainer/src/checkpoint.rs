@@ -43,8 +43,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::error::RenderError;
-use crate::primitive::Groups;
-use crate::primitive::Primitives;
+use crate::primitive::{Group, Groups, Primitives};
 
 /// Format written into every checkpoint: 2 is the JSON header with a safetensors arrays file.
 pub const CHECKPOINT_VERSION: u32 = 2;
@@ -103,7 +102,7 @@ fn first_non_finite(p: &PrimitivesData) -> Option<(&'static str, usize, f32)> {
     p.arrays().into_iter().find_map(|(name, v)| {
         v.iter()
             .position(|x| !x.is_finite())
-            .map(|i| (name, i, v[i]))
+            .map(|i| (name.name(), i, v[i]))
     })
 }
 
@@ -129,34 +128,35 @@ pub struct PrimitivesData {
 }
 
 impl PrimitivesData {
-    /// The f32 arrays with their names (the tensor names' second part).
-    fn arrays(&self) -> [(&'static str, &Vec<f32>); 10] {
+    /// The f32 arrays with their groups (a group's name is the tensor name's second part), in
+    /// [`Group::ALL`]'s order.
+    fn arrays(&self) -> [(Group, &Vec<f32>); 10] {
         [
-            ("means", &self.means),
-            ("log_scales", &self.log_scales),
-            ("quats", &self.quats),
-            ("opacity_logits", &self.opacity_logits),
-            ("beta_raw", &self.beta_raw),
-            ("omega_low", &self.omega_low),
-            ("band_amp", &self.band_amp),
-            ("band_freq", &self.band_freq),
-            ("band_phase", &self.band_phase),
-            ("sh", &self.sh),
+            (Group::Means, &self.means),
+            (Group::LogScales, &self.log_scales),
+            (Group::Quats, &self.quats),
+            (Group::OpacityLogits, &self.opacity_logits),
+            (Group::BetaRaw, &self.beta_raw),
+            (Group::OmegaLow, &self.omega_low),
+            (Group::BandAmp, &self.band_amp),
+            (Group::BandFreq, &self.band_freq),
+            (Group::BandPhase, &self.band_phase),
+            (Group::Sh, &self.sh),
         ]
     }
 
-    fn arrays_mut(&mut self) -> [(&'static str, &mut Vec<f32>); 10] {
+    fn arrays_mut(&mut self) -> [(Group, &mut Vec<f32>); 10] {
         [
-            ("means", &mut self.means),
-            ("log_scales", &mut self.log_scales),
-            ("quats", &mut self.quats),
-            ("opacity_logits", &mut self.opacity_logits),
-            ("beta_raw", &mut self.beta_raw),
-            ("omega_low", &mut self.omega_low),
-            ("band_amp", &mut self.band_amp),
-            ("band_freq", &mut self.band_freq),
-            ("band_phase", &mut self.band_phase),
-            ("sh", &mut self.sh),
+            (Group::Means, &mut self.means),
+            (Group::LogScales, &mut self.log_scales),
+            (Group::Quats, &mut self.quats),
+            (Group::OpacityLogits, &mut self.opacity_logits),
+            (Group::BetaRaw, &mut self.beta_raw),
+            (Group::OmegaLow, &mut self.omega_low),
+            (Group::BandAmp, &mut self.band_amp),
+            (Group::BandFreq, &mut self.band_freq),
+            (Group::BandPhase, &mut self.band_phase),
+            (Group::Sh, &mut self.sh),
         ]
     }
 
@@ -607,7 +607,7 @@ mod tests {
         let mut out: Vec<_> = d
             .arrays()
             .into_iter()
-            .map(|(n, v)| (n, v.iter().map(|x| x.to_bits()).collect()))
+            .map(|(n, v)| (n.name(), v.iter().map(|x| x.to_bits()).collect()))
             .collect();
         out.push(("band_count", d.band_count.clone()));
         out

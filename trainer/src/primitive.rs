@@ -254,35 +254,36 @@ impl<T: Real> Primitives<T> {
         }
     }
 
-    /// Every parameter group by name, for generic loops (optimisers, tests).
-    pub fn groups(&self) -> [(&'static str, &Vec<T>); 10] {
+    /// Every parameter group with its [`Group`], in [`Group::ALL`]'s order, for generic loops
+    /// (optimisers, row operations, checkpoints, tests).
+    pub fn groups(&self) -> [(Group, &Vec<T>); 10] {
         [
-            ("means", &self.means),
-            ("log_scales", &self.log_scales),
-            ("quats", &self.quats),
-            ("opacity_logits", &self.opacity_logits),
-            ("beta_raw", &self.beta_raw),
-            ("omega_low", &self.omega_low),
-            ("band_amp", &self.band_amp),
-            ("band_freq", &self.band_freq),
-            ("band_phase", &self.band_phase),
-            ("sh", &self.sh),
+            (Group::Means, &self.means),
+            (Group::LogScales, &self.log_scales),
+            (Group::Quats, &self.quats),
+            (Group::OpacityLogits, &self.opacity_logits),
+            (Group::BetaRaw, &self.beta_raw),
+            (Group::OmegaLow, &self.omega_low),
+            (Group::BandAmp, &self.band_amp),
+            (Group::BandFreq, &self.band_freq),
+            (Group::BandPhase, &self.band_phase),
+            (Group::Sh, &self.sh),
         ]
     }
 
-    /// Mutable access to every parameter group by name.
-    pub fn groups_mut(&mut self) -> [(&'static str, &mut Vec<T>); 10] {
+    /// Mutable access to every parameter group, in [`Group::ALL`]'s order.
+    pub fn groups_mut(&mut self) -> [(Group, &mut Vec<T>); 10] {
         [
-            ("means", &mut self.means),
-            ("log_scales", &mut self.log_scales),
-            ("quats", &mut self.quats),
-            ("opacity_logits", &mut self.opacity_logits),
-            ("beta_raw", &mut self.beta_raw),
-            ("omega_low", &mut self.omega_low),
-            ("band_amp", &mut self.band_amp),
-            ("band_freq", &mut self.band_freq),
-            ("band_phase", &mut self.band_phase),
-            ("sh", &mut self.sh),
+            (Group::Means, &mut self.means),
+            (Group::LogScales, &mut self.log_scales),
+            (Group::Quats, &mut self.quats),
+            (Group::OpacityLogits, &mut self.opacity_logits),
+            (Group::BetaRaw, &mut self.beta_raw),
+            (Group::OmegaLow, &mut self.omega_low),
+            (Group::BandAmp, &mut self.band_amp),
+            (Group::BandFreq, &mut self.band_freq),
+            (Group::BandPhase, &mut self.band_phase),
+            (Group::Sh, &mut self.sh),
         ]
     }
 
@@ -299,18 +300,11 @@ impl<T: Real> Primitives<T> {
         let n = self.len();
         let m = self.bands;
         let k = self.sh_k();
-        for (name, v) in self.groups() {
-            let stride = match name {
-                "means" | "log_scales" => 3,
-                "quats" => 4,
-                "opacity_logits" | "beta_raw" | "omega_low" => 1,
-                "band_amp" | "band_phase" => m,
-                "band_freq" => 3 * m,
-                _ => 3 * k,
-            };
+        for (group, v) in self.groups() {
+            let stride = group.stride(m, k);
             if v.len() != stride * n {
                 return Err(crate::error::RenderError::ParameterLength {
-                    group: name,
+                    group: group.name(),
                     expected: stride * n,
                     actual: v.len(),
                 });
@@ -445,6 +439,83 @@ pub fn quat_backward<T: Real>(unit: [T; 4], norm: T, g: &[T; 9]) -> [T; 4] {
     ]
 }
 
+/// A parameter group of [`Primitives`]: the one list of the groups, with their names (the
+/// checkpoint's tensor names, messages) and strides. Code that treats groups differently
+/// matches on it, so a new group or a misspelt one is a compile error, not a silent fallback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Group {
+    Means,
+    LogScales,
+    Quats,
+    OpacityLogits,
+    BetaRaw,
+    OmegaLow,
+    BandAmp,
+    BandFreq,
+    BandPhase,
+    Sh,
+}
+
+impl Group {
+    /// Every group, in the order [`Primitives::groups`] lists them (and checkpoints and the
+    /// GPU parameter block store them).
+    pub const ALL: [Group; 10] = [
+        Group::Means,
+        Group::LogScales,
+        Group::Quats,
+        Group::OpacityLogits,
+        Group::BetaRaw,
+        Group::OmegaLow,
+        Group::BandAmp,
+        Group::BandFreq,
+        Group::BandPhase,
+        Group::Sh,
+    ];
+
+    /// The group's name: its field in [`Primitives`], its tensor in a checkpoint.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Group::Means => "means",
+            Group::LogScales => "log_scales",
+            Group::Quats => "quats",
+            Group::OpacityLogits => "opacity_logits",
+            Group::BetaRaw => "beta_raw",
+            Group::OmegaLow => "omega_low",
+            Group::BandAmp => "band_amp",
+            Group::BandFreq => "band_freq",
+            Group::BandPhase => "band_phase",
+            Group::Sh => "sh",
+        }
+    }
+
+    /// Values per primitive with `bands` band slots and `sh_k` SH coefficients per channel.
+    pub const fn stride(self, bands: usize, sh_k: usize) -> usize {
+        match self {
+            Group::Means | Group::LogScales => 3,
+            Group::Quats => 4,
+            Group::OpacityLogits | Group::BetaRaw | Group::OmegaLow => 1,
+            Group::BandAmp | Group::BandPhase => bands,
+            Group::BandFreq => 3 * bands,
+            Group::Sh => 3 * sh_k,
+        }
+    }
+
+    /// A band group (values per band slot: 1, or 3 for frequencies), `None` otherwise.
+    pub const fn per_band_slot(self) -> Option<usize> {
+        match self {
+            Group::BandAmp | Group::BandPhase => Some(1),
+            Group::BandFreq => Some(3),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Group {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// One value per parameter group of [`Primitives`] (e.g. the optimiser's learning rates and
 /// step counts, `train::adam`).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -463,19 +534,19 @@ pub struct Groups<T> {
 }
 
 impl<T: Copy> Groups<T> {
-    /// The value of a [`Primitives::groups`] name.
-    pub fn of(&self, group: &str) -> T {
+    /// The value of `group`.
+    pub fn of(&self, group: Group) -> T {
         match group {
-            "means" => self.means,
-            "log_scales" => self.log_scales,
-            "quats" => self.quats,
-            "opacity_logits" => self.opacity_logits,
-            "beta_raw" => self.beta,
-            "omega_low" => self.omega_low,
-            "band_amp" => self.band_amp,
-            "band_freq" => self.band_freq,
-            "band_phase" => self.band_phase,
-            _ => self.sh,
+            Group::Means => self.means,
+            Group::LogScales => self.log_scales,
+            Group::Quats => self.quats,
+            Group::OpacityLogits => self.opacity_logits,
+            Group::BetaRaw => self.beta,
+            Group::OmegaLow => self.omega_low,
+            Group::BandAmp => self.band_amp,
+            Group::BandFreq => self.band_freq,
+            Group::BandPhase => self.band_phase,
+            Group::Sh => self.sh,
         }
     }
 
@@ -510,5 +581,31 @@ impl<T: Copy> Groups<T> {
             band_phase: f(self.band_phase, other.band_phase),
             sh: f(self.sh, other.sh),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every loop over groups (optimisers, row operations, checkpoints, the GPU parameter
+    /// block) relies on `groups()`, `groups_mut()` and `Group::ALL` listing one order.
+    #[test]
+    fn the_group_lists_agree() {
+        let mut p = Primitives::<f32>::new(2, Some(1));
+        let listed: Vec<Group> = p.groups().iter().map(|(g, _)| *g).collect();
+        let listed_mut: Vec<Group> = p.groups_mut().iter().map(|(g, _)| *g).collect();
+        assert_eq!(listed, Group::ALL, "groups() must list Group::ALL in order");
+        assert_eq!(
+            listed_mut,
+            Group::ALL,
+            "groups_mut() must list Group::ALL in order"
+        );
+        let names: std::collections::BTreeSet<&str> = Group::ALL.iter().map(|g| g.name()).collect();
+        assert_eq!(
+            names.len(),
+            Group::ALL.len(),
+            "group names must be distinct: {names:?}"
+        );
     }
 }

@@ -240,7 +240,7 @@ fn gradient_through_the_renderer_matches_finite_differences() {
         let out = render(p, &cam, &rs).unwrap();
         align(&out, &target, &cam, &settings, weight).0.loss
     };
-    let names: Vec<&str> = prims.groups().iter().map(|(n, _)| *n).collect();
+    let names: Vec<&str> = prims.groups().iter().map(|(n, _)| n.name()).collect();
     for (gi, name) in names.iter().enumerate() {
         let analytic = g.groups()[gi].1.clone();
         if ["omega_low", "band_amp", "band_freq", "band_phase", "sh"].contains(name) {

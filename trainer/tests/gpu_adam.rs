@@ -17,7 +17,7 @@ use s3tir_trainer::gpu::GpuContext;
 use s3tir_trainer::gpu::optimiser::{AdamStep, GpuOptimiser, KeyGate};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
 use s3tir_trainer::primitive::{
-    BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, PrimitiveInit, Primitives, beta_of_raw,
+    BETA_RAW_FROZEN, BETA_RAW_GAUSSIAN, Group, PrimitiveInit, Primitives, beta_of_raw,
 };
 use s3tir_trainer::train::{AdamParams, AdamState, GroupLrs, Groups, view_space_gradient};
 
@@ -50,7 +50,7 @@ fn adam_kernel_takes_the_host_optimiser_step() {
     for (name, v) in p.groups_mut() {
         for x in v.iter_mut() {
             *x = match name {
-                "log_scales" => r.random_range(-6.0..0.0),
+                Group::LogScales => r.random_range(-6.0..0.0),
                 _ => r.random_range(-2.0..2.0),
             };
         }
@@ -176,7 +176,7 @@ fn adam_kernel_takes_the_host_optimiser_step() {
     let close = |a: f32, b: f32, rel: f32| (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-3);
     for ((name, d), (_, h)) in p_d.groups().into_iter().zip(p_h.groups()) {
         for (k, (&x, &y)) in d.iter().zip(h).enumerate() {
-            if name == "beta_raw" {
+            if name == Group::BetaRaw {
                 let (bd, bh) = (beta_of_raw(f64::from(x)).0, beta_of_raw(f64::from(y)).0);
                 assert!(
                     (bd - bh).abs() <= 1e-5 * bh.max(1.0),

@@ -44,7 +44,7 @@ use s3tir_trainer::gpu::raster::{GpuRasterizer, Outputs};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
 use s3tir_trainer::loss::LossWeights;
 use s3tir_trainer::loss::consistency::ConsistencyOptions;
-use s3tir_trainer::primitive::Primitives;
+use s3tir_trainer::primitive::{Group, Primitives};
 use s3tir_trainer::render::{GBuffers, RenderSettings, prepare, render, render_backward};
 use s3tir_trainer::train::{
     AdamParams, AdamState, Backend, CpuBackend, DeviceStep, OptimiserState, ResidentStep,
@@ -221,7 +221,7 @@ fn relative_l2(
     label: &str,
     gpu: &Primitives<f32>,
     reference: &Primitives<f64>,
-    bound: &dyn Fn(&str) -> f64,
+    bound: &dyn Fn(Group) -> f64,
 ) -> Vec<(String, f64)> {
     let mut out = Vec::new();
     for ((name, g), (_, r)) in gpu.groups().iter().zip(reference.groups().iter()) {
@@ -244,7 +244,7 @@ fn relative_l2(
             );
             continue;
         }
-        let bound = bound(name);
+        let bound = bound(*name);
         assert!(
             err / norm <= bound,
             "{label}/{name}: relative L2 error {:.3e} > {bound:.0e} (|ref| = {norm:.3e})",
@@ -310,10 +310,10 @@ fn colour_gradients_match_cpu_reference_with_and_without_float_atomics() {
                 } else {
                     Default::default()
                 };
-                let bound = |name: &str| {
-                    if stiff && matches!(name, "means" | "quats") {
+                let bound = |group: Group| {
+                    if stiff && matches!(group, Group::Means | Group::Quats) {
                         // No further from the reference than 5× the CPU's own f32 rounding.
-                        (5.0 * cpu_f32_err.get(name).copied().unwrap_or(0.0)).max(1e-4)
+                        (5.0 * cpu_f32_err.get(group.name()).copied().unwrap_or(0.0)).max(1e-4)
                     } else {
                         1e-4
                     }

@@ -34,7 +34,7 @@ use rand_chacha::ChaCha8Rng;
 use s3tir_trainer::gpu::accumulate::AccumulateVariant;
 use s3tir_trainer::gpu::raster::{GpuRasterizer, Outputs};
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice, GpuContext};
-use s3tir_trainer::primitive::{BETA_RAW_FROZEN, Primitives};
+use s3tir_trainer::primitive::{BETA_RAW_FROZEN, Group, Primitives};
 use s3tir_trainer::render::{
     GBuffers, RenderSettings, prepare, render, render_backward, render_backward_prepared,
     render_gbuffers,
@@ -283,7 +283,7 @@ fn cast_buffers(g: &GBuffers<f64>) -> GBuffers<f32> {
 
 fn relative_l2(label: &str, gpu: &Primitives<f32>, reference: &Primitives<f64>) {
     for ((name, g), (_, r)) in gpu.groups().iter().zip(reference.groups().iter()) {
-        if *name == "sh" {
+        if *name == Group::Sh {
             continue;
         }
         assert_eq!(g.len(), r.len(), "{label}/{name}: length");
@@ -291,7 +291,7 @@ fn relative_l2(label: &str, gpu: &Primitives<f32>, reference: &Primitives<f64>) 
             g.iter().all(|v| v.is_finite()),
             "{label}/{name}: non-finite GPU gradient"
         );
-        let bound = if matches!(*name, "means" | "quats") {
+        let bound = if matches!(*name, Group::Means | Group::Quats) {
             3e-2
         } else {
             1e-4

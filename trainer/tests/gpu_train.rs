@@ -12,7 +12,7 @@ use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, LoadOptions};
 use s3tir_trainer::gpu::backend::VulkanBackend;
 use s3tir_trainer::gpu::{ContextOptions, DeviceChoice};
-use s3tir_trainer::primitive::{Primitives, beta_of_raw};
+use s3tir_trainer::primitive::{Group, Primitives, beta_of_raw};
 use s3tir_trainer::render::RenderSettings;
 use s3tir_trainer::train::{
     Backend, ConsistPartner, CpuBackend, Mode, Outcome, ResponseKind, RunShape, TrainConfig,
@@ -258,18 +258,10 @@ fn paths_take_the_same_steps(partner: ConsistPartner, response: ResponseKind) {
     let host = &finals[2];
     let lr = config(&data_dir).lr;
     let steps = 12.0;
-    let bound = |group: &str| -> f64 {
+    let bound = |group: Group| -> f64 {
         let g = match group {
-            "means" => 1e-3 / steps / 3.0, // lr × scene extent; observed ≤ 1e-4
-            "log_scales" => lr.log_scales,
-            "quats" => lr.quats,
-            "opacity_logits" => lr.opacity_logits,
-            "beta_raw" => lr.beta,
-            "omega_low" => lr.omega_low,
-            "band_amp" => lr.band_amp,
-            "band_freq" => lr.band_freq,
-            "band_phase" => lr.band_phase,
-            _ => lr.sh,
+            Group::Means => 1e-3 / steps / 3.0, // lr × scene extent; observed ≤ 1e-4
+            _ => lr.of(group),
         };
         3.0 * steps * g
     };
@@ -317,7 +309,7 @@ fn paths_take_the_same_steps(partner: ConsistPartner, response: ResponseKind) {
                 .map(|j| f64::from(keeper.band_amp[m * i + j].abs()))
                 .fold(f64::INFINITY, f64::min);
             assert!(
-                weakest <= thr + bound("band_amp"),
+                weakest <= thr + bound(Group::BandAmp),
                 "{name}: primitive {i}: the path with {} bands keeps none near the drop \
                  threshold {thr:.1e} (weakest |amplitude| {weakest:.3e}): not a near-tie",
                 a.max(b)
@@ -333,7 +325,7 @@ fn paths_take_the_same_steps(partner: ConsistPartner, response: ResponseKind) {
         let p = &p;
         for ((group, a), (_, b)) in p.groups().into_iter().zip(host.groups()) {
             let value = |x: f32| {
-                if group == "beta_raw" {
+                if group == Group::BetaRaw {
                     beta_of_raw(f64::from(x)).0
                 } else {
                     f64::from(x)

@@ -80,10 +80,9 @@ fn check_exact<T: Real>(name: &str) {
     let gb = render_backward_prepared(&prims, &general, &up);
     for ((n, x), (_, y)) in ga.groups().iter().zip(gb.groups()) {
         for (k, (p, q)) in x.iter().zip(y.iter()).enumerate() {
-            let dropped = match *n {
-                "band_amp" | "band_phase" => k % M >= prims.live_bands(k / M),
-                "band_freq" => (k / 3) % M >= prims.live_bands(k / 3 / M),
-                _ => false,
+            let dropped = match n.per_band_slot() {
+                Some(per) => (k / per) % M >= prims.live_bands(k / per / M),
+                None => false,
             };
             if dropped {
                 assert!(

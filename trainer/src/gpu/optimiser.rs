@@ -13,7 +13,7 @@ use super::error::GpuError;
 use super::raster::{GpuRasterizer, parameter_block, parameter_count};
 use super::shaders::{self, ADAM_PUSH_BYTES};
 use crate::camera::PinholeCamera;
-use crate::primitive::Primitives;
+use crate::primitive::{Group, Primitives};
 use crate::train::adam::{AdamParams, AdamState, GroupLrs};
 
 const ADAM_WG: usize = 128;
@@ -129,7 +129,7 @@ fn read_device<T: bytemuck::Pod>(
 fn scatter_block(block: &[f32], p: &mut Primitives<f32>) {
     let mut rest = block;
     for (name, dst) in p.groups_mut() {
-        if name == "sh" {
+        if name == Group::Sh {
             continue;
         }
         let (head, tail) = rest.split_at(dst.len().min(rest.len()));

@@ -28,7 +28,10 @@
 use serde::{Deserialize, Serialize};
 
 pub use crate::primitive::Groups;
-use crate::primitive::{BETA_MAX, Primitives, beta_of_raw, beta_raw_from_beta, is_beta_frozen};
+use crate::primitive::{
+    BETA_MAX, Group, Primitives, beta_of_raw, beta_raw_from_beta, is_beta_frozen,
+};
+use crate::real::Real;
 
 /// Adam hyper-parameters shared by every group.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -46,6 +49,32 @@ impl Default for AdamParams {
             beta2: 0.999,
             eps: 1e-15,
         }
+    }
+}
+
+/// Kingma & Ba's bias-corrected step size of the `t`-th update (1-based) at learning rate
+/// `lr`: `lr·√(1−β₂ᵗ)/(1−β₁ᵗ)`.
+pub fn step_size(lr: f64, t: u64, hp: &AdamParams) -> f64 {
+    let t = t as f64;
+    lr * (1.0 - hp.beta2.powf(t)).sqrt() / (1.0 - hp.beta1.powf(t))
+}
+
+/// One value's Adam update, the trainer's only one: advances the moments `m`, `v` by the
+/// gradient `g` and returns the change to subtract, `size·m/(√v + ε)`, with `size` from
+/// [`step_size`] and `[β₁, β₂, ε]` in the value's precision. The primitives' groups
+/// ([`AdamState::step`], f32), the per-view response and the RGB background (f64) step
+/// through it; `adam.comp` is its device twin (checked against [`AdamState::step`]).
+#[inline]
+pub fn update<T: Real>(m: &mut T, v: &mut T, g: T, size: T, [b1, b2, eps]: [T; 3]) -> T {
+    *m = b1 * *m + (T::ONE - b1) * g;
+    *v = b2 * *v + (T::ONE - b2) * g * g;
+    size * *m / (v.sqrt() + eps)
+}
+
+impl AdamParams {
+    /// `[β₁, β₂, ε]` for [`update`] in f64.
+    pub fn as_f64(&self) -> [f64; 3] {
+        [self.beta1, self.beta2, self.eps]
     }
 }
 
@@ -83,8 +112,7 @@ impl AdamState {
             if lr == 0.0 {
                 return 0.0;
             }
-            let t = (done + 1) as f64;
-            lr * (1.0 - hp.beta2.powf(t)).sqrt() / (1.0 - hp.beta1.powf(t))
+            step_size(lr, done + 1, hp)
         })
     }
 
@@ -106,7 +134,7 @@ impl AdamState {
     ) {
         let sizes = self.step_sizes(lrs, hp);
         self.advance(lrs);
-        let (b1, b2) = (hp.beta1 as f32, hp.beta2 as f32);
+        let hp32 = [hp.beta1 as f32, hp.beta2 as f32, hp.eps as f32];
         let bands = params.bands;
         let live: Vec<usize> = (0..params.len()).map(|i| params.live_bands(i)).collect();
         let groups = params
@@ -120,17 +148,12 @@ impl AdamState {
             if step == 0.0 {
                 continue;
             }
-            let eps = hp.eps as f32;
             // Values per band slot in a band group (0: not a band group).
-            let per_slot = match name {
-                "band_amp" | "band_phase" => 1,
-                "band_freq" => 3,
-                _ => 0,
-            };
+            let per_slot = name.per_band_slot().unwrap_or(0);
             for i in 0..p.len() {
                 let held = match i.checked_div(per_slot) {
                     Some(slot) => slot % bands >= live[slot / bands],
-                    None => name == "beta_raw" && is_beta_frozen(f64::from(p[i])),
+                    None => name == Group::BetaRaw && is_beta_frozen(f64::from(p[i])),
                 };
                 if held {
                     m[i] = 0.0;
@@ -138,7 +161,7 @@ impl AdamState {
                     continue;
                 }
                 let mut gi = if g[i].is_finite() { g[i] } else { 0.0 };
-                if name == "beta_raw" {
+                if name == Group::BetaRaw {
                     let (_, dbeta) = beta_of_raw(f64::from(p[i]));
                     gi = if dbeta > 0.0 {
                         (f64::from(gi) / dbeta) as f32
@@ -149,10 +172,8 @@ impl AdamState {
                         gi = 0.0;
                     }
                 }
-                m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                let delta = step * m[i] / (v[i].sqrt() + eps);
-                if name == "beta_raw" {
+                let delta = update(&mut m[i], &mut v[i], gi, step, hp32);
+                if name == Group::BetaRaw {
                     let beta = beta_of_raw(f64::from(p[i])).0 - f64::from(delta);
                     p[i] = beta_raw_from_beta(beta.clamp(2.0, BETA_MAX)) as f32;
                 } else {

@@ -17,6 +17,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::adam::{AdamParams, step_size, update};
 use super::config::{DEFAULT_THERMAL_ALIGN, LOW_LIGHT_MEAN, RgbLoss};
 use super::{Backend, TrainError, Trainer};
 use crate::dataset::Dataset;
@@ -316,20 +317,15 @@ impl Background {
 
     /// One Adam step on the background colour's gradient `g`.
     pub fn step(&mut self, g: [f64; 3]) {
-        const B1: f64 = 0.9;
-        const B2: f64 = 0.999;
+        let hp = AdamParams::default();
         self.steps += 1;
-        let t = self.steps as f64;
+        let size = step_size(BACKGROUND_LR, self.steps, &hp);
         let moments = self.m.iter_mut().zip(self.v.iter_mut());
         for ((colour, (m, v)), g) in self.colour.iter_mut().zip(moments).zip(g) {
             if !g.is_finite() {
                 continue;
             }
-            *m = B1 * *m + (1.0 - B1) * g;
-            *v = B2 * *v + (1.0 - B2) * g * g;
-            let mh = *m / (1.0 - B1.powf(t));
-            let vh = *v / (1.0 - B2.powf(t));
-            *colour = (*colour - BACKGROUND_LR * mh / (vh.sqrt() + 1e-15)).clamp(0.0, 1.0);
+            *colour = (*colour - update(m, v, g, size, hp.as_f64())).clamp(0.0, 1.0);
         }
     }
 }

@@ -3,24 +3,12 @@
 
 use crate::primitive::Primitives;
 
-/// Values per primitive of a parameter group.
-pub fn stride(group: &str, bands: usize, sh_k: usize) -> usize {
-    match group {
-        "means" | "log_scales" => 3,
-        "quats" => 4,
-        "opacity_logits" | "beta_raw" | "omega_low" => 1,
-        "band_amp" | "band_phase" => bands,
-        "band_freq" => 3 * bands,
-        _ => 3 * sh_k,
-    }
-}
-
 /// A new set holding rows `idx` of `p` (indices may repeat: clones).
 pub fn gather(p: &Primitives<f32>, idx: &[usize]) -> Primitives<f32> {
     let mut out = Primitives::<f32>::new(p.bands, p.sh_degree);
     let (m, k) = (p.bands, p.sh_k());
     for ((name, src), (_, dst)) in p.groups().into_iter().zip(out.groups_mut()) {
-        let s = stride(name, m, k);
+        let s = name.stride(m, k);
         dst.reserve(s * idx.len());
         for &i in idx {
             dst.extend_from_slice(&src[s * i..s * (i + 1)]);
@@ -37,7 +25,7 @@ pub fn gather(p: &Primitives<f32>, idx: &[usize]) -> Primitives<f32> {
 pub fn zero_rows_from(p: &mut Primitives<f32>, from: usize) {
     let (m, k) = (p.bands, p.sh_k());
     for (name, v) in p.groups_mut() {
-        let s = stride(name, m, k);
+        let s = name.stride(m, k);
         for x in v.iter_mut().skip(s * from) {
             *x = 0.0;
         }

@@ -37,6 +37,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::adam::{AdamParams, step_size, update};
 use super::{Backend, Trainer};
 use crate::dataset::ThermalRange;
 use crate::dataset::images::ImageKind;
@@ -210,9 +211,12 @@ pub struct ViewResponseRecord {
     pub offset_kelvin: Option<f64>,
 }
 
-const BETA1: f64 = 0.9;
-const BETA2: f64 = 0.999;
-const EPS: f64 = 1e-12;
+/// Adam's hyper-parameters for the responses (3DGS's β's; ε above the gradients' f64 noise).
+const ADAM: AdamParams = AdamParams {
+    beta1: 0.9,
+    beta2: 0.999,
+    eps: 1e-12,
+};
 
 impl ResponseModel {
     /// Identity responses for `views` views, anchored over `train` (offsets pinned at zero on
@@ -268,16 +272,14 @@ impl ResponseModel {
             !self.pinned.contains(&vi),
         ];
         self.steps[vi] += 1;
-        let t = self.steps[vi] as i32;
+        let t = self.steps[vi];
         for k in 0..2 {
             if !learns[k] {
                 continue;
             }
-            self.m[vi][k] = BETA1 * self.m[vi][k] + (1.0 - BETA1) * g[k];
-            self.v[vi][k] = BETA2 * self.v[vi][k] + (1.0 - BETA2) * g[k] * g[k];
-            let mh = self.m[vi][k] / (1.0 - BETA1.powi(t));
-            let vh = self.v[vi][k] / (1.0 - BETA2.powi(t));
-            let delta = lrs[k] * mh / (vh.sqrt() + EPS);
+            let size = step_size(lrs[k], t, &ADAM);
+            let (m, v) = (&mut self.m[vi][k], &mut self.v[vi][k]);
+            let delta = update(m, v, g[k], size, ADAM.as_f64());
             if k == 0 {
                 self.log_gain[vi] -= delta;
             } else {

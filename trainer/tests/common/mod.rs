@@ -138,7 +138,7 @@ pub fn check_render_gradient(
     let loss = |p: &Primitives<f64>| dot_buffers(&render(p, cam, settings).unwrap(), &up);
     let mut failures = Vec::new();
     let mut checked = 0;
-    let names: Vec<&'static str> = prims.groups().iter().map(|(n, _)| *n).collect();
+    let names: Vec<&'static str> = prims.groups().iter().map(|(n, _)| n.name()).collect();
     for (gi, name) in names.iter().enumerate() {
         let len = prims.groups()[gi].1.len();
         for k in 0..len {
