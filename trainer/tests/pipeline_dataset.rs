@@ -9,10 +9,11 @@
 use std::fs;
 use std::path::Path;
 
+use s3tir_calib::model::palette::Colormap;
 use s3tir_trainer::dataset::colmap::{
     ColmapError, ColmapModel, read_binary_model, read_text_model,
 };
-use s3tir_trainer::dataset::images::{ColourMode, ImageKind, ironbow, load_image};
+use s3tir_trainer::dataset::images::{ColourMode, ImageKind, load_image};
 use s3tir_trainer::dataset::synth::{self, SynthConfig};
 use s3tir_trainer::dataset::{Dataset, DatasetError, LoadOptions};
 
@@ -250,7 +251,7 @@ fn image_kinds_are_recognised() {
         (ImageKind::Grey8, vec![10.0, 200.0])
     );
     let p = tmp.path().join("c.png");
-    let lut = ironbow();
+    let lut = Colormap::Ironbow.lut_u8();
     image::RgbImage::from_raw(2, 1, [lut[40], lut[220]].concat())
         .unwrap()
         .save(&p)

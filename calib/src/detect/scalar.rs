@@ -4,9 +4,8 @@
 //! 1. **Decode to a scalar image** ([`load_scalar`]): 16-bit PNG/TIFF keep their counts
 //!    (raw or centikelvin), 8-bit grey its values, RGB/RGBA photos become luminance
 //!    (Rec. 601). A thermal image saved as pseudo-colour is mapped back to a scalar by finding,
-//!    for each colour, the nearest colour on a known palette curve (approximations of
-//!    ironbow and matplotlib's inferno, 9/7 control points interpolated linearly to 256
-//!    entries); with `palette = "auto"` the palette whose curve fits the image best is used,
+//!    for each colour, the nearest colour on a known palette curve (ironbow and inferno,
+//!    [`crate::model::palette`]); with `palette = "auto"` the palette whose curve fits the image best is used,
 //!    and when neither fits (mean colour distance > 24 of 255) luminance is used instead.
 //! 2. **Robust 8-bit normalisation** ([`stretch_to_u8`]): a percentile stretch (0.5 % → 0,
 //!    99.5 % → 255), so a hot object in a 16-bit frame does not squash the board's few counts
@@ -14,12 +13,12 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::OnceLock;
 
 use glam::DVec2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::CalibError;
+use crate::model::palette::Colormap;
 
 /// Palette used to map pseudo-colour thermal images back to a scalar (`board.toml`'s
 /// `thermal_palette`).
@@ -75,68 +74,18 @@ impl ScalarImage {
     }
 }
 
-const IRONBOW: [(f32, [f32; 3]); 7] = [
-    (0.0, [0.0, 0.0, 0.0]),
-    (0.15, [32.0, 0.0, 140.0]),
-    (0.35, [145.0, 0.0, 155.0]),
-    (0.55, [225.0, 65.0, 40.0]),
-    (0.75, [250.0, 160.0, 0.0]),
-    (0.9, [255.0, 225.0, 60.0]),
-    (1.0, [255.0, 255.0, 255.0]),
-];
-const INFERNO: [(f32, [f32; 3]); 9] = [
-    (0.0, [0.0, 0.0, 4.0]),
-    (0.125, [31.0, 12.0, 72.0]),
-    (0.25, [85.0, 15.0, 109.0]),
-    (0.375, [136.0, 34.0, 106.0]),
-    (0.5, [186.0, 54.0, 85.0]),
-    (0.625, [227.0, 89.0, 51.0]),
-    (0.75, [249.0, 140.0, 10.0]),
-    (0.875, [249.0, 201.0, 50.0]),
-    (1.0, [252.0, 255.0, 164.0]),
-];
-
-fn build_lut(points: &[(f32, [f32; 3])]) -> [[f32; 3]; 256] {
-    let mut lut = [[0.0; 3]; 256];
-    for (i, entry) in lut.iter_mut().enumerate() {
-        let t = i as f32 / 255.0;
-        let k = points
-            .windows(2)
-            .position(|w| t <= w[1].0)
-            .unwrap_or(points.len() - 2);
-        let (t0, c0) = points[k];
-        let (t1, c1) = points[k + 1];
-        let a = ((t - t0) / (t1 - t0)).clamp(0.0, 1.0);
-        for ch in 0..3 {
-            entry[ch] = c0[ch] + a * (c1[ch] - c0[ch]);
-        }
-    }
-    lut
+/// The palette's table ([`crate::model::palette`]; `None` for `Auto`/`Luminance`).
+pub fn palette_lut(palette: Palette) -> Option<&'static [[f32; 3]; 256]> {
+    palette_map(palette).map(Colormap::lut)
 }
 
-/// The 256-entry colour table of a palette (`None` for `Auto`/`Luminance`).
-pub fn palette_lut(palette: Palette) -> Option<&'static [[f32; 3]; 256]> {
-    static IRON: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
-    static INF: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
+/// The palette a choice names (`None` for `Auto`/`Luminance`).
+fn palette_map(palette: Palette) -> Option<Colormap> {
     match palette {
-        Palette::Ironbow => Some(IRON.get_or_init(|| build_lut(&IRONBOW))),
-        Palette::Inferno => Some(INF.get_or_init(|| build_lut(&INFERNO))),
+        Palette::Ironbow => Some(Colormap::Ironbow),
+        Palette::Inferno => Some(Colormap::Inferno),
         Palette::Auto | Palette::Luminance => None,
     }
-}
-
-/// Nearest palette index for a colour and the distance to it.
-fn nearest_on_palette(lut: &[[f32; 3]; 256], rgb: [u8; 3]) -> (f32, f32) {
-    let mut best = (0usize, f32::INFINITY);
-    for (i, c) in lut.iter().enumerate() {
-        let d = (c[0] - f32::from(rgb[0])).powi(2)
-            + (c[1] - f32::from(rgb[1])).powi(2)
-            + (c[2] - f32::from(rgb[2])).powi(2);
-        if d < best.1 {
-            best = (i, d);
-        }
-    }
-    (best.0 as f32, best.1.sqrt())
 }
 
 /// Rec. 601 luminance of an 8-bit RGB colour.
@@ -168,13 +117,13 @@ pub fn pseudo_colour_to_scalar(rgb: &image::RgbImage, palette: Palette) -> (Vec<
     let mut chosen = Palette::Luminance;
     let mut best_fit = f32::INFINITY;
     for p in candidates {
-        let Some(lut) = palette_lut(p) else {
+        let Some(map) = palette_map(p) else {
             continue;
         };
         let sample: Vec<f32> = rgb
             .pixels()
             .step_by(13)
-            .map(|px| nearest_on_palette(lut, px.0).1)
+            .map(|px| map.nearest(px.0).1)
             .collect();
         let fit = sample.iter().sum::<f32>() / sample.len().max(1) as f32;
         if fit < best_fit {
@@ -185,15 +134,15 @@ pub fn pseudo_colour_to_scalar(rgb: &image::RgbImage, palette: Palette) -> (Vec<
     if palette == Palette::Auto && best_fit > 24.0 {
         chosen = Palette::Luminance;
     }
-    let values = match palette_lut(chosen) {
+    let values = match palette_map(chosen) {
         None => rgb.pixels().map(|p| luminance(p.0)).collect(),
-        Some(lut) => {
+        Some(map) => {
             let mut cache: HashMap<[u8; 3], f32> = HashMap::new();
             rgb.pixels()
                 .map(|p| {
                     *cache
                         .entry(p.0)
-                        .or_insert_with(|| nearest_on_palette(lut, p.0).0)
+                        .or_insert_with(|| map.nearest(p.0).0 as f32)
                 })
                 .collect()
         }
@@ -307,21 +256,6 @@ pub fn stretch_to_u8(img: &ScalarImage, lo: f64, hi: f64) -> image::GrayImage {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn palette_inversion_recovers_the_index() {
-        for p in [Palette::Ironbow, Palette::Inferno] {
-            let lut = palette_lut(p).unwrap_or_else(|| panic!("{p:?} has a table"));
-            for i in [0usize, 17, 100, 200, 255] {
-                let c = lut[i].map(|v| v.round() as u8);
-                let (idx, dist) = nearest_on_palette(lut, c);
-                assert!(
-                    (idx - i as f32).abs() <= 3.0,
-                    "{p:?}: entry {i} came back as {idx} (distance {dist})"
-                );
-            }
-        }
-    }
 
     #[test]
     fn every_listed_file_format_decodes_to_the_right_scalar_kind() {

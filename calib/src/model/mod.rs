@@ -6,8 +6,11 @@
 //! - [`geometry`]: rigid transforms (`b_from_a`).
 //! - [`calfile`]: `calibration.yaml` reader and model-only writer.
 //! - [`colmap`]: the workspace's COLMAP sparse-model codec (text and binary).
+//! - [`palette`]: the thermal colour palettes (ironbow, inferno), one table each: drawing
+//!   temperatures for people and mapping pseudo-colour frames back to scalars.
 
 pub mod calfile;
 pub mod camera;
 pub mod colmap;
 pub mod geometry;
+pub mod palette;

@@ -4,14 +4,16 @@
 //! |---|---|---|
 //! | 16-bit grey PNG/TIFF | [`ImageKind::Thermal16`] | the stored word: centikelvin (TLinear) or raw counts, as the dataset says |
 //! | 8-bit grey | [`ImageKind::Grey8`] | 0…255 |
-//! | 8-bit colour, pseudo-colour requested | [`ImageKind::PseudoColour8`] | palette index 0…255 (inverted [`ironbow`] palette, nearest entry) |
+//! | 8-bit colour, pseudo-colour requested | [`ImageKind::PseudoColour8`] | palette index 0…255 (inverted ironbow palette, nearest entry: `s3tir_calib::model::palette`) |
 //! | 8-bit colour | [`ImageKind::Rgb8`] | three planes 0…255 |
 //!
 //! An 8-bit colour image whose three channels are equal everywhere is read as grey.
 
+use std::collections::HashMap;
 use std::path::Path;
 
 use image::DynamicImage;
+use s3tir_calib::model::palette::Colormap;
 
 use super::DatasetError;
 
@@ -44,35 +46,6 @@ pub struct RawImage {
     pub kind: ImageKind,
     /// `width·height` values, or three planes for [`ImageKind::Rgb8`].
     pub values: Vec<f64>,
-}
-
-/// The 256-entry ironbow palette (black → blue → magenta → orange → yellow → white), piecewise
-/// linear between documented key colours. Real cameras' palettes differ slightly; pseudo-colour
-/// input is therefore never radiometric, only a monotone proxy.
-pub fn ironbow() -> [[u8; 3]; 256] {
-    const KEYS: [(f64, [f64; 3]); 6] = [
-        (0.0, [0.0, 0.0, 0.0]),
-        (0.2, [32.0, 0.0, 140.0]),
-        (0.4, [150.0, 20.0, 150.0]),
-        (0.6, [230.0, 90.0, 30.0]),
-        (0.8, [255.0, 190.0, 0.0]),
-        (1.0, [255.0, 255.0, 255.0]),
-    ];
-    let mut lut = [[0u8; 3]; 256];
-    for (i, e) in lut.iter_mut().enumerate() {
-        let t = i as f64 / 255.0;
-        let k = KEYS
-            .windows(2)
-            .position(|w| t <= w[1].0)
-            .unwrap_or(KEYS.len() - 2);
-        let (t0, c0) = KEYS[k];
-        let (t1, c1) = KEYS[k + 1];
-        let a = (t - t0) / (t1 - t0);
-        for c in 0..3 {
-            e[c] = (c0[c] + a * (c1[c] - c0[c])).round().clamp(0.0, 255.0) as u8;
-        }
-    }
-    lut
 }
 
 /// Loads one image file.
@@ -130,23 +103,13 @@ pub fn load_image(path: &Path, colour: ColourMode) -> Result<RawImage, DatasetEr
                     values: b.pixels().map(|p| f64::from(p[0])).collect(),
                 }
             } else if colour == ColourMode::Pseudo {
-                let lut = ironbow();
+                let mut cache: HashMap<[u8; 3], f64> = HashMap::new();
                 let values = b
                     .pixels()
                     .map(|p| {
-                        let mut best = (u32::MAX, 0usize);
-                        for (i, c) in lut.iter().enumerate() {
-                            let d: u32 = (0..3)
-                                .map(|k| {
-                                    let x = i32::from(p[k]) - i32::from(c[k]);
-                                    (x * x) as u32
-                                })
-                                .sum();
-                            if d < best.0 {
-                                best = (d, i);
-                            }
-                        }
-                        best.1 as f64
+                        *cache
+                            .entry(p.0)
+                            .or_insert_with(|| Colormap::Ironbow.nearest(p.0).0 as f64)
                     })
                     .collect();
                 RawImage {

@@ -24,6 +24,8 @@ use std::fs;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use s3tir_calib::model::palette::Colormap;
+
 use super::error::MeshError;
 use super::extract::Mesh;
 
@@ -611,7 +613,7 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
 /// finite values; NaN temperatures are mid grey), and that range `(lo, hi)` in kelvin (NaN
 /// when no temperature is finite).
 pub fn thermal_colours(kelvin: &[f32]) -> (Vec<[u8; 3]>, f32, f32) {
-    let lut = crate::dataset::images::ironbow();
+    let lut = Colormap::Ironbow.lut_u8();
     let mut finite: Vec<f32> = kelvin.iter().copied().filter(|k| k.is_finite()).collect();
     if finite.is_empty() {
         return (vec![[128; 3]; kelvin.len()], f32::NAN, f32::NAN);
@@ -714,7 +716,7 @@ mod tests {
             (290.0, 300.25),
             "1st and 99th percentile of 3 finite values"
         );
-        let lut = crate::dataset::images::ironbow();
+        let lut = Colormap::Ironbow.lut_u8();
         assert_eq!(
             colours[0], lut[0],
             "the coldest is the palette's first colour"
