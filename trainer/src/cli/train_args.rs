@@ -8,8 +8,7 @@ use clap::{Args, ValueEnum};
 use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{LoadOptions, Modality, ThermalUnits};
 use s3tir_trainer::train::{
-    BackendKind, ConsistPartner, Densify, Joint, Mode, ResponseConfig, ResponseKind, RgbLoss,
-    TrainConfig, Weights,
+    BackendKind, ConsistPartner, Joint, Mode, ResponseKind, RgbLoss, TrainConfig,
 };
 
 /// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
@@ -49,18 +48,18 @@ pub struct TrainArgs {
     pub out: Option<PathBuf>,
     /// s3tir (learnable β + bands), 3dgs (β ≡ 2, no bands), ges (learnable β, no bands),
     /// gabor (bands, β ≡ 2).
-    #[arg(long, default_value = "s3tir")]
+    #[arg(long, default_value_t = TrainConfig::defaults().mode)]
     pub mode: Mode,
     /// Iterations [default: 30000; on --resume: the run's own].
     #[arg(long)]
     pub iters: Option<u64>,
     /// Gaussian warm-up iterations (β ≡ 2, bands off).
-    #[arg(long, default_value_t = 3000)]
+    #[arg(long, default_value_t = TrainConfig::defaults().warmup)]
     pub warmup: u64,
     /// Iterations over which the band learning rates rise linearly from 0 to their value after
     /// the warm-up (0: all bands at full rate at once, as the paper; measured no better on the
     /// real facade as long as the warm-up, so off by default).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = TrainConfig::defaults().band_ramp)]
     pub band_ramp: u64,
     /// Compute backend [default: cpu; on --resume: the run's own].
     #[arg(long, value_enum)]
@@ -76,13 +75,13 @@ pub struct TrainArgs {
     /// Hard primitive budget. Under a short --time-budget on a slow device fewer primitives
     /// can train better: on the real thermal facade (8 minutes, lavapipe) 10 000 ended 1 dB
     /// above the default (scripts/real-data/README.md).
-    #[arg(long, default_value_t = 100_000)]
+    #[arg(long, default_value_t = TrainConfig::defaults().budget)]
     pub budget: usize,
     /// Random seed (initial subsampling, bands, view order, splits).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = TrainConfig::defaults().seed)]
     pub seed: u64,
     /// Gabor bands per primitive (modes with bands).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = TrainConfig::defaults().bands)]
     pub bands: usize,
     /// No multi-view consistency loss.
     #[arg(long)]
@@ -103,39 +102,39 @@ pub struct TrainArgs {
     #[arg(long)]
     pub json: bool,
     /// Hold out every k-th view (by name) for evaluation; 0: none.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = LoadOptions::default().holdout_every)]
     pub holdout: usize,
     /// Integer downscale of every image at load.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = LoadOptions::default().downscale)]
     pub downscale: usize,
     /// What 16-bit words are: `ck` (TLinear centikelvin, radiometric) or `counts`.
-    #[arg(long, value_enum, default_value_t = Units::Ck)]
+    #[arg(long, value_enum, default_value_t = Units::of(LoadOptions::default().thermal_units))]
     pub units: Units,
     /// Read 8-bit colour images as ironbow pseudo-colour thermal instead of RGB.
     #[arg(long)]
     pub pseudo_colour: bool,
     /// Held-out evaluation interval, training seconds.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = TrainConfig::defaults().eval_every_s)]
     pub eval_every_s: f64,
     /// Checkpoint interval, training seconds.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = TrainConfig::defaults().checkpoint_every_s)]
     pub checkpoint_every_s: f64,
     /// β learning rate (β units).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = TrainConfig::defaults().lr.beta)]
     pub beta_lr: f64,
     /// Compute the multi-view consistency loss every k-th iteration.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = TrainConfig::defaults().consist_every)]
     pub consist_every: u64,
     /// Weight λc of the multi-view consistency loss (paper eq. 6: 0.01). 0 keeps the term's
     /// pairing of views (and its cost) without its pull, to separate the two; --no-consist
     /// turns both off.
-    #[arg(long, default_value_t = Weights::default().consist)]
+    #[arg(long, default_value_t = TrainConfig::defaults().weights.consist)]
     pub consist_weight: f64,
     /// The consistency term's partner view: `previous` pairs consecutive steps (a random view,
     /// then a view overlapping it, warped into the G-buffers kept from the first: no extra
     /// render, the term on every second step); `render` renders the view's best-overlap
     /// partner in the same step (both views get gradients; about 2x the step time).
-    #[arg(long, default_value_t = ConsistPartner::Previous)]
+    #[arg(long, default_value_t = TrainConfig::defaults().consist_partner)]
     pub consist_partner: ConsistPartner,
     /// Train for this much training time instead of a number of iterations: `90s`, `10m`,
     /// `1h30m` or plain seconds. Training time is step time, as the error-vs-time plot counts
@@ -146,28 +145,28 @@ pub struct TrainArgs {
     pub time_budget: Option<f64>,
     /// Density control: densify primitives whose mean view-space positional gradient (3DGS's
     /// statistic, in normalised device coordinates) exceeds this.
-    #[arg(long, default_value_t = Densify::default().grad_threshold)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.grad_threshold)]
     pub densify_grad: f64,
     /// Density control runs from this (schedule) iteration…
-    #[arg(long, default_value_t = Densify::default().from)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.from)]
     pub densify_from: u64,
     /// …until this one (and never in the second half of the run)…
-    #[arg(long, default_value_t = Densify::default().until)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.until)]
     pub densify_until: u64,
     /// …every this many iterations (0: no density control).
-    #[arg(long, default_value_t = Densify::default().every)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.every)]
     pub densify_every: u64,
     /// Density control removes primitives whose opacity is below this.
-    #[arg(long, default_value_t = Densify::default().prune_opacity)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.prune_opacity)]
     pub prune_opacity: f64,
     /// Density control with the budget full: up to this fraction of the primitives per round,
     /// the weakest by opacity, make room for primitives still over the threshold (0: growth
     /// stops at the budget).
-    #[arg(long, default_value_t = Densify::default().relocate_frac)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.relocate_frac)]
     pub relocate_frac: f64,
     /// Density control adds at most this fraction of the primitives per round (0: as many as
     /// are over the threshold, up to the budget).
-    #[arg(long, default_value_t = Densify::default().grow_frac)]
+    #[arg(long, default_value_t = TrainConfig::defaults().densify.grow_frac)]
     pub densify_grow_frac: f64,
     /// Per-view radiometric response learned with the scene, applied to each training view's
     /// render: `affine` (gain and offset: 8-bit images tone-mapped per frame by automatic gain
@@ -178,14 +177,14 @@ pub struct TrainArgs {
     /// log-gain zero), or, when DATA/ffc.txt lists the views taken right after a flat-field
     /// correction, their offsets are pinned at zero there. Held-out views are evaluated raw
     /// and aligned (eval.json, metrics.csv, error_vs_time.png).
-    #[arg(long, default_value_t = ResponseKind::Auto)]
+    #[arg(long, default_value_t = TrainConfig::defaults().response.kind)]
     pub response: ResponseKind,
     /// Weight of the L2 prior on each view's response (offset² + log-gain²).
-    #[arg(long, default_value_t = ResponseConfig::default().prior)]
+    #[arg(long, default_value_t = TrainConfig::defaults().response.prior)]
     pub response_prior: f64,
     /// Adam learning rate of the responses' offsets (normalised units) at the start of the
     /// run; the log-gains' is twice it. Both decay to a tenth over the run.
-    #[arg(long, default_value_t = ResponseConfig::default().lr_offset)]
+    #[arg(long, default_value_t = TrainConfig::defaults().response.lr_offset)]
     pub response_lr: f64,
     /// At the end, time the CPU reference renderer's step on a training view with and without
     /// its shortcuts (capacity.json: cpu_step_ms_*; six CPU passes, so off by default).
@@ -195,7 +194,7 @@ pub struct TrainArgs {
     /// model holding a rig's thermal and RGB images (each with its own camera: thermal pose =
     /// RGB pose composed with the calibrated extrinsic) trains one set of primitives with a
     /// thermal head and an SH colour head: `both` (joint), `thermal` or `rgb` alone.
-    #[arg(long, default_value_t = Modality::Both)]
+    #[arg(long, default_value_t = LoadOptions::default().modality)]
     pub views: Modality,
     /// Joint: RGB pre-training, the first N iterations on RGB views only, then every view
     /// (paper §3.3; counted inside --iters) [default: 0; `ablation`: a tenth of --iters].
@@ -208,13 +207,13 @@ pub struct TrainArgs {
     /// Joint: RGB views' loss — `l1-low` (TGA-GS's L1-low on a log curve for dark images, plus
     /// D-SSIM), `l1` (L1 + D-SSIM), or `auto`: l1-low when the RGB training views average
     /// below 0.2 (low light).
-    #[arg(long, default_value_t = RgbLoss::Auto)]
+    #[arg(long, default_value_t = TrainConfig::defaults().joint.rgb_loss)]
     pub rgb_loss: RgbLoss,
     /// Joint: weight of every term of a thermal view's loss.
-    #[arg(long, default_value_t = Joint::default().thermal_weight)]
+    #[arg(long, default_value_t = TrainConfig::defaults().joint.thermal_weight)]
     pub thermal_weight: f64,
     /// Joint: weight of every term of an RGB view's loss.
-    #[arg(long, default_value_t = Joint::default().rgb_weight)]
+    #[arg(long, default_value_t = TrainConfig::defaults().joint.rgb_weight)]
     pub rgb_weight: f64,
     /// Weight of the thermal gradient alignment loss (TGA-GS §3.4: rendered normals from the
     /// depth G-buffer against the thermal image's gradients) on thermal views; 0 turns it off
@@ -230,7 +229,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub sr_scale: Option<usize>,
     /// Degree of the SH colour of runs with RGB views (0–3).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = TrainConfig::defaults().sh_degree)]
     pub sh_degree: usize,
 }
 
@@ -240,6 +239,16 @@ pub struct TrainArgs {
 pub enum Units {
     Ck,
     Counts,
+}
+
+impl Units {
+    /// The option naming `units`.
+    fn of(units: ThermalUnits) -> Self {
+        match units {
+            ThermalUnits::CentiKelvin => Units::Ck,
+            ThermalUnits::RawCounts => Units::Counts,
+        }
+    }
 }
 
 /// A duration for `--time-budget`: plain seconds, or numbers with units `h`, `m`, `s`
@@ -318,7 +327,9 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     }
     cfg.sh_degree = a.sh_degree;
     cfg.joint = Joint {
-        rgb_pretrain: a.rgb_pretrain.unwrap_or(0),
+        rgb_pretrain: a
+            .rgb_pretrain
+            .unwrap_or(TrainConfig::defaults().joint.rgb_pretrain),
         thermal_weight: a.thermal_weight,
         rgb_weight: a.rgb_weight,
         rgb_loss: a.rgb_loss,
@@ -328,7 +339,7 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
         ..Joint::default()
     };
     cfg.mode = a.mode;
-    cfg.iters = a.iters.unwrap_or(30_000);
+    cfg.iters = a.iters.unwrap_or(TrainConfig::defaults().iters);
     cfg.time_budget_s = a.time_budget;
     cfg.densify.grad_threshold = a.densify_grad;
     cfg.densify.from = a.densify_from;
@@ -356,14 +367,17 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     cfg.lr.beta = a.beta_lr;
     cfg.consist_every = a.consist_every;
     cfg.consist_partner = a.consist_partner;
-    cfg.backend = a.backend.unwrap_or_default();
+    cfg.backend = a.backend.unwrap_or(TrainConfig::defaults().backend);
     Ok(cfg)
 }
 
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
-    use super::parse_duration;
+    use clap::{Args, Command};
+    use s3tir_trainer::train::TrainConfig;
+
+    use super::{TrainArgs, parse_duration};
 
     #[test]
     fn durations_read_as_seconds() {
@@ -375,5 +389,53 @@ mod tests {
         for bad in ["", "0", "-5", "10x", "m", "5m3", "nan", "0s"] {
             assert!(parse_duration(bad).is_err(), "{bad:?} must be refused");
         }
+    }
+
+    /// `--iters` and `--backend` state their default in words (they have none in clap: on
+    /// `--resume` "not given" keeps the run's own): the words must match the one declared
+    /// default, and every default clap shows comes from it.
+    #[test]
+    fn the_help_states_the_declared_defaults() {
+        let cmd = TrainArgs::augment_args(Command::new("s3tir-train"));
+        let arg = |id: &str| {
+            cmd.get_arguments()
+                .find(|a| a.get_id() == id)
+                .unwrap_or_else(|| panic!("no --{id} option"))
+        };
+        let help = |id: &str| {
+            arg(id)
+                .get_help()
+                .map(|h| h.to_string())
+                .unwrap_or_default()
+        };
+        let d = TrainConfig::defaults();
+        for (id, default) in [
+            ("iters", d.iters.to_string()),
+            ("backend", d.backend.to_string()),
+        ] {
+            assert!(
+                help(id).contains(&format!("[default: {default};")),
+                "--{id}'s help must state the declared default {default}: {:?}",
+                help(id)
+            );
+        }
+        let shown = |id: &str| {
+            arg(id)
+                .get_default_values()
+                .iter()
+                .map(|v| v.to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            shown("warmup"),
+            [d.warmup.to_string()],
+            "--warmup's default"
+        );
+        assert_eq!(
+            shown("beta_lr"),
+            [d.lr.beta.to_string()],
+            "--beta-lr's default"
+        );
+        assert_eq!(shown("mode"), [d.mode.to_string()], "--mode's default");
     }
 }

@@ -4,6 +4,7 @@
 use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
+use std::sync::OnceLock;
 
 use serde::{Deserialize, Serialize};
 
@@ -401,6 +402,17 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
+    /// Every option's default, `data` empty: what the command line shows in `--help` and falls
+    /// back to. With [`TrainConfig::new`] (and the option types' own `Default`s it uses) the one
+    /// place a training default is declared. The command line keeps its own options struct
+    /// (`cli/train_args.rs`) rather than parsing into this one because `--resume` must tell an
+    /// option not given from one given as its default (`--iters`, `--backend`: the run's own
+    /// values then hold); it reads every default from here.
+    pub fn defaults() -> &'static TrainConfig {
+        static DEFAULTS: OnceLock<TrainConfig> = OnceLock::new();
+        DEFAULTS.get_or_init(|| TrainConfig::new(PathBuf::new()))
+    }
+
     /// Paper defaults (§4.1) for a dataset.
     pub fn new(data: PathBuf) -> Self {
         Self {
