@@ -5,7 +5,8 @@
 #   when their default features are off, trainer never pulls OpenCV in, and without its
 #   defaults (no `session`) neither tokio, MCAP nor a serial port; the simulator never those;
 # - plots need no system fonts, and one version of `image` is built;
-# - calib's stage folders import one way (the table in ARCHITECTURE.md, "Inside the crates").
+# - calib's stage folders import one way (the table in ARCHITECTURE.md, "Inside the crates");
+# - no import circle between the modules of any crate (scripts/check-imports.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 fail=0
@@ -92,6 +93,9 @@ calib_forbid progress model detect solve report poses synth bench progress::bars
 calib_forbid tags.rs model detect solve report poses synth bench progress::bars
 calib_forbid synth.rs progress::bars
 calib_forbid bench.rs progress::bars
+
+# No import circle between the modules of a crate (the script checks itself on a planted one).
+python3 scripts/check-imports.py || fail=1
 
 if [ $fail -eq 0 ]; then echo "check-deps: dependency directions, slim builds and calib's module rules OK"; fi
 exit $fail

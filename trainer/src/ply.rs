@@ -31,6 +31,8 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use s3tir_calib::model::ply::{self, Element, Header, Prop, Ty};
+
 use thiserror::Error;
 
 use crate::primitive::{Primitives, beta_of_raw};
@@ -100,22 +102,21 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
         source: Box::new(source),
     })?;
     let names = property_names(prims.bands, prims.sh_degree);
-    let mut out = Vec::new();
-    let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
-    header.push_str("comment s3tir primitives: kernel exp(-m^beta) without the 1/2 of 3DGS; scale_* are 3DGS log-scales (s3tir - ln(2)/2)\n");
-    header.push_str(&format!("comment s3tir bands {}\n", prims.bands));
-    header.push_str(&format!(
-        "comment s3tir sh_degree {}\n",
-        prims
-            .sh_degree
-            .map_or_else(|| "none".to_owned(), |d| d.to_string())
-    ));
-    header.push_str(&format!("element vertex {}\n", prims.len()));
-    for n in &names {
-        header.push_str(&format!("property float {n}\n"));
-    }
-    header.push_str("end_header\n");
-    out.extend_from_slice(header.as_bytes());
+    let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let header = Header {
+        comments: vec![
+            "s3tir primitives: kernel exp(-m^beta) without the 1/2 of 3DGS; scale_* are 3DGS log-scales (s3tir - ln(2)/2)".into(),
+            format!("s3tir bands {}", prims.bands),
+            format!(
+                "s3tir sh_degree {}",
+                prims
+                    .sh_degree
+                    .map_or_else(|| "none".to_owned(), |d| d.to_string())
+            ),
+        ],
+        elements: vec![Element::scalars("vertex", prims.len(), Ty::F32, &name_refs)],
+    };
+    let mut out = header.text().into_bytes();
     let k = prims.sh_k();
     let m = prims.bands;
     for i in 0..prims.len() {
@@ -156,16 +157,10 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
-    let tmp = path.with_extension("ply.tmp");
-    let io = |source| PlyError::Io {
+    ply::write_atomic(path, |w| w.write_all(&out)).map_err(|source| PlyError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let mut f = fs::File::create(&tmp).map_err(io)?;
-    f.write_all(&out).map_err(io)?;
-    f.sync_all().map_err(io)?;
-    fs::rename(&tmp, path).map_err(io)?;
-    Ok(())
+    })
 }
 
 /// Most frequency bands a PLY header may declare (the trainer uses a handful; the cap keeps a
@@ -183,46 +178,47 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
         path: path.to_path_buf(),
         source,
     })?;
-    const END: &[u8] = b"end_header\n";
-    let end = data
-        .windows(END.len())
-        .position(|w| w == END)
-        .ok_or_else(|| fmt("no end_header".into()))?
-        + END.len();
-    let header =
-        std::str::from_utf8(&data[..end]).map_err(|_| fmt("header is not UTF-8".into()))?;
-    let mut lines = header.lines();
-    if lines.next() != Some("ply") {
-        return Err(fmt("not a PLY file".into()));
-    }
+    let (header, end) = Header::read(path, &data).map_err(|e| fmt(e.reason))?;
     let mut bands = None;
     let mut sh_degree: Option<Option<usize>> = None;
-    let mut count = None;
-    let mut names = Vec::new();
-    for l in lines {
-        let t: Vec<&str> = l.split_whitespace().collect();
-        match t.as_slice() {
-            ["format", f, _] if *f != "binary_little_endian" => {
-                return Err(fmt(format!("format {f} not supported")));
-            }
-            ["comment", "s3tir", "bands", m] => bands = m.parse::<usize>().ok(),
-            ["comment", "s3tir", "sh_degree", d] => {
+    for c in &header.comments {
+        match c.split_whitespace().collect::<Vec<_>>().as_slice() {
+            ["s3tir", "bands", m] => bands = m.parse::<usize>().ok(),
+            ["s3tir", "sh_degree", d] => {
                 sh_degree = Some(if *d == "none" { None } else { d.parse().ok() });
-            }
-            ["element", "vertex", n] => count = n.parse::<usize>().ok(),
-            ["element", e, _] => return Err(fmt(format!("unexpected element {e}"))),
-            ["property", "float", n] => names.push((*n).to_owned()),
-            ["property", ty, n] => {
-                return Err(fmt(format!(
-                    "property {n} has type {ty}; only float is read"
-                )));
             }
             _ => {}
         }
     }
+    let vertex = match header.elements.as_slice() {
+        [v] if v.name == "vertex" => v,
+        _ => {
+            let names: Vec<&str> = header.elements.iter().map(|e| e.name.as_str()).collect();
+            return Err(fmt(format!(
+                "elements {names:?}: an s3tir primitives file has one `vertex` element"
+            )));
+        }
+    };
+    let mut names = Vec::with_capacity(vertex.props.len());
+    for p in &vertex.props {
+        match p {
+            Prop::Scalar { name, ty: Ty::F32 } => names.push(name.clone()),
+            Prop::Scalar { name, ty } => {
+                return Err(fmt(format!(
+                    "property {name} has type {}; only float is read",
+                    ty.name()
+                )));
+            }
+            Prop::List { name, .. } => {
+                return Err(fmt(format!(
+                    "property {name} is a list; only float is read"
+                )));
+            }
+        }
+    }
     let bands = bands.ok_or_else(|| fmt("missing `comment s3tir bands M`".into()))?;
     let sh_degree = sh_degree.ok_or_else(|| fmt("missing `comment s3tir sh_degree`".into()))?;
-    let n = count.ok_or_else(|| fmt("missing `element vertex N`".into()))?;
+    let n = vertex.count;
     // Header numbers are checked before they size anything.
     if bands > MAX_PLY_BANDS {
         return Err(fmt(format!(

@@ -6,6 +6,8 @@
 //! - [`geometry`]: rigid transforms (`b_from_a`).
 //! - [`calfile`]: `calibration.yaml` reader and model-only writer.
 //! - [`colmap`]: the workspace's COLMAP sparse-model codec (text and binary).
+//! - [`ply`]: binary PLY, the one codec of the trainer's primitives and meshes and the
+//!   simulator's truth surface (header, types, body cursor, atomic write).
 //! - [`palette`]: the thermal colour palettes (ironbow, inferno), one table each: drawing
 //!   temperatures for people and mapping pseudo-colour frames back to scalars.
 
@@ -14,3 +16,4 @@ pub mod camera;
 pub mod colmap;
 pub mod geometry;
 pub mod palette;
+pub mod ply;

@@ -7,6 +7,15 @@ use thiserror::Error;
 
 use crate::train::TrainError;
 
+impl From<s3tir_calib::model::ply::FormatError> for MeshError {
+    fn from(e: s3tir_calib::model::ply::FormatError) -> Self {
+        MeshError::Ply {
+            path: e.path,
+            reason: e.reason,
+        }
+    }
+}
+
 #[derive(Debug, Error)]
 pub enum MeshError {
     #[error("cannot write or read {path}: {source}")]

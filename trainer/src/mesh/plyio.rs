@@ -21,10 +21,11 @@
 //! anything; ASCII and big-endian files are refused with an error naming the file.
 
 use std::fs;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::Write;
+use std::path::Path;
 
 use s3tir_calib::model::palette::Colormap;
+use s3tir_calib::model::ply::{self, Body, Element, Header, Prop, Ty};
 
 use super::error::MeshError;
 use super::extract::Mesh;
@@ -33,24 +34,11 @@ use super::extract::Mesh;
 pub const MESH_COMMENT: &str =
     "s3tir mesh: surface nets over a fused truncated signed-distance volume";
 
-/// Longest header read (bytes).
-const MAX_HEADER_BYTES: usize = 1 << 20;
-
 fn ply_err(path: &Path, reason: impl Into<String>) -> MeshError {
     MeshError::Ply {
         path: path.to_path_buf(),
         reason: reason.into(),
     }
-}
-
-/// `path` + `.tmp` in the same folder.
-fn tmp_path(path: &Path) -> Result<PathBuf, MeshError> {
-    let mut name = path
-        .file_name()
-        .ok_or_else(|| ply_err(path, "not a file path"))?
-        .to_os_string();
-    name.push(".tmp");
-    Ok(path.with_file_name(name))
 }
 
 /// Checks that `mesh` (with `colours` replacing its own) can be written as a consistent PLY.
@@ -121,36 +109,34 @@ pub fn write_mesh_ply(
 ) -> Result<(), MeshError> {
     check_mesh(path, mesh, colours)?;
     let colours = colours.or(mesh.rgb.as_deref());
-    let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
-    header.push_str(&format!("comment {MESH_COMMENT}\n"));
-    for line in comment.lines() {
-        let line = line.replace('\r', " ");
-        let line = line.trim();
-        if !line.is_empty() {
-            header.push_str(&format!("comment {line}\n"));
-        }
-    }
-    header.push_str(&format!("element vertex {}\n", mesh.positions.len()));
-    for p in ["x", "y", "z", "nx", "ny", "nz", "kelvin"] {
-        header.push_str(&format!("property float {p}\n"));
-    }
+    let mut comments = vec![MESH_COMMENT.to_owned()];
+    comments.extend(comment.lines().map(str::to_owned));
+    let mut vertex = Element::scalars(
+        "vertex",
+        mesh.positions.len(),
+        Ty::F32,
+        &["x", "y", "z", "nx", "ny", "nz", "kelvin"],
+    );
     if colours.is_some() {
-        for p in ["red", "green", "blue"] {
-            header.push_str(&format!("property uchar {p}\n"));
-        }
+        vertex
+            .props
+            .extend(["red", "green", "blue"].map(|n| Prop::scalar(n, Ty::U8)));
     }
-    header.push_str(&format!("element face {}\n", mesh.triangles.len()));
-    header.push_str("property list uchar int vertex_indices\nend_header\n");
-
-    let tmp = tmp_path(path)?;
-    let io = |source| MeshError::Io {
-        path: tmp.clone(),
-        source,
+    let face = Element {
+        name: "face".into(),
+        count: mesh.triangles.len(),
+        props: vec![Prop::List {
+            name: "vertex_indices".into(),
+            count: Ty::U8,
+            item: Ty::I32,
+        }],
     };
-    let file = fs::File::create(&tmp).map_err(io)?;
-    let write = || -> std::io::Result<fs::File> {
-        let mut w = BufWriter::with_capacity(1 << 20, file);
-        w.write_all(header.as_bytes())?;
+    let header = Header {
+        comments,
+        elements: vec![vertex, face],
+    };
+    ply::write_atomic(path, |w| {
+        w.write_all(header.text().as_bytes())?;
         for (i, p) in mesh.positions.iter().enumerate() {
             let nrm = mesh.normals.get(i).copied().unwrap_or([0.0; 3]);
             for x in p.iter().chain(&nrm).chain(std::iter::once(&mesh.kelvin[i])) {
@@ -166,231 +152,12 @@ pub fn write_mesh_ply(
                 w.write_all(&(i as i32).to_le_bytes())?;
             }
         }
-        let f = w.into_inner().map_err(|e| e.into_error())?;
-        f.sync_all()?;
-        Ok(f)
-    };
-    let done = write().and_then(|f| {
-        drop(f);
-        fs::rename(&tmp, path)
-    });
-    if let Err(source) = done {
-        // best effort: the error to report is the write's
-        let _ = fs::remove_file(&tmp);
-        return Err(MeshError::Io {
-            path: path.to_path_buf(),
-            source,
-        });
-    }
-    Ok(())
-}
-
-/// A scalar type of a PLY property.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Ty {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl Ty {
-    fn parse(s: &str) -> Option<Self> {
-        Some(match s {
-            "char" | "int8" => Self::I8,
-            "uchar" | "uint8" => Self::U8,
-            "short" | "int16" => Self::I16,
-            "ushort" | "uint16" => Self::U16,
-            "int" | "int32" => Self::I32,
-            "uint" | "uint32" => Self::U32,
-            "float" | "float32" => Self::F32,
-            "double" | "float64" => Self::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::F64 => 8,
-        }
-    }
-
-    fn is_float(self) -> bool {
-        matches!(self, Self::F32 | Self::F64)
-    }
-
-    /// The value at the start of `b` (`b.len() ≥ size()`).
-    fn value(self, b: &[u8]) -> f64 {
-        let a = |n: usize| {
-            let mut x = [0u8; 8];
-            x[..n].copy_from_slice(&b[..n]);
-            x
-        };
-        match self {
-            Self::I8 => f64::from(b[0] as i8),
-            Self::U8 => f64::from(b[0]),
-            Self::I16 => f64::from(i16::from_le_bytes([b[0], b[1]])),
-            Self::U16 => f64::from(u16::from_le_bytes([b[0], b[1]])),
-            Self::I32 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            Self::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            Self::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            Self::F64 => f64::from_le_bytes(a(8)),
-        }
-    }
-
-    /// An `f32` property read exactly (no round trip through f64 for NaN payloads).
-    fn value_f32(self, b: &[u8]) -> f32 {
-        match self {
-            Self::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-            _ => self.value(b) as f32,
-        }
-    }
-}
-
-#[derive(Debug)]
-enum Prop {
-    Scalar { name: String, ty: Ty },
-    List { name: String, count: Ty, item: Ty },
-}
-
-impl Prop {
-    fn name(&self) -> &str {
-        match self {
-            Self::Scalar { name, .. } | Self::List { name, .. } => name,
-        }
-    }
-
-    /// Fewest bytes one value of the property takes.
-    fn min_bytes(&self) -> usize {
-        match self {
-            Self::Scalar { ty, .. } => ty.size(),
-            Self::List { count, .. } => count.size(),
-        }
-    }
-}
-
-#[derive(Debug)]
-struct Element {
-    name: String,
-    count: usize,
-    props: Vec<Prop>,
-}
-
-/// The header: elements in file order and the offset of the body.
-fn parse_header(path: &Path, data: &[u8]) -> Result<(Vec<Element>, usize), MeshError> {
-    let err = |r: String| ply_err(path, r);
-    let mut pos = 0;
-    let mut elements: Vec<Element> = Vec::new();
-    let mut first = true;
-    let mut format = false;
-    loop {
-        if pos >= data.len().min(MAX_HEADER_BYTES) {
-            return Err(err(format!(
-                "no `end_header` line in the first {} bytes",
-                data.len().min(MAX_HEADER_BYTES)
-            )));
-        }
-        let end = data[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(data.len(), |e| pos + e);
-        let line = std::str::from_utf8(&data[pos..end])
-            .map_err(|_| err(format!("header byte {pos}: not text")))?
-            .trim_end_matches('\r');
-        pos = (end + 1).min(data.len());
-        if first {
-            if line != "ply" {
-                return Err(err("not a PLY file (no `ply` first line)".into()));
-            }
-            first = false;
-            continue;
-        }
-        let t: Vec<&str> = line.split_whitespace().collect();
-        match t.as_slice() {
-            ["end_header"] => break,
-            ["comment", ..] | ["obj_info", ..] | [] => {}
-            ["format", "binary_little_endian", _] => format = true,
-            ["format", f, ..] => {
-                return Err(err(format!(
-                    "format {f}: only binary_little_endian PLY is read (convert the file, \
-                     e.g. in MeshLab or CloudCompare)"
-                )));
-            }
-            ["element", name, n] => {
-                let count = n
-                    .parse::<u64>()
-                    .ok()
-                    .and_then(|c| usize::try_from(c).ok())
-                    .ok_or_else(|| err(format!("element {name}: count `{n}` is not a size")))?;
-                elements.push(Element {
-                    name: (*name).to_owned(),
-                    count,
-                    props: Vec::new(),
-                });
-            }
-            ["property", "list", c, i, name] => {
-                let (Some(count), Some(item)) = (Ty::parse(c), Ty::parse(i)) else {
-                    return Err(err(format!("property list {c} {i} {name}: unknown type")));
-                };
-                if count.is_float() {
-                    return Err(err(format!(
-                        "property list {name}: count type {c} is not an integer"
-                    )));
-                }
-                elements
-                    .last_mut()
-                    .ok_or_else(|| err(format!("property {name} before any element")))?
-                    .props
-                    .push(Prop::List {
-                        name: (*name).to_owned(),
-                        count,
-                        item,
-                    });
-            }
-            ["property", ty, name] => {
-                let ty = Ty::parse(ty)
-                    .ok_or_else(|| err(format!("property {name}: unknown type {ty}")))?;
-                elements
-                    .last_mut()
-                    .ok_or_else(|| err(format!("property {name} before any element")))?
-                    .props
-                    .push(Prop::Scalar {
-                        name: (*name).to_owned(),
-                        ty,
-                    });
-            }
-            _ => return Err(err(format!("header line `{line}` is not PLY"))),
-        }
-    }
-    if !format {
-        return Err(err("no `format` line".into()));
-    }
-    Ok((elements, pos))
-}
-
-/// The body as a cursor.
-struct Body<'a> {
-    data: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Body<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        let s = self.data.get(self.pos..self.pos.checked_add(n)?)?;
-        self.pos += n;
-        Some(s)
-    }
-
-    fn remaining(&self) -> usize {
-        self.data.len() - self.pos
-    }
+        Ok(())
+    })
+    .map_err(|source| MeshError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// An axis-aligned evaluation volume: min and max corners, world metres.
@@ -403,11 +170,11 @@ pub fn read_region(path: &Path) -> Result<Option<Region>, MeshError> {
         path: path.to_path_buf(),
         source,
     })?;
-    let (_, start) = parse_header(path, &data)?;
-    let header = String::from_utf8_lossy(&data[..start]);
+    let (header, _) = Header::read(path, &data)?;
     let Some(line) = header
-        .lines()
-        .find_map(|l| l.strip_prefix("comment region_m "))
+        .comments
+        .iter()
+        .find_map(|l| l.strip_prefix("region_m "))
     else {
         return Ok(None);
     };
@@ -439,10 +206,10 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
         source,
     })?;
     let err = |r: String| ply_err(path, r);
-    let (elements, start) = parse_header(path, &data)?;
-    let vertex = elements
-        .iter()
-        .find(|e| e.name == "vertex")
+    let (header, start) = Header::read(path, &data)?;
+    let elements = &header.elements;
+    let vertex = header
+        .element("vertex")
         .ok_or_else(|| err("no `element vertex`".into()))?;
     let n_vertices = vertex.count;
     let scalar = |name: &str| -> Result<Option<usize>, MeshError> {
@@ -471,17 +238,14 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
         _ => None,
     };
 
-    let mut body = Body {
-        data: &data[start..],
-        pos: 0,
-    };
+    let mut body = Body::new(&data[start..]);
     let mut mesh = Mesh {
         rgb: rgb_at.map(|_| Vec::new()),
         ..Mesh::default()
     };
     // one row's values of the vertex element (scalars only; lists are skipped)
     let mut raw: Vec<(Ty, &[u8])> = Vec::new();
-    for el in &elements {
+    for el in elements {
         let min_row: usize = el.props.iter().map(Prop::min_bytes).sum();
         if el.count > 0 && min_row == 0 {
             return Err(err(format!(
