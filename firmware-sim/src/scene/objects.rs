@@ -121,8 +121,32 @@ fn radiator_temp_k(y: f64) -> f64 {
     318.0 + 4.0 * (2.0 * std::f64::consts::PI * y / 0.06).cos()
 }
 
-fn face(n: DVec3, d: DVec3) -> DVec3 {
+/// `n` turned to face a ray of direction `d`.
+pub(crate) fn face(n: DVec3, d: DVec3) -> DVec3 {
     if n.dot(d) > 0.0 { -n } else { n }
+}
+
+/// Nearest hit offered so far: the tracers' one closest-hit rule (`t > 1e-9`; on a tie the
+/// first offered stays).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Nearest(pub(crate) Option<SurfaceHit>);
+
+impl Nearest {
+    pub(crate) fn offer(&mut self, h: SurfaceHit) {
+        if h.t > 1e-9 && self.0.is_none_or(|b| h.t < b.t) {
+            self.0 = Some(h);
+        }
+    }
+}
+
+/// Where the ray `o + t d` meets the plane `p[axis] = at`: `(t, p)`; `None` when it runs
+/// parallel to the plane (|d[axis]| ≤ 1e-12).
+pub(crate) fn axis_plane(o: DVec3, d: DVec3, axis: usize, at: f64) -> Option<(f64, DVec3)> {
+    if d[axis].abs() <= 1e-12 {
+        return None;
+    }
+    let t = (at - o[axis]) / d[axis];
+    Some((t, o + d * t))
 }
 
 /// Nearest surface of `layout` along the ray `o + t d` (t > 1e-9), world frame.
@@ -134,11 +158,7 @@ pub fn trace(layout: SceneLayout, o: DVec3, d: DVec3) -> Option<SurfaceHit> {
 }
 
 fn trace_wall(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
-    if d.y.abs() <= 1e-12 {
-        return None;
-    }
-    let t = (WALL_Y - o.y) / d.y;
-    let p = o + d * t;
+    let (t, p) = axis_plane(o, d, 1, WALL_Y)?;
     let inside = p.x >= WALL_X.0 && p.x <= WALL_X.1 && p.z >= WALL_Z.0 && p.z <= WALL_Z.1;
     (t > 1e-9 && inside).then(|| {
         let (emissivity, albedo) = wall_material(p.x);
@@ -154,84 +174,95 @@ fn trace_wall(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
 }
 
 fn trace_objects(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
-    let mut best: Option<SurfaceHit> = None;
-    let mut consider = |h: SurfaceHit| {
-        if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
-            best = Some(h);
-        }
-    };
-    // Ground.
-    if d.z.abs() > 1e-12 {
-        let t = -o.z / d.z;
-        let p = o + d * t;
-        if p.x.abs() <= 2.0 && p.y.abs() <= 2.0 {
-            let tile = ((p.x / 0.2).floor() + (p.y / 0.2).floor()) as i64 % 2 == 0;
-            let a = if tile { 0.30 } else { 0.38 };
-            consider(SurfaceHit {
-                t,
-                temp_k: floor_temp_k(p.x),
-                emissivity: 0.95,
-                albedo: [a, a * 0.95, a * 0.85],
-                normal: face(DVec3::Z, d),
-                object: SceneObject::Ground,
-            });
+    let mut nearest = Nearest::default();
+    for hit in [ground(o, d), pipe_side(o, d)].into_iter().flatten() {
+        nearest.offer(hit);
+    }
+    for x in [PIPE_X.0, PIPE_X.1] {
+        if let Some(hit) = pipe_cap(o, d, x) {
+            nearest.offer(hit);
         }
     }
-    // Pipe side.
+    for hit in [box_face(o, d), radiator(o, d)].into_iter().flatten() {
+        nearest.offer(hit);
+    }
+    nearest.0
+}
+
+/// The ground (z = 0 within ±2 m), tiled.
+fn ground(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    let (t, p) = axis_plane(o, d, 2, 0.0)?;
+    (p.x.abs() <= 2.0 && p.y.abs() <= 2.0).then(|| {
+        let tile = ((p.x / 0.2).floor() + (p.y / 0.2).floor()) as i64 % 2 == 0;
+        let a = if tile { 0.30 } else { 0.38 };
+        SurfaceHit {
+            t,
+            temp_k: floor_temp_k(p.x),
+            emissivity: 0.95,
+            albedo: [a, a * 0.95, a * 0.85],
+            normal: face(DVec3::Z, d),
+            object: SceneObject::Ground,
+        }
+    })
+}
+
+/// The pipe's cylindrical side (its nearer crossing within the pipe's length).
+fn pipe_side(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
     let (oy, oz) = (o.y - PIPE_YZ.0, o.z - PIPE_YZ.1);
     let a = d.y * d.y + d.z * d.z;
-    if a > 1e-15 {
-        let b = 2.0 * (oy * d.y + oz * d.z);
-        let c = oy * oy + oz * oz - PIPE_R * PIPE_R;
-        let disc = b * b - 4.0 * a * c;
-        if disc >= 0.0 {
-            for t in [
-                (-b - disc.sqrt()) / (2.0 * a),
-                (-b + disc.sqrt()) / (2.0 * a),
-            ] {
-                let p = o + d * t;
-                if t > 1e-9 && p.x >= PIPE_X.0 && p.x <= PIPE_X.1 {
-                    let n = DVec3::new(0.0, p.y - PIPE_YZ.0, p.z - PIPE_YZ.1) / PIPE_R;
-                    consider(SurfaceHit {
-                        t,
-                        temp_k: pipe_temp_k(p.x),
-                        emissivity: 0.9,
-                        albedo: [0.55, 0.25, 0.12],
-                        normal: face(n, d),
-                        object: SceneObject::PipeSide,
-                    });
-                    break;
-                }
-            }
-        }
+    if a <= 1e-15 {
+        return None;
     }
-    // Pipe end caps.
-    if d.x.abs() > 1e-12 {
-        for x in [PIPE_X.0, PIPE_X.1] {
-            let t = (x - o.x) / d.x;
-            let p = o + d * t;
-            if (p.y - PIPE_YZ.0).powi(2) + (p.z - PIPE_YZ.1).powi(2) <= PIPE_R * PIPE_R {
-                consider(SurfaceHit {
-                    t,
-                    temp_k: pipe_temp_k(x),
-                    emissivity: 0.9,
-                    albedo: [0.45, 0.2, 0.1],
-                    normal: face(DVec3::X, d),
-                    object: SceneObject::PipeCap,
-                });
-            }
-        }
+    let b = 2.0 * (oy * d.y + oz * d.z);
+    let c = oy * oy + oz * oz - PIPE_R * PIPE_R;
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return None;
     }
-    // Box (slabs).
+    [
+        (-b - disc.sqrt()) / (2.0 * a),
+        (-b + disc.sqrt()) / (2.0 * a),
+    ]
+    .into_iter()
+    .find_map(|t| {
+        let p = o + d * t;
+        (t > 1e-9 && p.x >= PIPE_X.0 && p.x <= PIPE_X.1).then(|| {
+            let n = DVec3::new(0.0, p.y - PIPE_YZ.0, p.z - PIPE_YZ.1) / PIPE_R;
+            SurfaceHit {
+                t,
+                temp_k: pipe_temp_k(p.x),
+                emissivity: 0.9,
+                albedo: [0.55, 0.25, 0.12],
+                normal: face(n, d),
+                object: SceneObject::PipeSide,
+            }
+        })
+    })
+}
+
+/// The pipe's end cap at `x`.
+fn pipe_cap(o: DVec3, d: DVec3, x: f64) -> Option<SurfaceHit> {
+    let (t, p) = axis_plane(o, d, 0, x)?;
+    ((p.y - PIPE_YZ.0).powi(2) + (p.z - PIPE_YZ.1).powi(2) <= PIPE_R * PIPE_R).then(|| SurfaceHit {
+        t,
+        temp_k: pipe_temp_k(x),
+        emissivity: 0.9,
+        albedo: [0.45, 0.2, 0.1],
+        normal: face(DVec3::X, d),
+        object: SceneObject::PipeCap,
+    })
+}
+
+/// The box (slab test), painted on its x < `BOX_C.x` half.
+fn box_face(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
     let lo = BOX_C - DVec3::splat(BOX_H);
     let hi = BOX_C + DVec3::splat(BOX_H);
     let (mut t0, mut t1, mut axis0) = (f64::MIN, f64::MAX, 0usize);
-    let mut hit_box = true;
     for k in 0..3 {
         let (ok, dk, lk, hk) = (o[k], d[k], lo[k], hi[k]);
         if dk.abs() < 1e-15 {
             if ok < lk || ok > hk {
-                hit_box = false;
+                return None;
             }
             continue;
         }
@@ -245,41 +276,41 @@ fn trace_objects(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
         }
         t1 = t1.min(b);
     }
-    if hit_box && t0 <= t1 && t0 > 1e-9 {
-        let p = o + d * t0;
-        let mut n = DVec3::ZERO;
-        n[axis0] = 1.0;
-        let painted = p.x < BOX_C.x;
-        consider(SurfaceHit {
-            t: t0,
-            temp_k: 313.0,
-            emissivity: if painted { 0.95 } else { 0.12 },
-            albedo: if painted {
-                [0.15, 0.25, 0.6]
-            } else {
-                [0.6, 0.6, 0.62]
-            },
-            normal: face(n, d),
-            object: SceneObject::Box,
-        });
+    if !(t0 <= t1 && t0 > 1e-9) {
+        return None;
     }
-    // Radiator panel (double-sided).
-    if d.x.abs() > 1e-12 {
-        let t = (RAD_X - o.x) / d.x;
-        let p = o + d * t;
-        if p.y >= RAD_Y.0 && p.y <= RAD_Y.1 && p.z >= RAD_Z.0 && p.z <= RAD_Z.1 {
-            let fin = 0.75 + 0.1 * (2.0 * std::f64::consts::PI * p.y / 0.06).cos();
-            consider(SurfaceHit {
-                t,
-                temp_k: radiator_temp_k(p.y),
-                emissivity: 0.93,
-                albedo: [fin, fin, fin * 0.97],
-                normal: face(DVec3::X, d),
-                object: SceneObject::Radiator,
-            });
+    let p = o + d * t0;
+    let mut n = DVec3::ZERO;
+    n[axis0] = 1.0;
+    let painted = p.x < BOX_C.x;
+    Some(SurfaceHit {
+        t: t0,
+        temp_k: 313.0,
+        emissivity: if painted { 0.95 } else { 0.12 },
+        albedo: if painted {
+            [0.15, 0.25, 0.6]
+        } else {
+            [0.6, 0.6, 0.62]
+        },
+        normal: face(n, d),
+        object: SceneObject::Box,
+    })
+}
+
+/// The radiator panel (double-sided, its fins as a cosine).
+fn radiator(o: DVec3, d: DVec3) -> Option<SurfaceHit> {
+    let (t, p) = axis_plane(o, d, 0, RAD_X)?;
+    (p.y >= RAD_Y.0 && p.y <= RAD_Y.1 && p.z >= RAD_Z.0 && p.z <= RAD_Z.1).then(|| {
+        let fin = 0.75 + 0.1 * (2.0 * std::f64::consts::PI * p.y / 0.06).cos();
+        SurfaceHit {
+            t,
+            temp_k: radiator_temp_k(p.y),
+            emissivity: 0.93,
+            albedo: [fin, fin, fin * 0.97],
+            normal: face(DVec3::X, d),
+            object: SceneObject::Radiator,
         }
-    }
-    best
+    })
 }
 
 fn albedo_to_srgb8(a: [f64; 3]) -> [u8; 3] {

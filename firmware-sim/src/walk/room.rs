@@ -7,6 +7,7 @@ use s3tir_calib::Rigid3;
 
 use super::fiducials::{PrintedTag, TagInk, room_tags, tag_albedo};
 use super::{ROOM_HALF_M, ROOM_HEIGHT_M};
+use crate::scene::objects::{Nearest, axis_plane};
 use crate::scene::{self, SceneLayout, SurfaceHit};
 
 /// Temperature of the room's walls, kelvin.
@@ -140,7 +141,7 @@ fn hit_walk_board(o: DVec3, d: DVec3) -> Option<(f64, DVec3, DVec3, bool)> {
 /// room `room` (its tags' make, its board).
 pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
     let ink = room.tags;
-    let mut best = scene::trace(SceneLayout::Objects, o, d);
+    let best = scene::trace(SceneLayout::Objects, o, d);
     if room.board
         && let Some((t, p, normal, front)) = hit_walk_board(o, d)
         && best.is_none_or(|b| t < b.t)
@@ -163,18 +164,12 @@ pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
             });
         }
     }
-    let mut consider = |h: SurfaceHit| {
-        if h.t > 1e-9 && best.is_none_or(|b| h.t < b.t) {
-            best = Some(h);
-        }
-    };
+    let mut nearest = Nearest(best);
     // The floor beyond the objects layout's ±2 m.
-    if d.z.abs() > 1e-12 {
-        let t = -o.z / d.z;
-        let p = o + d * t;
+    if let Some((t, p)) = axis_plane(o, d, 2, 0.0) {
         let outer = p.x.abs().max(p.y.abs());
         if outer > 2.0 && outer <= ROOM_HALF_M {
-            consider(SurfaceHit {
+            nearest.offer(SurfaceHit {
                 t,
                 temp_k: scene::floor_temp_k(p.x),
                 emissivity: 0.95,
@@ -186,12 +181,10 @@ pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
     }
     // Walls x = ±ROOM_HALF_M and y = ±ROOM_HALF_M.
     for axis in [0usize, 1] {
-        if d[axis].abs() <= 1e-12 {
-            continue;
-        }
         for side in [-1.0, 1.0] {
-            let t = (side * ROOM_HALF_M - o[axis]) / d[axis];
-            let p = o + d * t;
+            let Some((t, p)) = axis_plane(o, d, axis, side * ROOM_HALF_M) else {
+                continue;
+            };
             let other = p[1 - axis];
             if other.abs() <= ROOM_HALF_M && p.z >= 0.0 && p.z <= ROOM_HEIGHT_M {
                 let mut n = DVec3::ZERO;
@@ -201,7 +194,7 @@ pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
                 } else {
                     [0.42, 0.5, 0.55]
                 };
-                consider(SurfaceHit {
+                nearest.offer(SurfaceHit {
                     t,
                     temp_k: ROOM_WALL_K + 0.5 * (p.z - 1.0),
                     emissivity: 0.9,
@@ -212,7 +205,7 @@ pub fn trace_walk(o: DVec3, d: DVec3, room: WalkRoom) -> Option<SurfaceHit> {
             }
         }
     }
-    best.map(|mut h| {
+    nearest.0.map(|mut h| {
         let p = o + d * h.t;
         h.albedo = match h.object {
             scene::SceneObject::Wall | scene::SceneObject::Ground => {
