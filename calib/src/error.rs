@@ -82,8 +82,8 @@ pub enum CalibError {
         "{path}: a recorded session (.mcap) does not carry the board geometry: pass --board board.toml ([board] inner_corners, square_mm)"
     )]
     SessionNeedsBoard { path: PathBuf },
-    /// A recorded session could not be read.
-    #[error("session {path}: {source}")]
+    /// A recorded session could not be read (capture's error names the session).
+    #[error("{source}")]
     Session {
         path: PathBuf,
         #[source]

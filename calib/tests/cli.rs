@@ -3,7 +3,7 @@
 //! keys with finite values, calibration.yaml and every export are written, the report has its
 //! markdown, PNG plots and a self-contained `report.html` (the 8 plots embedded and linked, the
 //! per-view, rejected-corner, warning and bad-input sections); `.mcap` input without `--board`
-//! fails naming the flag; `bench --real` reports every detector and both solves on real
+//! fails naming the flag; an error is printed once; `bench --real` reports every detector and both solves on real
 //! sun-board pairs. Does NOT check the numbers (opencv_stereo_pipeline.rs does).
 #![cfg(feature = "opencv")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -263,6 +263,47 @@ fn mcap_input_without_board_is_refused_with_a_clear_error() {
     assert!(
         stderr.contains("pass --board board.toml"),
         "stderr should name --board: {stderr}"
+    );
+}
+
+/// An error is printed once: `poses` given a folder instead of a session says so in one line,
+/// the OS cause once and the session's path at most twice (the stage's context and the
+/// session's own message), with no repeated cause chain under it.
+#[test]
+fn an_error_is_printed_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("not-a-session");
+    std::fs::create_dir_all(&dir).unwrap();
+    let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
+        .arg("poses")
+        .arg(&dir)
+        .arg("--out")
+        .arg(tmp.path().join("dataset"))
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    assert!(
+        !result.status.success(),
+        "a folder is not a session: must fail"
+    );
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error: "))
+        .unwrap_or_else(|| panic!("one `error: …` line expected: {stderr}"));
+    assert_eq!(
+        stderr.matches("Is a directory").count(),
+        1,
+        "the OS cause once: {stderr}"
+    );
+    let path = dir.display().to_string();
+    assert!(
+        line.matches(path.as_str()).count() <= 2,
+        "the session's path at most twice in {line:?}"
+    );
+    assert!(
+        !stderr.contains("Caused by"),
+        "no repeated cause chain: {stderr}"
     );
 }
 

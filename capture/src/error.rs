@@ -141,3 +141,81 @@ pub enum CaptureError {
     #[error("rig controller clock → camera clock fit: {reason}")]
     ClockFit { reason: String },
 }
+
+/// An error and its causes as one line for a person, each fact once. The workspace's errors
+/// show their cause's text in their own message (`"session {path}: {source}"`) and return the
+/// cause from `source()` as well, so walking the chain would repeat it: a cause whose text the
+/// line already holds is left out; any other is appended after `": "`.
+pub fn report(err: &(dyn std::error::Error + 'static)) -> String {
+    let mut line = err.to_string();
+    let mut cause = err.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !line.contains(&text) {
+            line.push_str(": ");
+            line.push_str(&text);
+        }
+        cause = c.source();
+    }
+    line
+}
+
+/// How the binaries end: `Ok` exits 0; an error is printed once on stderr as `error: …`
+/// ([`report`]) and exits 1.
+pub fn exit_with<E>(result: Result<(), E>) -> std::process::ExitCode
+where
+    E: AsRef<dyn std::error::Error + Send + Sync + 'static>,
+{
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", report(e.as_ref()));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod report_tests {
+    use super::report;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("session {path}: {source}")]
+    struct Outer {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("poses from {path}")]
+    struct Context {
+        path: String,
+        #[source]
+        source: Outer,
+    }
+
+    /// A cause whose text its error already shows is not repeated; a context that does not
+    /// show its cause gets it appended once.
+    #[test]
+    fn each_fact_is_printed_once() {
+        let io = std::io::Error::other("Is a directory");
+        let err = Context {
+            path: "d".into(),
+            source: Outer {
+                path: "d".into(),
+                source: io,
+            },
+        };
+        let line = report(&err);
+        assert_eq!(
+            line, "poses from d: session d: Is a directory",
+            "got {line:?}"
+        );
+        assert_eq!(
+            line.matches("Is a directory").count(),
+            1,
+            "the OS cause once: {line:?}"
+        );
+    }
+}

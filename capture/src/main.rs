@@ -60,7 +60,12 @@ enum Command {
     Bench(BenchArgs),
 }
 
-fn main() -> Result<()> {
+/// Runs the command; an error is printed once (`s3tir_capture::error::report`) and exits 1.
+fn main() -> std::process::ExitCode {
+    s3tir_capture::error::exit_with(run())
+}
+
+fn run() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),

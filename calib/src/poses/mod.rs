@@ -113,8 +113,8 @@ pub enum PosesError {
     /// The session reads, but not as the stage needs (a validation).
     #[error("session {path}: {reason}")]
     Session { path: PathBuf, reason: String },
-    /// The session could not be read.
-    #[error("session {path}: {source}")]
+    /// The session could not be read (capture's error names the session).
+    #[error("{source}")]
     SessionRead {
         path: PathBuf,
         #[source]
