@@ -332,7 +332,11 @@ impl CapturedFrame {
             }
             StreamKind::Rgb => {
                 let payload = if raw.fourcc == FourCc::MJPG {
-                    RgbPayload::Mjpeg(mjpeg_frame(&raw.payload).map_err(corrupt)?.to_vec())
+                    RgbPayload::Mjpeg(
+                        mjpeg_frame(&raw.payload)
+                            .map_err(|e| corrupt(e.to_string()))?
+                            .to_vec(),
+                    )
                 } else if raw.fourcc == FourCc::YUYV {
                     let (row, stride, need) =
                         buffer_geometry(raw.width, raw.height, 2, raw.bytes_per_line).ok_or_else(
@@ -378,23 +382,28 @@ impl CapturedFrame {
 /// Checks a V4L2 MJPEG buffer and returns the JPEG inside it: it must start with SOI
 /// (`FF D8`) and contain an EOI (`FF D9`); bytes after the last EOI (drivers pad `bytesused`)
 /// are cut. A frame the camera truncated (USB packet loss) has no EOI and is rejected.
-pub fn mjpeg_frame(buffer: &[u8]) -> Result<&[u8], String> {
+pub fn mjpeg_frame(buffer: &[u8]) -> Result<&[u8], MjpegError> {
     if buffer.len() < 4 || buffer[0] != 0xFF || buffer[1] != 0xD8 {
-        return Err(format!(
-            "MJPEG buffer of {} bytes does not start with SOI (FF D8)",
-            buffer.len()
-        ));
+        return Err(MjpegError::NoSoi {
+            bytes: buffer.len(),
+        });
     }
     let end = buffer
         .windows(2)
         .rposition(|w| w == [0xFF, 0xD9])
-        .ok_or_else(|| {
-            format!(
-                "MJPEG buffer of {} bytes has no EOI (FF D9): truncated",
-                buffer.len()
-            )
+        .ok_or(MjpegError::NoEoi {
+            bytes: buffer.len(),
         })?;
     Ok(&buffer[..end + 2])
+}
+
+/// Why a V4L2 MJPEG buffer holds no JPEG ([`mjpeg_frame`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum MjpegError {
+    #[error("MJPEG buffer of {bytes} bytes does not start with SOI (FF D8)")]
+    NoSoi { bytes: usize },
+    #[error("MJPEG buffer of {bytes} bytes has no EOI (FF D9): truncated")]
+    NoEoi { bytes: usize },
 }
 
 /// RGB payload as delivered by the camera.

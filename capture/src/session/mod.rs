@@ -80,7 +80,7 @@ pub mod sequences;
 pub mod writer;
 
 // The session's public names at `s3tir_capture::session::…`, where calib and the tools use them.
-pub use chunk::{LZ4_MAX_RATIO, MAX_RECORD_BYTES, decode_chunk, split_chunk};
+pub use chunk::{ChunkError, LZ4_MAX_RATIO, MAX_RECORD_BYTES, decode_chunk, split_chunk};
 pub use pairing::{DropRecord, PairRecord};
 pub use reader::{Damage, ReadOutcome, RecordedFrame, SessionItem, parse_recorded, read_session};
 pub use records::{
