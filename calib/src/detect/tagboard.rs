@@ -184,7 +184,7 @@ pub fn order_by_tags(
     corners_px: &[DVec2],
     corner_ids: &[usize],
     tags: &[TagDetection],
-) -> Result<Result<Option<bool>, String>, CalibError> {
+) -> Result<Result<Option<bool>, TagRejection>, CalibError> {
     if tags.is_empty() {
         return Ok(Ok(None));
     }
@@ -220,14 +220,10 @@ pub fn order_by_tags(
     if as_is.is_empty() && turned.is_empty() {
         if !foreign.is_empty() {
             let ids: Vec<u32> = foreign.into_iter().collect();
-            return Ok(Err(format!(
-                "the board in view carries AprilTags {ids:?}, none of board.toml's apriltag_ids: another board"
-            )));
+            return Ok(Err(TagRejection::ForeignBoard { ids }));
         }
         if !misplaced.is_empty() {
-            return Ok(Err(format!(
-                "AprilTags {misplaced:?} of this board are not where board.toml puts them (check the tag layout and apriltag_ratio)"
-            )));
+            return Ok(Err(TagRejection::Misplaced { ids: misplaced }));
         }
         return Ok(Ok(None));
     }
@@ -288,15 +284,42 @@ pub struct TagCorners {
     pub planar_fit_px: f64,
 }
 
+/// Why the tags in view give no board (order or partial board): the typed reason, worded for
+/// the detection report.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TagRejection {
+    #[error(
+        "the board in view carries AprilTags {ids:?}, none of board.toml's apriltag_ids: another board"
+    )]
+    ForeignBoard { ids: Vec<u32> },
+    #[error(
+        "AprilTags {ids:?} of this board are not where board.toml puts them (check the tag layout and apriltag_ratio)"
+    )]
+    Misplaced { ids: Vec<u32> },
+    #[error("no AprilTag in view")]
+    NoTagInView,
+    #[error("none of the AprilTags in view ({in_view:?}) is board.toml's")]
+    NoBoardTag { in_view: Vec<u32> },
+    #[error("the tags' cells could not be sampled")]
+    CellsUnsampled,
+    #[error(
+        "partial board: {accepted} corners verified around AprilTags {tags:?} (need {MIN_PARTIAL_CORNERS} over 2+ rows and columns); refused: {refused:?}"
+    )]
+    TooFewCorners {
+        accepted: usize,
+        tags: Vec<u32>,
+        refused: BTreeMap<&'static str, usize>,
+    },
+}
+
 /// Why no tag of the board can seed it: no tag in view, or only other boards' tags.
-pub fn no_board_tags(tags: &[TagDetection]) -> String {
+pub fn no_board_tags(tags: &[TagDetection]) -> TagRejection {
     if tags.is_empty() {
-        "no AprilTag in view".to_string()
+        TagRejection::NoTagInView
     } else {
-        format!(
-            "none of the AprilTags in view ({:?}) is board.toml's",
-            tags.iter().map(|t| t.id).collect::<Vec<_>>()
-        )
+        TagRejection::NoBoardTag {
+            in_view: tags.iter().map(|t| t.id).collect(),
+        }
     }
 }
 
@@ -310,7 +333,7 @@ pub fn partial_from_tags(
     float_img: &Mat,
     board: &BoardSpec,
     tags: &[TagDetection],
-) -> Result<Result<TagCorners, String>, CalibError> {
+) -> Result<Result<TagCorners, TagRejection>, CalibError> {
     let (cols, rows) = (board.cols() as i64, board.rows() as i64);
     // Known points: board position (squares) → image position.
     let mut known: Vec<(DVec2, DVec2)> = Vec::new();
@@ -330,7 +353,7 @@ pub fn partial_from_tags(
         return Ok(Err(no_board_tags(tags)));
     }
     let Some((ink, paper)) = ink_and_paper(sample, board, &ours) else {
-        return Ok(Err("the tags' cells could not be sampled".into()));
+        return Ok(Err(TagRejection::CellsUnsampled));
     };
     let contrast = (paper - ink).abs();
     let criteria = TermCriteria::new(
@@ -412,11 +435,11 @@ pub fn partial_from_tags(
     let rows_seen = accepted.keys().map(|k| k.0).collect::<BTreeSet<_>>().len();
     let cols_seen = accepted.keys().map(|k| k.1).collect::<BTreeSet<_>>().len();
     if accepted.len() < MIN_PARTIAL_CORNERS || rows_seen < 2 || cols_seen < 2 {
-        return Ok(Err(format!(
-            "partial board: {} corners verified around AprilTags {:?} (need {MIN_PARTIAL_CORNERS} over 2+ rows and columns); refused: {reasons:?}",
-            accepted.len(),
-            ours.iter().map(|(t, _)| t.id).collect::<Vec<_>>()
-        )));
+        return Ok(Err(TagRejection::TooFewCorners {
+            accepted: accepted.len(),
+            tags: ours.iter().map(|(t, _)| t.id).collect(),
+            refused: reasons,
+        }));
     }
     let corner_ids: Vec<usize> = accepted
         .keys()

@@ -76,7 +76,7 @@ pub enum DetectFailure {
     Ambiguous(String),
     /// No whole board; the board's AprilTags were looked for and gave no usable partial board
     /// (the reason says why).
-    NoPartial(String),
+    NoPartial(crate::detect::tagboard::TagRejection),
 }
 
 /// Rotates a canonical detection by 180° (corner i ↔ corner n−1−i, `n` the board's corner

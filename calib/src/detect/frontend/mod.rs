@@ -277,7 +277,7 @@ pub fn detect_board(
             &det.corner_ids,
             &tags,
         )? {
-            Err(why) => return Ok(Err(DetectFailure::Ambiguous(why))),
+            Err(why) => return Ok(Err(DetectFailure::Ambiguous(why.to_string()))),
             Ok(Some(turn)) => {
                 if turn {
                     rotate_180(&mut det, board.corner_count());
