@@ -18,7 +18,7 @@ use crate::primitive::BETA_MAX;
 
 #[derive(Debug, Error)]
 pub enum ReportError {
-    #[error("{path}")]
+    #[error("{path}: {source}")]
     Io {
         path: PathBuf,
         #[source]
@@ -26,13 +26,13 @@ pub enum ReportError {
     },
     #[error("{path}: {reason}")]
     Format { path: PathBuf, reason: String },
-    #[error("writing image {path}")]
+    #[error("writing image {path}: {source}")]
     Image {
         path: PathBuf,
         #[source]
         source: image::ImageError,
     },
-    #[error("plot {path}")]
+    #[error("plot {path}: {source}")]
     Plot {
         path: PathBuf,
         #[source]

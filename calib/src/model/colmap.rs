@@ -29,7 +29,7 @@ use crate::model::geometry::Rigid3;
 pub enum ColmapError {
     #[error("{what} not found: {path}")]
     MissingFile { path: PathBuf, what: &'static str },
-    #[error("cannot read or write {path}")]
+    #[error("cannot read or write {path}: {source}")]
     Io {
         path: PathBuf,
         #[source]
@@ -42,7 +42,7 @@ pub enum ColmapError {
         reason: String,
     },
     /// The camera's parameters do not make a valid camera model.
-    #[error("{path}")]
+    #[error("{path}: {source}")]
     InvalidCamera {
         path: PathBuf,
         #[source]

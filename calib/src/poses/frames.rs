@@ -133,6 +133,13 @@ fn grey_of_rgb(rgb: &[u8]) -> Vec<f32> {
         .collect()
 }
 
+fn session_err(path: &Path, source: s3tir_capture::CaptureError) -> PosesError {
+    PosesError::SessionRead {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
 /// Reads the whole session once: every frame's numbers (module docs). `progress` hears one
 /// stage without a total, one item per readable frame.
 pub fn scan_session(path: &Path, progress: &dyn Progress) -> Result<SessionScan, PosesError> {
@@ -186,7 +193,7 @@ pub fn scan_session(path: &Path, progress: &dyn Progress) -> Result<SessionScan,
         }
         Ok(())
     })
-    .map_err(|source| PosesError::SessionRead { source });
+    .map_err(|e| session_err(path, e));
     progress.finish();
     let outcome = outcome?;
     scan.thermal.sort_by_key(|f| f.monotonic_ns);
@@ -289,7 +296,7 @@ pub fn write_keyframes(
         }
         Ok(())
     })
-    .map_err(|source| PosesError::SessionRead { source })?;
+    .map_err(|e| session_err(path, e))?;
     if !pending.is_empty() {
         thermal_samples.sort_unstable();
         let q =
@@ -378,7 +385,7 @@ pub fn for_frames(
         }
         Ok(())
     })
-    .map_err(|source| PosesError::SessionRead { source })?;
+    .map_err(|e| session_err(path, e))?;
     failure.map_or(Ok(()), Err)
 }
 

@@ -113,10 +113,13 @@ pub enum PosesError {
     /// The session reads, but not as the stage needs (a validation).
     #[error("session {path}: {reason}")]
     Session { path: PathBuf, reason: String },
-    /// The session could not be read (capture's error names the session, so this level adds
-    /// nothing to its message).
-    #[error(transparent)]
-    SessionRead { source: s3tir_capture::CaptureError },
+    /// The session could not be read (capture's error names the session).
+    #[error("{source}")]
+    SessionRead {
+        path: PathBuf,
+        #[source]
+        source: s3tir_capture::CaptureError,
+    },
     #[error(
         "the calibration has no {what}: {why} (calibrate the rig with s3tir-calib BOARD --out calibration.yaml, from a board set or a session recorded with the board in view)"
     )]
@@ -133,7 +136,7 @@ pub enum PosesError {
         session_h: u32,
     },
     #[error(
-        "`{program}` (COLMAP) cannot be run (install Debian's colmap package, as scripts/install-deps.sh does, pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR)"
+        "`{program}` (COLMAP) cannot be run: {source}. Install Debian's colmap package (scripts/install-deps.sh does), pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR"
     )]
     ColmapMissing {
         program: PathBuf,
@@ -159,13 +162,13 @@ pub enum PosesError {
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
     /// An output file could not be encoded or written (an I/O, image, JSON or COLMAP error).
-    #[error("{path}")]
+    #[error("{path}: {source}")]
     Write {
         path: PathBuf,
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
-    #[error("the COLMAP model {path}")]
+    #[error("the COLMAP model {path}: {source}")]
     Model {
         path: PathBuf,
         #[source]
@@ -177,7 +180,7 @@ pub enum PosesError {
     #[error("AprilTag map or detection {path}: {reason}")]
     Tags { path: PathBuf, reason: String },
     /// The calibration board (`--board`) could not be looked for in a keyframe.
-    #[error("AprilTag map or detection {path}: finding the board of {board}")]
+    #[error("AprilTag map or detection {path}: finding the board of {board}: {source}")]
     BoardFinder {
         path: PathBuf,
         board: PathBuf,
@@ -185,7 +188,7 @@ pub enum PosesError {
         source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// An AprilTag map or keyframe could not be read, or the tag detector failed.
-    #[error("AprilTag map or detection {path}")]
+    #[error("AprilTag map or detection {path}: {source}")]
     TagsRead {
         path: PathBuf,
         #[source]

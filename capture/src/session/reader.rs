@@ -12,7 +12,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::device::FourCc;
 use crate::error::CaptureError;
-use crate::error::Chain;
 use crate::frame::{CapturedFrame, FfcState, RawFrame, StreamKind, ThermalUnits};
 use crate::session::chunk::{MAX_RECORD_BYTES, RECORD_PREFIX_LEN, decode_chunk, split_chunk};
 use crate::session::clock_sync::ClockMap;
@@ -106,7 +105,7 @@ pub fn read_session(
         let event = match event {
             Ok(e) => e,
             Err(e) => {
-                stop = Some((offset, Chain(&e).to_string()));
+                stop = Some((offset, format!("{e}")));
                 break;
             }
         };
@@ -130,7 +129,7 @@ pub fn read_session(
                     Err(e) => {
                         stop = Some((
                             record_offset,
-                            format!("corrupt record (opcode {opcode:#04x}): {}", Chain(&e)),
+                            format!("corrupt record (opcode {opcode:#04x}): {e}"),
                         ));
                         break;
                     }
@@ -177,7 +176,7 @@ pub fn read_session(
                                     Err(reason) => {
                                         stop = Some((
                                             record_offset,
-                                            format!("corrupt chunk: {}", Chain(&reason)),
+                                            format!("corrupt chunk: {reason}"),
                                         ));
                                         break;
                                     }
@@ -188,10 +187,7 @@ pub fn read_session(
                                 }
                             }
                             Err(reason) => {
-                                stop = Some((
-                                    record_offset,
-                                    format!("corrupt chunk: {}", Chain(&reason)),
-                                ));
+                                stop = Some((record_offset, format!("corrupt chunk: {reason}")));
                                 break;
                             }
                         }

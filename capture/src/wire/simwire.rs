@@ -78,7 +78,7 @@ pub struct WireFrame {
 /// Errors reading or writing wire frames.
 #[derive(Debug, thiserror::Error)]
 pub enum SimWireError {
-    #[error("simwire {peer}: I/O error")]
+    #[error("simwire {peer}: I/O error: {source}")]
     Io {
         peer: String,
         #[source]

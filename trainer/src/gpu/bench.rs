@@ -167,25 +167,25 @@ impl BenchReport {
 /// Errors of the benchmark.
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
-    #[error("benchmark scene in {path}")]
+    #[error("benchmark scene in {path}: {source}")]
     Scene {
         path: PathBuf,
         #[source]
         source: DatasetError,
     },
-    #[error("benchmark training run")]
+    #[error("benchmark training run: {source}")]
     Train {
         #[source]
         source: TrainError,
     },
-    #[error("benchmark Vulkan backend")]
+    #[error("benchmark Vulkan backend: {source}")]
     Gpu {
         #[source]
         source: GpuError,
     },
     #[error("benchmark: {what} needs at least 1, got 0")]
     Zero { what: &'static str },
-    #[error("benchmark: a one-thread pool for the CPU backend")]
+    #[error("benchmark: a one-thread pool for the CPU backend: {source}")]
     ThreadPool {
         #[source]
         source: rayon::ThreadPoolBuildError,

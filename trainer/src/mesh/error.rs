@@ -18,7 +18,7 @@ impl From<s3tir_calib::model::ply::FormatError> for MeshError {
 
 #[derive(Debug, Error)]
 pub enum MeshError {
-    #[error("cannot write or read {path}")]
+    #[error("cannot write or read {path}: {source}")]
     Io {
         path: PathBuf,
         #[source]
@@ -28,7 +28,7 @@ pub enum MeshError {
     #[error("{path}: {reason}")]
     Ply { path: PathBuf, reason: String },
     /// A number of a PLY header that does not parse.
-    #[error("{path}: {what}")]
+    #[error("{path}: {what}: {source}")]
     PlyNumber {
         path: PathBuf,
         /// The header line and what it holds.
