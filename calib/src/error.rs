@@ -11,14 +11,14 @@ pub enum CalibError {
     Image { path: PathBuf, reason: String },
     /// An image file could not be read or decoded.
     #[cfg(feature = "tags")]
-    #[error("image {path}: {source}")]
+    #[error("image {path}")]
     ImageFile {
         path: PathBuf,
         #[source]
         source: image::ImageError,
     },
     /// A recorded frame could not be decoded (the session's MJPEG payload).
-    #[error("image {path}: {source}")]
+    #[error("image {path}")]
     Frame {
         path: PathBuf,
         #[source]
@@ -26,7 +26,7 @@ pub enum CalibError {
     },
     /// OpenCV reported an error during `operation`.
     #[cfg(feature = "opencv")]
-    #[error("OpenCV {operation}: {source}")]
+    #[error("OpenCV {operation}")]
     OpenCv {
         operation: &'static str,
         #[source]
@@ -34,7 +34,7 @@ pub enum CalibError {
     },
     /// The AprilTag detector failed (the error names the image).
     #[cfg(feature = "tags")]
-    #[error("AprilTag detection: {source}")]
+    #[error("AprilTag detection")]
     Tags {
         #[source]
         source: crate::tags::TagError,
@@ -53,7 +53,7 @@ pub enum CalibError {
     #[error("board description {path}: {reason}")]
     BoardFile { path: PathBuf, reason: String },
     /// `board.toml` missing or unreadable.
-    #[error("board description {path}: {source}")]
+    #[error("board description {path}")]
     BoardFileRead {
         path: PathBuf,
         #[source]
@@ -61,7 +61,7 @@ pub enum CalibError {
     },
     /// `board.toml` is not valid TOML or lacks a field.
     #[cfg(feature = "opencv")]
-    #[error("board description {path}: {source}")]
+    #[error("board description {path}")]
     BoardFileSyntax {
         path: PathBuf,
         #[source]
@@ -71,7 +71,7 @@ pub enum CalibError {
     #[error("board folder {path}: {reason}")]
     BoardFolder { path: PathBuf, reason: String },
     /// The board folder cannot be listed.
-    #[error("board folder {path}: {source}")]
+    #[error("board folder {path}")]
     BoardFolderRead {
         path: PathBuf,
         #[source]
@@ -82,13 +82,10 @@ pub enum CalibError {
         "{path}: a recorded session (.mcap) does not carry the board geometry: pass --board board.toml ([board] inner_corners, square_mm)"
     )]
     SessionNeedsBoard { path: PathBuf },
-    /// A recorded session could not be read (capture's error names the session).
-    #[error("{source}")]
-    Session {
-        path: PathBuf,
-        #[source]
-        source: s3tir_capture::CaptureError,
-    },
+    /// A recorded session could not be read (capture's error names the session, so this
+    /// level adds nothing to its message).
+    #[error(transparent)]
+    Session { source: s3tir_capture::CaptureError },
     /// Nothing in the input can be calibrated.
     #[error("{path}: nothing usable to calibrate: {reason}")]
     NothingUsable { path: PathBuf, reason: String },
@@ -96,7 +93,7 @@ pub enum CalibError {
     #[error("writing {path}: {reason}")]
     Output { path: PathBuf, reason: String },
     /// An output file could not be encoded or written (an I/O, JSON or image error).
-    #[error("writing {path}: {source}")]
+    #[error("writing {path}")]
     Write {
         path: PathBuf,
         #[source]

@@ -234,8 +234,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
             );
         }
         pipeline::calibrate_folder(dir, &opts)
-    }
-    .with_context(|| format!("calibrating from {}", dir.display()))?;
+    }?; // no context added: the pipeline's errors name the file or session they are about
     let written = export::write_all(&cal, &args.out)?;
     if let Some(path) = &args.summary_json {
         export::write_summary(&cal, path)?;
@@ -347,7 +346,8 @@ fn run_tags(config: TagConfig, images: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
-/// Runs the command; an error is printed once (`s3tir_capture::error::report`) and exits 1.
+/// Runs the command; an error is printed once, as one `error: …` line (the whole cause chain,
+/// `s3tir_capture::Chain`), and exits 1.
 fn main() -> std::process::ExitCode {
     s3tir_capture::error::exit_with(run())
 }

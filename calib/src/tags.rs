@@ -49,7 +49,7 @@ pub enum TagError {
         why: &'static str,
     },
     /// The C detector could not be created.
-    #[error("AprilTag detector could not be created: {source}")]
+    #[error("AprilTag detector could not be created")]
     Detector {
         #[source]
         source: apriltag::Error,
@@ -63,7 +63,7 @@ pub enum TagError {
         reason: String,
     },
     /// The detector's image buffer could not be allocated.
-    #[error("AprilTag detection in {image} ({width}x{height} px): {source}")]
+    #[error("AprilTag detection in {image} ({width}x{height} px)")]
     Buffer {
         image: PathBuf,
         width: u32,

@@ -27,6 +27,7 @@ use tokio::sync::mpsc;
 use crate::backend::FrameSource;
 use crate::backend::stamp::wall_now_ns;
 use crate::error::CaptureError;
+use crate::error::Chain;
 use crate::frame::{FfcState, RawFrame, StreamKind};
 use crate::session::clock_sync::ClockMap;
 use crate::session::pairing::PairingMode;
@@ -286,7 +287,7 @@ async fn run_async(
                     Err(e) => {
                         counters.serial_errors.fetch_add(1, Ordering::Relaxed);
                         ffc.store(FFC_NONE, Ordering::Relaxed);
-                        tracing::warn!("FFC state poll failed: {e}");
+                        tracing::warn!("FFC state poll failed: {}", Chain(&e));
                     }
                 }
                 std::thread::sleep(Duration::from_millis(100));
@@ -316,7 +317,7 @@ async fn run_async(
                     }
                     Err(e) => {
                         counters.serial_errors.fetch_add(1, Ordering::Relaxed);
-                        tracing::warn!("trigger poll failed: {e}");
+                        tracing::warn!("trigger poll failed: {}", Chain(&e));
                     }
                 }
                 std::thread::sleep(Duration::from_millis(100));
@@ -372,7 +373,7 @@ async fn run_async(
                                 wcounters.rejected[k].fetch_add(1, Ordering::Relaxed);
                                 if warned < 20 {
                                     warned += 1;
-                                    tracing::warn!("rejected buffer: {e}");
+                                    tracing::warn!("rejected buffer: {}", Chain(&e));
                                 }
                             }
                         }
@@ -497,7 +498,7 @@ fn read_loop(
                 }
                 Err(e) => {
                     if !warned_open {
-                        tracing::warn!(device = %name, "cannot open ({e}); retrying every 200 ms");
+                        tracing::warn!(device = %name, "cannot open ({}); retrying every 200 ms", Chain(&e));
                         warned_open = true;
                     }
                     std::thread::sleep(Duration::from_millis(200));
@@ -538,7 +539,7 @@ fn read_loop(
             // source did not fail, the recording ended.
             Err(_) if stop.load(Ordering::Relaxed) => break,
             Err(e) => {
-                tracing::warn!(device = %name, "device failed ({e}); reconnecting");
+                tracing::warn!(device = %name, "device failed ({}); reconnecting", Chain(&e));
                 source = None;
             }
         }

@@ -1,4 +1,15 @@
-//! Errors of the capture layer. Every variant names the device or file it is about.
+//! Errors of the capture layer, and how the workspace prints any error.
+//!
+//! Every variant names the device or file it is about.
+//!
+//! The workspace's rule for every error type (rerun's): an error's `Display` says only its
+//! own level — what was being done, to which file or device — and a wrapped error is returned
+//! from `source()` (`#[source]`), never also interpolated into the message. Each fact is then
+//! held by exactly one level of the chain. Text for a person (a log line, a `reason` string, a
+//! report or JSON warning, a binary's last line) is the whole chain, built with [`Chain`]:
+//! `format!("{}", Chain(&err))` gives `"session a.mcap: read: Is a directory (os error 21)"`.
+//! `err.to_string()` alone drops the cause. A variant that only forwards another error is
+//! `#[error(transparent)]`.
 
 use std::path::PathBuf;
 
@@ -10,7 +21,7 @@ pub type BoxedCause = Box<dyn std::error::Error + Send + Sync>;
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
     /// A device node could not be opened or queried.
-    #[error("device {path}: {what}: {source}")]
+    #[error("device {path}: {what}")]
     Device {
         path: PathBuf,
         what: &'static str,
@@ -42,7 +53,7 @@ pub enum CaptureError {
     },
     /// A buffer that failed to decode or encode (MJPEG, telemetry rows): like
     /// [`CaptureError::CorruptBuffer`], with the codec's error as the cause.
-    #[error("{device}: frame {sequence} is corrupt: {what}: {source}")]
+    #[error("{device}: frame {sequence} is corrupt: {what}")]
     UndecodableBuffer {
         device: String,
         sequence: u32,
@@ -57,7 +68,7 @@ pub enum CaptureError {
     )]
     SessionExists { path: PathBuf },
     /// Reading or writing a session file failed.
-    #[error("session {path}: {what}: {source}")]
+    #[error("session {path}: {what}")]
     SessionIo {
         path: PathBuf,
         what: &'static str,
@@ -66,7 +77,7 @@ pub enum CaptureError {
     },
     /// The MCAP layer refused a record.
     #[cfg(feature = "session")]
-    #[error("session {path}: {what}: {source}")]
+    #[error("session {path}: {what}")]
     Mcap {
         path: PathBuf,
         what: &'static str,
@@ -74,7 +85,7 @@ pub enum CaptureError {
         source: mcap::McapError,
     },
     /// A JSON message in a session does not parse.
-    #[error("session {path}: message on {topic} (sequence {sequence}): {source}")]
+    #[error("session {path}: message on {topic} (sequence {sequence})")]
     SessionJson {
         path: PathBuf,
         topic: String,
@@ -95,7 +106,7 @@ pub enum CaptureError {
     DeviceUnavailable { device: String, reason: String },
     /// A device (simulated rig socket, nokhwa camera, simulator process) failed with an error of
     /// its own: like [`CaptureError::DeviceUnavailable`], with that error as the cause.
-    #[error("device {device}: {what}: {source}")]
+    #[error("device {device}: {what}")]
     DeviceFailed {
         device: String,
         what: String,
@@ -118,7 +129,7 @@ pub enum CaptureError {
         reason: String,
     },
     /// A serial port failed (open, write, read) or a request did not encode.
-    #[error("serial {port}: {command}: {what}: {source}")]
+    #[error("serial {port}: {command}: {what}")]
     SerialIo {
         port: String,
         command: String,
@@ -130,7 +141,7 @@ pub enum CaptureError {
     #[error("export {path}: {reason}")]
     Export { path: PathBuf, reason: String },
     /// Writing an exported image or its folder failed.
-    #[error("export {path}: {what}: {source}")]
+    #[error("export {path}: {what}")]
     ExportWrite {
         path: PathBuf,
         what: &'static str,
@@ -142,26 +153,40 @@ pub enum CaptureError {
     ClockFit { reason: String },
 }
 
-/// An error and its causes as one line for a person, each fact once. The workspace's errors
-/// show their cause's text in their own message (`"session {path}: {source}"`) and return the
-/// cause from `source()` as well, so walking the chain would repeat it: a cause whose text the
-/// line already holds is left out; any other is appended after `": "`.
-pub fn report(err: &(dyn std::error::Error + 'static)) -> String {
-    let mut line = err.to_string();
-    let mut cause = err.source();
-    while let Some(c) = cause {
-        let text = c.to_string();
-        if !line.contains(&text) {
-            line.push_str(": ");
-            line.push_str(&text);
+/// An error and its causes as one line for a person: the error's text, then each cause's
+/// after `": "`. The workspace's errors say only their own level and return the cause from
+/// `source()` (module docs), so this is how a log line, a `reason` or a binary's last line
+/// gets the whole story. A cause the level above already printed — its text equal to that
+/// level's, or ending it after `": "`, as some other crates' errors do (`image`'s decoding
+/// errors) — is skipped.
+#[derive(Clone, Copy)]
+pub struct Chain<'a>(pub &'a (dyn std::error::Error + 'static));
+
+impl std::fmt::Display for Chain<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut previous = self.0.to_string();
+        f.write_str(&previous)?;
+        let mut cause = self.0.source();
+        while let Some(c) = cause {
+            let text = c.to_string();
+            if text != previous && !previous.ends_with(&format!(": {text}")) {
+                write!(f, ": {text}")?;
+            }
+            previous = text;
+            cause = c.source();
         }
-        cause = c.source();
+        Ok(())
     }
-    line
 }
 
-/// How the binaries end: `Ok` exits 0; an error is printed once on stderr as `error: …`
-/// ([`report`]) and exits 1.
+impl std::fmt::Debug for Chain<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        std::fmt::Display::fmt(self, f)
+    }
+}
+
+/// How the binaries end: `Ok` exits 0; an error is printed once on stderr as one
+/// `error: …` line (the whole [`Chain`]) and exits 1.
 pub fn exit_with<E>(result: Result<(), E>) -> std::process::ExitCode
 where
     E: AsRef<dyn std::error::Error + Send + Sync + 'static>,
@@ -169,18 +194,18 @@ where
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", report(e.as_ref()));
+            eprintln!("error: {}", Chain(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }
 }
 
 #[cfg(test)]
-mod report_tests {
-    use super::report;
+mod chain_tests {
+    use super::Chain;
 
     #[derive(Debug, thiserror::Error)]
-    #[error("session {path}: {source}")]
+    #[error("session {path}: read")]
     struct Outer {
         path: String,
         #[source]
@@ -188,34 +213,54 @@ mod report_tests {
     }
 
     #[derive(Debug, thiserror::Error)]
-    #[error("poses from {path}")]
+    #[error("poses")]
     struct Context {
-        path: String,
         #[source]
         source: Outer,
     }
 
-    /// A cause whose text its error already shows is not repeated; a context that does not
-    /// show its cause gets it appended once.
+    #[derive(Debug, thiserror::Error)]
+    #[error("same")]
+    struct Leaf;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("same")]
+    struct Same(#[source] Leaf);
+
+    /// Another crate's habit: the cause in the message and from `source()`.
+    #[derive(Debug, thiserror::Error)]
+    #[error("decoding: {0}")]
+    struct Prints(#[source] Leaf);
+
+    /// Each level's text once, joined by ": "; a cause whose text equals the one before it
+    /// (a wrapper that forwards its cause's message) is skipped.
     #[test]
-    fn each_fact_is_printed_once() {
+    fn each_level_is_printed_once() {
         let io = std::io::Error::other("Is a directory");
         let err = Context {
-            path: "d".into(),
             source: Outer {
                 path: "d".into(),
                 source: io,
             },
         };
-        let line = report(&err);
+        let line = Chain(&err).to_string();
         assert_eq!(
-            line, "poses from d: session d: Is a directory",
+            line, "poses: session d: read: Is a directory",
             "got {line:?}"
         );
+        assert_eq!(err.to_string(), "poses", "Display is this level only");
+
+        let doubled = Same(Leaf);
         assert_eq!(
-            line.matches("Is a directory").count(),
-            1,
-            "the OS cause once: {line:?}"
+            Chain(&doubled).to_string(),
+            "same",
+            "a cause equal to its parent's text is skipped"
+        );
+        let printed = Prints(Leaf);
+        assert_eq!(
+            Chain(&printed).to_string(),
+            "decoding: same",
+            "a cause its parent already printed at its end is skipped"
         );
     }
 }

@@ -8,7 +8,8 @@
 //! - [`device`]: V4L2-style pixel formats, device descriptions and the role guess
 //!   (thermal vs RGB) used by `s3tir-capture list`,
 //! - [`telemetry`]: Lepton telemetry rows (160×122 mode) decoding,
-//! - [`error`]: the error type ([`CaptureError`]),
+//! - [`error`]: the error type ([`CaptureError`]) and [`Chain`], how any error is printed (an
+//!   error's message is its own level, its cause comes from `source()`),
 //! - [`skip`]: how the workspace's tests skip what a machine lacks (and fail where it must not),
 //! - [`wire`]: the wire codecs shared with the simulated rig (FSLP, rig controller protocol,
 //!   simwire); its serial clients need feature `rig`.
@@ -50,4 +51,4 @@ pub mod daemon;
 #[cfg(feature = "rig")]
 pub mod tools;
 
-pub use error::CaptureError;
+pub use error::{CaptureError, Chain};

@@ -60,7 +60,8 @@ enum Command {
     Bench(BenchArgs),
 }
 
-/// Runs the command; an error is printed once (`s3tir_capture::error::report`) and exits 1.
+/// Runs the command; an error is printed once, as one `error: …` line (the whole cause chain,
+/// `s3tir_capture::Chain`), and exits 1.
 fn main() -> std::process::ExitCode {
     s3tir_capture::error::exit_with(run())
 }

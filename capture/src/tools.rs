@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::error::CaptureError;
+use crate::error::Chain;
 use crate::frame::{CapturedFrame, StreamKind};
 use crate::session::pairing::{PairingMode, SyncAccumulator, SyncStats};
 use crate::session::pipeline::Pipeline;
@@ -301,7 +302,7 @@ pub fn replay(
                     }
                     Err(e) => {
                         report.rejected += 1;
-                        tracing::warn!("recorded frame rejected on replay: {e}");
+                        tracing::warn!("recorded frame rejected on replay: {}", Chain(&e));
                     }
                 }
             }

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 pub enum SimError {
     #[error("unknown profile {name:?}; known: {known}")]
     UnknownProfile { name: String, known: &'static str },
-    #[error("{path}: {what}: {source}")]
+    #[error("{path}: {what}")]
     Io {
         path: PathBuf,
         what: &'static str,
@@ -19,7 +19,7 @@ pub enum SimError {
     #[error("encoding {what}: {reason}")]
     Encode { what: &'static str, reason: String },
     /// An image file (PNG) could not be encoded or written (boxed: the error is large).
-    #[error("{path}: writing {what}: {source}")]
+    #[error("{path}: writing {what}")]
     Image {
         path: PathBuf,
         what: &'static str,
@@ -27,21 +27,21 @@ pub enum SimError {
         source: Box<image::ImageError>,
     },
     /// An in-memory frame (JPEG) could not be encoded.
-    #[error("encoding {what}: {source}")]
+    #[error("encoding {what}")]
     Frame {
         what: &'static str,
         #[source]
         source: Box<image::ImageError>,
     },
     /// A JSON document could not be serialised.
-    #[error("encoding {what}: {source}")]
+    #[error("encoding {what}")]
     Json {
         what: &'static str,
         #[source]
         source: serde_json::Error,
     },
     /// The COLMAP text model could not be written.
-    #[error("writing the COLMAP model: {source}")]
+    #[error("writing the COLMAP model")]
     Colmap {
         #[source]
         source: Box<s3tir_calib::model::colmap::ColmapError>,

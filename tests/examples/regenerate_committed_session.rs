@@ -66,7 +66,7 @@ fn regenerate(session: &std::path::Path, old: &std::path::Path) -> Result<(), St
             max_buffers: None,
         },
     )
-    .map_err(|e| format!("start the simulated rig: {e}"))?;
+    .map_err(|e| format!("start the simulated rig: {}", s3tir_capture::Chain(&e)))?;
     let status = Command::new(&capture)
         .args([
             "--device",

@@ -246,7 +246,7 @@ fn thermal_poses_from_user_rgb_model_match_truth_and_the_trainer_reads_them() {
     let model = truth_model(tmp.path(), &rec, 1);
     let out = tmp.path().join("dataset");
     let report = poses::session_to_dataset(&rec.session, Some(&rig()), &out, &opts(&model))
-        .unwrap_or_else(|e| panic!("posing the session: {e}"));
+        .unwrap_or_else(|e| panic!("posing the session: {}", s3tir_capture::Chain(&e)));
     assert_eq!(report.sfm_stream, "rgb");
     assert_eq!(
         report.registered,
@@ -327,7 +327,7 @@ fn without_metric_scale_the_lever_arm_is_left_out_and_the_report_says_so() {
         ..opts(&model)
     };
     let report = poses::session_to_dataset(&rec.session, Some(&rig()), &out, &o)
-        .unwrap_or_else(|e| panic!("posing: {e}"));
+        .unwrap_or_else(|e| panic!("posing: {}", s3tir_capture::Chain(&e)));
     assert!(
         report.scale_source.starts_with("unknown"),
         "{}",
@@ -377,8 +377,14 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
     let attached_dir = tmp.path().join("attached");
     std::fs::create_dir_all(&attached_dir).expect("dir");
     let rec2 = record(&attached_dir, Some(&rig().to_yaml()));
-    poses::session_to_dataset(&rec2.session, None, &fresh("b"), &opts(&model))
-        .unwrap_or_else(|e| panic!("the attached calibration must be used: {e}"));
+    poses::session_to_dataset(&rec2.session, None, &fresh("b"), &opts(&model)).unwrap_or_else(
+        |e| {
+            panic!(
+                "the attached calibration must be used: {}",
+                s3tir_capture::Chain(&e)
+            )
+        },
+    );
 
     // Another rig's calibration.
     let mut other = rig();
@@ -454,7 +460,7 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
 
     // The next run clears that unfinished folder.
     poses::session_to_dataset(&rec.session, Some(&rig()), &fresh("e"), &opts(&model))
-        .unwrap_or_else(|e| panic!("a run after a failed one: {e}"));
+        .unwrap_or_else(|e| panic!("a run after a failed one: {}", s3tir_capture::Chain(&e)));
     assert!(fresh("e").join("sparse/0/images.txt").is_file() && !fresh("e.partial").exists());
 
     // An existing dataset is never overwritten.
@@ -474,7 +480,12 @@ fn bad_inputs_give_clear_errors_and_lose_nothing() {
     let cut = tmp.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 3 / 4]).expect("write cut");
     let report = poses::session_to_dataset(&cut, Some(&rig()), &fresh("g"), &opts(&model))
-        .unwrap_or_else(|e| panic!("a truncated session must still pose: {e}"));
+        .unwrap_or_else(|e| {
+            panic!(
+                "a truncated session must still pose: {}",
+                s3tir_capture::Chain(&e)
+            )
+        });
     assert!(report.session_truncated);
     let note = report.session_note.clone().unwrap_or_default();
     assert!(
@@ -502,7 +513,7 @@ fn with_rgb_the_trainer_loads_both_image_sets() {
         ..opts(&model)
     };
     let report = poses::session_to_dataset(&rec.session, Some(&rig()), &out, &o)
-        .unwrap_or_else(|e| panic!("posing with --with-rgb: {e}"));
+        .unwrap_or_else(|e| panic!("posing with --with-rgb: {}", s3tir_capture::Chain(&e)));
     assert_eq!(report.rgb_views, rec.rgb.len(), "every posed RGB frame");
     assert!(report.rgb_held_out > 0);
 

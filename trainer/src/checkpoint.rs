@@ -53,28 +53,28 @@ pub const CHECKPOINT_VERSION_JSON: u32 = 1;
 
 #[derive(Debug, Error)]
 pub enum CheckpointError {
-    #[error("checkpoint {path}: {source}")]
+    #[error("checkpoint {path}")]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
     /// The header (or a format-1 checkpoint) is not the JSON expected, or could not be made.
-    #[error("checkpoint {path} is not valid: {source}")]
+    #[error("checkpoint {path} is not valid")]
     Json {
         path: PathBuf,
         #[source]
         source: serde_json::Error,
     },
     /// The arrays file is not a readable safetensors file (or lacks a tensor).
-    #[error("checkpoint arrays {path} are not valid: {source}")]
+    #[error("checkpoint arrays {path} are not valid")]
     Arrays {
         path: PathBuf,
         #[source]
         source: SafeTensorError,
     },
     /// A parameter set's arrays do not fit its layout (lengths, bands, SH degree).
-    #[error("checkpoint {path} is not valid: {set}: {source}")]
+    #[error("checkpoint {path} is not valid: {set}")]
     Shape {
         path: PathBuf,
         set: &'static str,

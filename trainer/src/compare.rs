@@ -15,6 +15,7 @@
 
 use std::path::{Path, PathBuf};
 
+use s3tir_capture::Chain;
 use serde::Serialize;
 use thiserror::Error;
 
@@ -23,7 +24,7 @@ use crate::train::{self, files};
 
 #[derive(Debug, Error)]
 pub enum CompareError {
-    #[error("reading the metrics of run {run}: {source}")]
+    #[error("reading the metrics of run {run}")]
     Metrics {
         run: PathBuf,
         #[source]
@@ -91,7 +92,7 @@ pub fn load_run(dir: &Path) -> Result<RunMetrics, CompareError> {
     let cfg = match train::load_config(dir) {
         Ok(cfg) => Some(cfg),
         Err(e) => {
-            tracing::warn!(run = %dir.display(), error = %e, "configuration not read: mode and warm-up unknown");
+            tracing::warn!(run = %dir.display(), error = %Chain(&e), "configuration not read: mode and warm-up unknown");
             None
         }
     };

@@ -44,7 +44,7 @@ pub const HALF_LN_2: f64 = 0.346_573_590_279_972_65;
 
 #[derive(Debug, Error)]
 pub enum PlyError {
-    #[error("cannot write or read {path}: {source}")]
+    #[error("cannot write or read {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -53,7 +53,7 @@ pub enum PlyError {
     #[error("{path}: {reason}")]
     Format { path: PathBuf, reason: String },
     /// The primitives do not fit their layout (array lengths, bands, SH degree).
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Shape {
         path: PathBuf,
         #[source]

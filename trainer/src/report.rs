@@ -18,7 +18,7 @@ use crate::primitive::BETA_MAX;
 
 #[derive(Debug, Error)]
 pub enum ReportError {
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -26,13 +26,13 @@ pub enum ReportError {
     },
     #[error("{path}: {reason}")]
     Format { path: PathBuf, reason: String },
-    #[error("writing image {path}: {source}")]
+    #[error("writing image {path}")]
     Image {
         path: PathBuf,
         #[source]
         source: image::ImageError,
     },
-    #[error("plot {path}: {source}")]
+    #[error("plot {path}")]
     Plot {
         path: PathBuf,
         #[source]

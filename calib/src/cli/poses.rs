@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Args, ValueEnum};
 use s3tir_calib::detect::board::BoardSpec;
 use s3tir_calib::detect::frontend::detect_board;
@@ -191,8 +191,8 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         with_rgb: a.with_rgb,
         ..PosesOptions::default()
     };
-    let report = poses::session_to_dataset(&a.session, cal.as_ref(), &a.out, &opts)
-        .with_context(|| format!("poses from {}", a.session.display()))?;
+    // No context added: the stage's errors name the session or file they are about.
+    let report = poses::session_to_dataset(&a.session, cal.as_ref(), &a.out, &opts)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

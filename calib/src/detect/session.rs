@@ -119,13 +119,6 @@ fn spread<T>(items: Vec<T>, max: usize, notes: &mut Vec<String>) -> Vec<T> {
         .collect()
 }
 
-fn capture_err(path: &Path, source: s3tir_capture::CaptureError) -> CalibError {
-    CalibError::Session {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Reads a session and chooses its views (module docs).
 pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, CalibError> {
     let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
@@ -199,7 +192,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
         }
         Ok(())
     })
-    .map_err(|e| capture_err(path, e))?;
+    .map_err(|source| CalibError::Session { source })?;
     let mut capped = Vec::new();
     let pairs = spread(pairs, opts.max_views, &mut capped);
     let singles = singles.map(|list| spread(list, opts.max_views, &mut capped));
@@ -224,7 +217,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
         }
         Ok(())
     })
-    .map_err(|e| capture_err(path, e))?;
+    .map_err(|source| CalibError::Session { source })?;
     // (session sequence, frame) of each chosen view.
     let pairs: Vec<((u32, ThermalFrame), (u32, RgbFrame))> = pairs
         .iter()

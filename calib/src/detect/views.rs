@@ -10,6 +10,7 @@ use std::time::Instant;
 use glam::DVec2;
 
 use rayon::prelude::*;
+use s3tir_capture::Chain;
 
 use crate::detect::board::ThermalPolarity;
 use crate::detect::board::{BoardSpec, Camera, FileProblem, ViewFiles, list_views};
@@ -159,14 +160,14 @@ pub fn detect_views(
             // A detector failure on one image (OpenCV, AprilTag) is that image's problem,
             // named by its file; the other images still calibrate.
             let outcome = match load(path, camera) {
-                Err(e) => ImageOutcome::Unreadable(e.to_string()),
+                Err(e) => ImageOutcome::Unreadable(Chain(&e).to_string()),
                 Ok(img) => match detect_board(&img, &board) {
                     Ok(result) => ImageOutcome::Detected {
                         size: (img.width_px, img.height_px),
                         source: img.source,
                         result,
                     },
-                    Err(e) => ImageOutcome::Failed(e.to_string()),
+                    Err(e) => ImageOutcome::Failed(Chain(&e).to_string()),
                 },
             };
             progress.item(

@@ -24,13 +24,13 @@ pub const FORMAT: &str = "s3tir-calibration/1";
 /// Errors of reading a calibration file; each names the file and, where it applies, the key.
 #[derive(Debug, Error)]
 pub enum CalFileError {
-    #[error("calibration file {path}: {source}")]
+    #[error("calibration file {path}")]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("calibration file {path} is not YAML: {source}")]
+    #[error("calibration file {path} is not YAML")]
     Syntax {
         path: PathBuf,
         #[source]
@@ -49,7 +49,7 @@ pub enum CalFileError {
         key: String,
         reason: String,
     },
-    #[error("calibration file {path}: camera {camera} is not a valid model: {source}")]
+    #[error("calibration file {path}: camera {camera} is not a valid model")]
     Model {
         path: PathBuf,
         camera: &'static str,

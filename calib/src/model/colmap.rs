@@ -29,7 +29,7 @@ use crate::model::geometry::Rigid3;
 pub enum ColmapError {
     #[error("{what} not found: {path}")]
     MissingFile { path: PathBuf, what: &'static str },
-    #[error("cannot read or write {path}: {source}")]
+    #[error("cannot read or write {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -42,7 +42,7 @@ pub enum ColmapError {
         reason: String,
     },
     /// The camera's parameters do not make a valid camera model.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     InvalidCamera {
         path: PathBuf,
         #[source]

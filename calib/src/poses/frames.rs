@@ -133,13 +133,6 @@ fn grey_of_rgb(rgb: &[u8]) -> Vec<f32> {
         .collect()
 }
 
-fn session_err(path: &Path, source: s3tir_capture::CaptureError) -> PosesError {
-    PosesError::SessionRead {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Reads the whole session once: every frame's numbers (module docs). `progress` hears one
 /// stage without a total, one item per readable frame.
 pub fn scan_session(path: &Path, progress: &dyn Progress) -> Result<SessionScan, PosesError> {
@@ -193,7 +186,7 @@ pub fn scan_session(path: &Path, progress: &dyn Progress) -> Result<SessionScan,
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e));
+    .map_err(|source| PosesError::SessionRead { source });
     progress.finish();
     let outcome = outcome?;
     scan.thermal.sort_by_key(|f| f.monotonic_ns);
@@ -296,7 +289,7 @@ pub fn write_keyframes(
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e))?;
+    .map_err(|source| PosesError::SessionRead { source })?;
     if !pending.is_empty() {
         thermal_samples.sort_unstable();
         let q =
@@ -385,7 +378,7 @@ pub fn for_frames(
         }
         Ok(())
     })
-    .map_err(|e| session_err(path, e))?;
+    .map_err(|source| PosesError::SessionRead { source })?;
     failure.map_or(Ok(()), Err)
 }
 

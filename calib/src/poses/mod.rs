@@ -113,13 +113,10 @@ pub enum PosesError {
     /// The session reads, but not as the stage needs (a validation).
     #[error("session {path}: {reason}")]
     Session { path: PathBuf, reason: String },
-    /// The session could not be read (capture's error names the session).
-    #[error("{source}")]
-    SessionRead {
-        path: PathBuf,
-        #[source]
-        source: s3tir_capture::CaptureError,
-    },
+    /// The session could not be read (capture's error names the session, so this level adds
+    /// nothing to its message).
+    #[error(transparent)]
+    SessionRead { source: s3tir_capture::CaptureError },
     #[error(
         "the calibration has no {what}: {why} (calibrate the rig with s3tir-calib BOARD --out calibration.yaml, from a board set or a session recorded with the board in view)"
     )]
@@ -136,7 +133,7 @@ pub enum PosesError {
         session_h: u32,
     },
     #[error(
-        "`{program}` (COLMAP) cannot be run: {source}. Install Debian's colmap package (scripts/install-deps.sh does), pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR"
+        "`{program}` (COLMAP) cannot be run (install Debian's colmap package, as scripts/install-deps.sh does, pass --colmap PATH, or give a COLMAP model of the keyframes with --poses DIR)"
     )]
     ColmapMissing {
         program: PathBuf,
@@ -162,13 +159,13 @@ pub enum PosesError {
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
     /// An output file could not be encoded or written (an I/O, image, JSON or COLMAP error).
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Write {
         path: PathBuf,
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
-    #[error("the COLMAP model {path}: {source}")]
+    #[error("the COLMAP model {path}")]
     Model {
         path: PathBuf,
         #[source]
@@ -180,7 +177,7 @@ pub enum PosesError {
     #[error("AprilTag map or detection {path}: {reason}")]
     Tags { path: PathBuf, reason: String },
     /// The calibration board (`--board`) could not be looked for in a keyframe.
-    #[error("AprilTag map or detection {path}: finding the board of {board}: {source}")]
+    #[error("AprilTag map or detection {path}: finding the board of {board}")]
     BoardFinder {
         path: PathBuf,
         board: PathBuf,
@@ -188,7 +185,7 @@ pub enum PosesError {
         source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// An AprilTag map or keyframe could not be read, or the tag detector failed.
-    #[error("AprilTag map or detection {path}: {source}")]
+    #[error("AprilTag map or detection {path}")]
     TagsRead {
         path: PathBuf,
         #[source]

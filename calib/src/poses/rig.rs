@@ -66,7 +66,7 @@ pub fn attached_calibration(scan: &SessionScan) -> Result<CalibrationFile, Poses
         let label = scan.path.join(name);
         match CalibrationFile::parse(&label, &String::from_utf8_lossy(data)) {
             Ok(c) => return Ok(c),
-            Err(e) => problems.push(e.to_string()),
+            Err(e) => problems.push(s3tir_capture::Chain(&e).to_string()),
         }
     }
     Err(PosesError::MissingCalibration {

@@ -268,7 +268,12 @@ fn with_rgb_the_posed_rgb_keyframes_join_in_the_thermal_views_world() {
     let model = user_model(tmp.path(), &rec);
     let out = tmp.path().join("dataset");
     let report = session_to_dataset(&rec.session, Some(&rig()), &out, &opts(&model))
-        .unwrap_or_else(|e| panic!("posing the session with --with-rgb: {e}"));
+        .unwrap_or_else(|e| {
+            panic!(
+                "posing the session with --with-rgb: {}",
+                s3tir_capture::Chain(&e)
+            )
+        });
     let posed_rgb: BTreeMap<u32, u64> = rec
         .rgb
         .iter()

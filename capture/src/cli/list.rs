@@ -21,7 +21,7 @@ pub fn run(a: &ListArgs) -> Result<()> {
         match entry {
             Ok(d) => devices.push(d),
             // Reported, not fatal: one unreadable node must not hide the others.
-            Err(e) => eprintln!("warning: {e}"),
+            Err(e) => eprintln!("warning: {}", s3tir_capture::Chain(&e)),
         }
     }
     if json {

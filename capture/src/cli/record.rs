@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use s3tir_capture::Chain;
 use s3tir_capture::backend::FrameSource;
 use s3tir_capture::backend::sim_backend::{self, SimSource, SimSpec};
 use s3tir_capture::daemon::{self, Counters, DaemonConfig, SourceSpec};
@@ -225,7 +226,7 @@ pub fn run(a: RecordArgs) -> Result<()> {
                 counters
                     .serial_errors
                     .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                tracing::warn!("Boson serial control unavailable: {e}");
+                tracing::warn!("Boson serial control unavailable: {}", Chain(&e));
             }
         }
     }
@@ -318,7 +319,7 @@ pub fn run(a: RecordArgs) -> Result<()> {
         && a.trigger_rate_hz.is_some()
         && let Err(e) = lock(&c).stop_trigger()
     {
-        tracing::warn!("could not stop the trigger: {e}");
+        tracing::warn!("could not stop the trigger: {}", Chain(&e));
     }
     if a.json {
         #[derive(serde::Serialize)]

@@ -26,7 +26,7 @@ pub enum ChunkError {
     UncompressedSize { held: usize, claimed: u64 },
     #[error("claims {claimed} bytes from {held} LZ4 bytes (LZ4 expands at most {LZ4_MAX_RATIO}x)")]
     Lz4Ratio { claimed: u64, held: usize },
-    #[error("lz4: {source}")]
+    #[error("lz4")]
     Lz4 {
         #[source]
         source: std::io::Error,
@@ -46,7 +46,7 @@ pub enum ChunkError {
         len: u64,
         left: usize,
     },
-    #[error("record (opcode {opcode:#04x}) at chunk byte {at}: {source}")]
+    #[error("record (opcode {opcode:#04x}) at chunk byte {at}")]
     Record {
         opcode: u8,
         at: usize,

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::device::FourCc;
 use crate::error::CaptureError;
+use crate::error::Chain;
 use crate::frame::{CapturedFrame, FfcState, RawFrame, StreamKind, ThermalUnits};
 use crate::session::chunk::{MAX_RECORD_BYTES, RECORD_PREFIX_LEN, decode_chunk, split_chunk};
 use crate::session::clock_sync::ClockMap;
@@ -105,7 +106,7 @@ pub fn read_session(
         let event = match event {
             Ok(e) => e,
             Err(e) => {
-                stop = Some((offset, format!("{e}")));
+                stop = Some((offset, Chain(&e).to_string()));
                 break;
             }
         };
@@ -129,7 +130,7 @@ pub fn read_session(
                     Err(e) => {
                         stop = Some((
                             record_offset,
-                            format!("corrupt record (opcode {opcode:#04x}): {e}"),
+                            format!("corrupt record (opcode {opcode:#04x}): {}", Chain(&e)),
                         ));
                         break;
                     }
@@ -176,7 +177,7 @@ pub fn read_session(
                                     Err(reason) => {
                                         stop = Some((
                                             record_offset,
-                                            format!("corrupt chunk: {reason}"),
+                                            format!("corrupt chunk: {}", Chain(&reason)),
                                         ));
                                         break;
                                     }
@@ -187,7 +188,10 @@ pub fn read_session(
                                 }
                             }
                             Err(reason) => {
-                                stop = Some((record_offset, format!("corrupt chunk: {reason}")));
+                                stop = Some((
+                                    record_offset,
+                                    format!("corrupt chunk: {}", Chain(&reason)),
+                                ));
                                 break;
                             }
                         }

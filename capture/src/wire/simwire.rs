@@ -78,7 +78,7 @@ pub struct WireFrame {
 /// Errors reading or writing wire frames.
 #[derive(Debug, thiserror::Error)]
 pub enum SimWireError {
-    #[error("simwire {peer}: I/O error: {source}")]
+    #[error("simwire {peer}: I/O error")]
     Io {
         peer: String,
         #[source]

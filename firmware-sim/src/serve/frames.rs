@@ -47,7 +47,7 @@ fn broadcast(clients: &Mutex<Vec<UnixStream>>, frame: &WireFrame, socket: &Path)
     cs.retain_mut(|c| match frame.write_to(c, &peer) {
         Ok(()) => true,
         Err(e) => {
-            tracing::info!("client left {peer}: {e}");
+            tracing::info!("client left {peer}: {}", s3tir_capture::Chain(&e));
             false
         }
     });

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 
 use super::train_args::TrainArgs;
 
@@ -40,8 +40,8 @@ pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf
         session.display(),
         dataset.display()
     );
-    let report = poses::session_to_dataset(session, cal.as_ref(), &dataset, &opts)
-        .with_context(|| format!("poses from {}", session.display()))?;
+    // No context added: the stage's errors name the session or file they are about.
+    let report = poses::session_to_dataset(session, cal.as_ref(), &dataset, &opts)?;
     print!("{}", poses::summary(&report));
     Ok(dataset)
 }

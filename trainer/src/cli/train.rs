@@ -68,8 +68,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     } else {
         new_config(&a, data)?
     };
-    let dataset = Dataset::load(&cfg.data, &cfg.load)
-        .with_context(|| format!("loading dataset {}", cfg.data.display()))?;
+    // No context added: every dataset error names the file or folder it is about.
+    let dataset = Dataset::load(&cfg.data, &cfg.load)?;
     say!(
         a.json,
         "dataset {}: {} views ({} train, {} held out){}",

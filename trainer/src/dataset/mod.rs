@@ -43,7 +43,7 @@ use images::{ColourMode, ImageKind, RawImage, load_image};
 pub enum DatasetError {
     #[error("{what} not found: {path}")]
     MissingFile { path: PathBuf, what: &'static str },
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -53,7 +53,7 @@ pub enum DatasetError {
     #[error(transparent)]
     Colmap(#[from] s3tir_calib::model::colmap::ColmapError),
     /// The image could not be decoded or encoded.
-    #[error("image {path}: {source}")]
+    #[error("image {path}")]
     Image {
         path: PathBuf,
         #[source]

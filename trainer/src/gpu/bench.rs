@@ -167,25 +167,25 @@ impl BenchReport {
 /// Errors of the benchmark.
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
-    #[error("benchmark scene in {path}: {source}")]
+    #[error("benchmark scene in {path}")]
     Scene {
         path: PathBuf,
         #[source]
         source: DatasetError,
     },
-    #[error("benchmark training run: {source}")]
+    #[error("benchmark training run")]
     Train {
         #[source]
         source: TrainError,
     },
-    #[error("benchmark Vulkan backend: {source}")]
+    #[error("benchmark Vulkan backend")]
     Gpu {
         #[source]
         source: GpuError,
     },
     #[error("benchmark: {what} needs at least 1, got 0")]
     Zero { what: &'static str },
-    #[error("benchmark: a one-thread pool for the CPU backend: {source}")]
+    #[error("benchmark: a one-thread pool for the CPU backend")]
     ThreadPool {
         #[source]
         source: rayon::ThreadPoolBuildError,

@@ -7,7 +7,7 @@ use ash::vk;
 pub enum GpuError {
     /// The Vulkan loader library could not be loaded.
     #[error(
-        "no Vulkan loader ({source}); install a loader and a driver (Debian: libvulkan1 and \
+        "no Vulkan loader (install a loader and a driver; Debian: libvulkan1 and \
          mesa-vulkan-drivers, which includes the lavapipe CPU driver)"
     )]
     LoaderMissing {
@@ -64,7 +64,7 @@ pub enum GpuError {
         actual: u64,
     },
     /// gpu-allocator could not provide memory.
-    #[error("GPU memory for {name} ({bytes} bytes): {source}")]
+    #[error("GPU memory for {name} ({bytes} bytes)")]
     Allocation {
         name: String,
         bytes: u64,
@@ -79,14 +79,14 @@ pub enum GpuError {
     #[error("shader {name}: {reason}")]
     Shader { name: String, reason: String },
     /// A shader's SPIR-V module is malformed.
-    #[error("shader {name}: malformed SPIR-V: {source}")]
+    #[error("shader {name}: malformed SPIR-V")]
     MalformedSpirv {
         name: String,
         #[source]
         source: std::io::Error,
     },
     /// The driver refused to build a shader's module or pipeline.
-    #[error("shader {name}: {call}: {source}")]
+    #[error("shader {name}: {call}")]
     ShaderBuild {
         name: String,
         call: &'static str,
@@ -98,7 +98,7 @@ pub enum GpuError {
     InvalidInput { reason: String },
     /// Primitives or a camera that the renderer's own checks refuse (boxed: the renderer's
     /// error also wraps this one).
-    #[error("invalid input: {source}")]
+    #[error("invalid input")]
     InvalidScene {
         #[source]
         source: Box<crate::error::RenderError>,

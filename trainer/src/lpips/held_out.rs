@@ -20,7 +20,7 @@ pub fn installed() -> Option<&'static Lpips> {
         .get_or_init(|| match Lpips::load_installed() {
             Ok(l) => Some(l),
             Err(e) => {
-                tracing::warn!("no LPIPS in evaluations: {e}");
+                tracing::warn!("no LPIPS in evaluations: {}", s3tir_capture::Chain(&e));
                 None
             }
         })

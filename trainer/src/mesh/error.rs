@@ -18,7 +18,7 @@ impl From<s3tir_calib::model::ply::FormatError> for MeshError {
 
 #[derive(Debug, Error)]
 pub enum MeshError {
-    #[error("cannot write or read {path}: {source}")]
+    #[error("cannot write or read {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -28,7 +28,7 @@ pub enum MeshError {
     #[error("{path}: {reason}")]
     Ply { path: PathBuf, reason: String },
     /// A number of a PLY header that does not parse.
-    #[error("{path}: {what}: {source}")]
+    #[error("{path}: {what}")]
     PlyNumber {
         path: PathBuf,
         /// The header line and what it holds.

@@ -22,14 +22,14 @@ pub enum TrainError {
     Ply(#[from] PlyError),
     #[error(transparent)]
     Report(#[from] ReportError),
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
     /// A JSON file of the run (`config.json`, `eval.json`, …) could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Json {
         path: PathBuf,
         #[source]
@@ -37,7 +37,7 @@ pub enum TrainError {
     },
     /// A stage run with the model (meshing, reading a truth surface) failed; `what` says
     /// which, the source why.
-    #[error("{what}: {source}")]
+    #[error("{what}")]
     Stage {
         what: String,
         #[source]
