@@ -250,15 +250,10 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
     for r in cal.cameras.iter().flatten() {
         let (i, s) = (r.model.intrinsics, r.sigma);
         println!(
-            "{:7}: {} images, board in {}{}, used {}; RMS {:.3} px (alone: {:.3} px); fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
+            "{:7}: {} images, board in {}, used {}; RMS {:.3} px (alone: {:.3} px); fx {:.2}±{:.2} fy {:.2}±{:.2} cx {:.2}±{:.2} cy {:.2}±{:.2}",
             r.camera.name(),
             r.images,
-            r.views_found,
-            if r.views_partial > 0 {
-                format!(" ({} partial, by AprilTags)", r.views_partial)
-            } else {
-                String::new()
-            },
+            document::views_found(r),
             r.views_used,
             r.rms_px,
             r.mono_rms_px,
