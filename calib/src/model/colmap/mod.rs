@@ -14,8 +14,6 @@
 //! top-left pixel is (0.5, 0.5)); s3tir puts it at the centre (`docs/CONVENTIONS.md`). The readers
 //! subtract ½ px from `cx, cy`; the writer ([`write_text_model`]) adds it back.
 
-use std::fs;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
@@ -23,6 +21,12 @@ use thiserror::Error;
 
 use crate::model::camera::{BrownConrady, CameraModel, Intrinsics};
 use crate::model::geometry::Rigid3;
+
+mod binary;
+mod text;
+
+pub use binary::read_binary_model;
+pub use text::{cameras_text, read_cameras_text, read_text_model, write_text_model};
 
 /// Errors of reading or writing a COLMAP model. Each names the file (and line, in text files).
 #[derive(Debug, Error)]
@@ -281,6 +285,79 @@ fn pose(q: [f64; 4], t: [f64; 3]) -> Rigid3 {
     Rigid3::new(rot, DVec3::from_array(t))
 }
 
+/// Where a record stands: its file, and its line in a text file (0 in a binary file, whose
+/// errors name the record by its id instead).
+#[derive(Debug, Clone, Copy)]
+struct At<'a> {
+    path: &'a Path,
+    line: usize,
+}
+
+/// An image record of either reader, checked (a finite pose, a name inside the images folder,
+/// a rotation: [`image_problem`]) and built. `v` is `QW QX QY QZ TX TY TZ` as COLMAP stores it.
+fn image_record(
+    at: At<'_>,
+    id: u32,
+    camera_id: u32,
+    name: String,
+    v: [f64; 7],
+) -> Result<ColmapImage, ColmapError> {
+    let parse = |reason: String| ColmapError::Parse {
+        path: at.path.to_path_buf(),
+        line: at.line,
+        reason: if at.line == 0 {
+            format!("image {id}: {reason}")
+        } else {
+            reason
+        },
+    };
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(parse("pose is not finite".into()));
+    }
+    if let Some(reason) = image_problem(&name, [v[0], v[1], v[2], v[3]]) {
+        return Err(parse(reason));
+    }
+    Ok(ColmapImage {
+        id,
+        camera_id,
+        name,
+        cam_from_world: pose([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]),
+    })
+}
+
+/// A sparse point of either reader, checked (finite coordinates) and built.
+fn point_record(
+    at: At<'_>,
+    id: u64,
+    position_m: [f64; 3],
+    rgb: [u8; 3],
+) -> Result<ColmapPoint, ColmapError> {
+    if position_m.iter().any(|x| !x.is_finite()) {
+        return Err(ColmapError::NonFinitePoint {
+            path: at.path.to_path_buf(),
+            line: at.line,
+            point_id: id,
+        });
+    }
+    Ok(ColmapPoint {
+        id,
+        position_m,
+        rgb,
+    })
+}
+
+/// The error of opening `path`: a missing file says which file of the model it is.
+fn open_error(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> ColmapError {
+    let path = path.to_path_buf();
+    move |e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            ColmapError::MissingFile { path, what }
+        } else {
+            ColmapError::Io { path, source: e }
+        }
+    }
+}
+
 /// Reads a model from a folder holding either the text or the binary files (text preferred
 /// when both exist).
 pub fn read_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
@@ -294,380 +371,6 @@ pub fn read_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
             what: "COLMAP sparse model (cameras.txt or cameras.bin)",
         })
     }
-}
-
-fn read_to_string(path: &Path, what: &'static str) -> Result<String, ColmapError> {
-    fs::read_to_string(path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            ColmapError::MissingFile {
-                path: path.to_path_buf(),
-                what,
-            }
-        } else {
-            ColmapError::Io {
-                path: path.to_path_buf(),
-                source: e,
-            }
-        }
-    })
-}
-
-fn parse_f64s(path: &Path, line: usize, toks: &[&str]) -> Result<Vec<f64>, ColmapError> {
-    toks.iter()
-        .map(|t| {
-            t.parse::<f64>().map_err(|_| ColmapError::Parse {
-                path: path.to_path_buf(),
-                line,
-                reason: format!("`{t}` is not a number"),
-            })
-        })
-        .collect()
-}
-
-fn parse_int<T: std::str::FromStr>(path: &Path, line: usize, tok: &str) -> Result<T, ColmapError> {
-    tok.parse::<T>().map_err(|_| ColmapError::Parse {
-        path: path.to_path_buf(),
-        line,
-        reason: format!("`{tok}` is not an integer"),
-    })
-}
-
-/// Reads one `cameras.txt` (also the `calibration.colmap-cameras.txt` calib exports).
-pub fn read_cameras_text(path: &Path) -> Result<Vec<ColmapCamera>, ColmapError> {
-    let text = read_to_string(path, "COLMAP cameras.txt")?;
-    let mut cameras = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let toks: Vec<&str> = line.split_whitespace().collect();
-        if toks.len() < 4 {
-            return Err(ColmapError::Parse {
-                path: path.to_path_buf(),
-                line: n + 1,
-                reason: "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]".into(),
-            });
-        }
-        let id: u32 = parse_int(path, n + 1, toks[0])?;
-        let width: u64 = parse_int(path, n + 1, toks[2])?;
-        let height: u64 = parse_int(path, n + 1, toks[3])?;
-        let params = parse_f64s(path, n + 1, &toks[4..])?;
-        cameras.push(colmap_camera(
-            path,
-            n + 1,
-            id,
-            toks[1],
-            width,
-            height,
-            &params,
-        )?);
-    }
-    Ok(cameras)
-}
-
-/// The `cameras.txt` text of `cameras` (through [`colmap_params`]: ½-px shift applied).
-pub fn cameras_text(cameras: &[ColmapCamera]) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::from("# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
-    for c in cameras {
-        let (name, params) = colmap_params(&c.model);
-        let _ = write!(
-            s,
-            "{} {name} {} {}",
-            c.id, c.model.width_px, c.model.height_px
-        );
-        for p in params {
-            let _ = write!(s, " {p:?}");
-        }
-        s.push('\n');
-    }
-    s
-}
-
-/// Reads `cameras.txt`, `images.txt`, `points3D.txt` (the last may be missing: no points).
-pub fn read_text_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
-    let mut model = ColmapModel {
-        cameras: read_cameras_text(&dir.join("cameras.txt"))?,
-        ..ColmapModel::default()
-    };
-
-    let path = dir.join("images.txt");
-    let text = read_to_string(&path, "COLMAP images.txt")?;
-    // Data lines come in pairs: the image line, then its POINTS2D line (possibly empty).
-    let mut expect_points_line = false;
-    for (n, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.starts_with('#') {
-            continue;
-        }
-        if expect_points_line {
-            expect_points_line = false;
-            continue;
-        }
-        if line.is_empty() {
-            continue;
-        }
-        let toks: Vec<&str> = line.split_whitespace().collect();
-        if toks.len() < 10 {
-            return Err(ColmapError::Parse {
-                path,
-                line: n + 1,
-                reason: "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME".into(),
-            });
-        }
-        let id: u32 = parse_int(&path, n + 1, toks[0])?;
-        let v = parse_f64s(&path, n + 1, &toks[1..8])?;
-        let camera_id: u32 = parse_int(&path, n + 1, toks[8])?;
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(ColmapError::Parse {
-                path,
-                line: n + 1,
-                reason: "pose is not finite".into(),
-            });
-        }
-        // Names may contain spaces: everything after CAMERA_ID.
-        let name = toks[9..].join(" ");
-        if let Some(reason) = image_problem(&name, [v[0], v[1], v[2], v[3]]) {
-            return Err(ColmapError::Parse {
-                path,
-                line: n + 1,
-                reason,
-            });
-        }
-        model.images.push(ColmapImage {
-            id,
-            camera_id,
-            name,
-            cam_from_world: pose([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]),
-        });
-        expect_points_line = true;
-    }
-
-    let path = dir.join("points3D.txt");
-    if path.exists() {
-        let text = read_to_string(&path, "COLMAP points3D.txt")?;
-        for (n, line) in text.lines().enumerate() {
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let toks: Vec<&str> = line.split_whitespace().collect();
-            if toks.len() < 8 {
-                return Err(ColmapError::Parse {
-                    path,
-                    line: n + 1,
-                    reason: "expected POINT3D_ID X Y Z R G B ERROR TRACK[]".into(),
-                });
-            }
-            let id: u64 = parse_int(&path, n + 1, toks[0])?;
-            let xyz = parse_f64s(&path, n + 1, &toks[1..4])?;
-            if xyz.iter().any(|x| !x.is_finite()) {
-                return Err(ColmapError::NonFinitePoint {
-                    path,
-                    line: n + 1,
-                    point_id: id,
-                });
-            }
-            let rgb = [
-                parse_int(&path, n + 1, toks[4])?,
-                parse_int(&path, n + 1, toks[5])?,
-                parse_int(&path, n + 1, toks[6])?,
-            ];
-            model.points.push(ColmapPoint {
-                id,
-                position_m: [xyz[0], xyz[1], xyz[2]],
-                rgb,
-            });
-        }
-    }
-    Ok(model)
-}
-
-/// Little-endian cursor over a binary COLMAP file.
-struct Cursor<'a> {
-    path: &'a Path,
-    data: &'a [u8],
-    pos: usize,
-}
-
-impl Cursor<'_> {
-    fn take(&mut self, n: usize) -> Result<&[u8], ColmapError> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.data.len());
-        let Some(end) = end else {
-            return Err(ColmapError::Parse {
-                path: self.path.to_path_buf(),
-                line: 0,
-                reason: format!("truncated at byte {} (wanted {n} more)", self.pos),
-            });
-        };
-        let s = &self.data[self.pos..end];
-        self.pos = end;
-        Ok(s)
-    }
-    fn arr<const N: usize>(&mut self) -> Result<[u8; N], ColmapError> {
-        let s = self.take(N)?;
-        let mut a = [0u8; N];
-        a.copy_from_slice(s);
-        Ok(a)
-    }
-    fn u64(&mut self) -> Result<u64, ColmapError> {
-        Ok(u64::from_le_bytes(self.arr()?))
-    }
-    fn i32(&mut self) -> Result<i32, ColmapError> {
-        Ok(i32::from_le_bytes(self.arr()?))
-    }
-    fn f64(&mut self) -> Result<f64, ColmapError> {
-        Ok(f64::from_le_bytes(self.arr()?))
-    }
-    fn u8(&mut self) -> Result<u8, ColmapError> {
-        Ok(self.arr::<1>()?[0])
-    }
-    fn count(&mut self, elem_bytes: usize) -> Result<usize, ColmapError> {
-        let n = self.u64()?;
-        // A count that cannot fit in the rest of the file is corruption, not an allocation.
-        let remaining = (self.data.len() - self.pos) as u64;
-        if n.saturating_mul(elem_bytes as u64) > remaining {
-            return Err(ColmapError::Parse {
-                path: self.path.to_path_buf(),
-                line: 0,
-                reason: format!("count {n} at byte {} exceeds the file", self.pos - 8),
-            });
-        }
-        Ok(n as usize)
-    }
-}
-
-fn read_bytes(path: &Path, what: &'static str) -> Result<Vec<u8>, ColmapError> {
-    let mut f = fs::File::open(path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            ColmapError::MissingFile {
-                path: path.to_path_buf(),
-                what,
-            }
-        } else {
-            ColmapError::Io {
-                path: path.to_path_buf(),
-                source: e,
-            }
-        }
-    })?;
-    let mut v = Vec::new();
-    f.read_to_end(&mut v).map_err(|e| ColmapError::Io {
-        path: path.to_path_buf(),
-        source: e,
-    })?;
-    Ok(v)
-}
-
-/// Reads `cameras.bin`, `images.bin`, `points3D.bin` (the last may be missing).
-pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
-    let mut model = ColmapModel::default();
-    let path: PathBuf = dir.join("cameras.bin");
-    let data = read_bytes(&path, "COLMAP cameras.bin")?;
-    let mut c = Cursor {
-        path: &path,
-        data: &data,
-        pos: 0,
-    };
-    let n = c.count(24)?;
-    for _ in 0..n {
-        let id = c.i32()?;
-        let model_id = c.i32()?;
-        let width = c.u64()?;
-        let height = c.u64()?;
-        let name = model_name(model_id);
-        let Some(np) = param_count(model_id) else {
-            return Err(ColmapError::UnsupportedCameraModel {
-                path: path.clone(),
-                model: name,
-            });
-        };
-        let params = (0..np).map(|_| c.f64()).collect::<Result<Vec<_>, _>>()?;
-        model.cameras.push(colmap_camera(
-            &path, 0, id as u32, &name, width, height, &params,
-        )?);
-    }
-
-    let path: PathBuf = dir.join("images.bin");
-    let data = read_bytes(&path, "COLMAP images.bin")?;
-    let mut c = Cursor {
-        path: &path,
-        data: &data,
-        pos: 0,
-    };
-    let n = c.count(64)?;
-    for _ in 0..n {
-        let id = c.i32()?;
-        let mut v = [0.0; 7];
-        for x in &mut v {
-            *x = c.f64()?;
-        }
-        let camera_id = c.i32()?;
-        let mut name = Vec::new();
-        loop {
-            let b = c.u8()?;
-            if b == 0 {
-                break;
-            }
-            name.push(b);
-        }
-        let np = c.count(24)?;
-        c.take(np * 24)?;
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(ColmapError::Parse {
-                path: path.clone(),
-                line: 0,
-                reason: format!("image {id}: pose is not finite"),
-            });
-        }
-        let name = String::from_utf8_lossy(&name).into_owned();
-        if let Some(reason) = image_problem(&name, [v[0], v[1], v[2], v[3]]) {
-            return Err(ColmapError::Parse {
-                path: path.clone(),
-                line: 0,
-                reason: format!("image {id}: {reason}"),
-            });
-        }
-        model.images.push(ColmapImage {
-            id: id as u32,
-            camera_id: camera_id as u32,
-            name,
-            cam_from_world: pose([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]),
-        });
-    }
-
-    let path: PathBuf = dir.join("points3D.bin");
-    if path.exists() {
-        let data = read_bytes(&path, "COLMAP points3D.bin")?;
-        let mut c = Cursor {
-            path: &path,
-            data: &data,
-            pos: 0,
-        };
-        let n = c.count(43)?;
-        for _ in 0..n {
-            let id = c.u64()?;
-            let xyz = [c.f64()?, c.f64()?, c.f64()?];
-            let rgb = [c.u8()?, c.u8()?, c.u8()?];
-            let _error = c.f64()?;
-            let track = c.count(8)?;
-            c.take(track * 8)?;
-            if xyz.iter().any(|x| !x.is_finite()) {
-                return Err(ColmapError::NonFinitePoint {
-                    path: path.clone(),
-                    line: 0,
-                    point_id: id,
-                });
-            }
-            model.points.push(ColmapPoint {
-                id,
-                position_m: xyz,
-                rgb,
-            });
-        }
-    }
-    Ok(model)
 }
 
 /// COLMAP parameter list of a `CameraModel` as `(MODEL, params)` (½-px shift applied): PINHOLE
@@ -705,40 +408,3 @@ pub fn colmap_params(model: &CameraModel) -> (&'static str, Vec<f64>) {
     }
 }
 
-/// Writes a text model (for the synthetic scene and tests).
-pub fn write_text_model(dir: &Path, model: &ColmapModel) -> Result<(), ColmapError> {
-    use std::fmt::Write as _;
-    let io = |path: PathBuf| move |e| ColmapError::Io { path, source: e };
-    fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
-    let s = cameras_text(&model.cameras);
-    let p = dir.join("cameras.txt");
-    fs::write(&p, s).map_err(io(p.clone()))?;
-
-    let mut s = String::from(
-        "# Image list: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n# POINTS2D[] as (X, Y, POINT3D_ID)\n",
-    );
-    for im in &model.images {
-        let q = im.cam_from_world.rotation;
-        let t = im.cam_from_world.translation_m;
-        let _ = writeln!(
-            s,
-            "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?} {} {}\n",
-            im.id, q.w, q.x, q.y, q.z, t.x, t.y, t.z, im.camera_id, im.name
-        );
-    }
-    let p = dir.join("images.txt");
-    fs::write(&p, s).map_err(io(p.clone()))?;
-
-    let mut s = String::from("# 3D point list: POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n");
-    for pt in &model.points {
-        let [x, y, z] = pt.position_m;
-        let _ = writeln!(
-            s,
-            "{} {x:?} {y:?} {z:?} {} {} {} 0.0",
-            pt.id, pt.rgb[0], pt.rgb[1], pt.rgb[2]
-        );
-    }
-    let p = dir.join("points3D.txt");
-    fs::write(&p, s).map_err(io(p.clone()))?;
-    Ok(())
-}
