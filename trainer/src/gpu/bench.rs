@@ -241,12 +241,11 @@ fn process_cpu_s() -> f64 {
 }
 
 /// What a [`Timed`] configuration measured.
-struct Measured<B> {
+struct Measured {
     steps_per_s: f64,
     cpu_ms_per_step: f64,
     /// Vulkan traffic during the timed steps: (host reads, bytes read, submissions).
     traffic: (u64, u64, u64),
-    backend: B,
 }
 
 /// One benchmark configuration: a training run on `backend` in `mode`, warmed up, timed in
@@ -313,16 +312,17 @@ impl<B: Backend> Timed<B> {
         Ok(())
     }
 
+    /// The figures, and the backend back (its memory and timings).
     fn finish(
         mut self,
         traffic: &dyn Fn(&B) -> (u64, u64, u64),
-    ) -> Result<Measured<B>, BenchError> {
+    ) -> Result<(Measured, B), BenchError> {
         let end = traffic(&self.trainer.backend);
         self.trainer
             .sync_host()
             .map_err(|source| BenchError::Train { source })?;
         let steps = self.steps.max(1) as f64;
-        Ok(Measured {
+        let measured = Measured {
             steps_per_s: self.steps as f64 / self.seconds.max(1e-9),
             cpu_ms_per_step: 1e3 * self.cpu_s / steps,
             traffic: (
@@ -330,8 +330,8 @@ impl<B: Backend> Timed<B> {
                 end.1 - self.traffic_start.1,
                 end.2 - self.traffic_start.2,
             ),
-            backend: self.trainer.backend,
-        })
+        };
+        Ok((measured, self.trainer.backend))
     }
 }
 
@@ -354,6 +354,112 @@ pub fn run(opts: &BenchOptions, progress: &mut dyn FnMut(&str)) -> Result<BenchR
     result
 }
 
+/// The Vulkan configurations timed side by side (see [`VULKAN_RUNS`]).
+#[derive(Debug, Clone, Copy)]
+enum Vk {
+    Gaussian,
+    S3tir,
+    RenderedPartner,
+    Joint,
+    JointSingle,
+    HostPath,
+}
+
+/// One Vulkan configuration: what it is, its run folder, and how it trains.
+struct VulkanRun {
+    which: Vk,
+    label: &'static str,
+    dir: &'static str,
+    mode: Mode,
+    partner: ConsistPartner,
+    scene: Scene,
+    /// Losses on the device (false: the host path, as joint steps take).
+    device_losses: bool,
+}
+
+/// Every Vulkan configuration, in the order of [`Vk`] (index = `Vk as usize`).
+const VULKAN_RUNS: [VulkanRun; 6] = [
+    VulkanRun {
+        which: Vk::Gaussian,
+        label: "3dgs mode",
+        dir: "vk-3dgs",
+        mode: Mode::Gaussian,
+        partner: ConsistPartner::Previous,
+        scene: Scene::Thermal,
+        device_losses: true,
+    },
+    VulkanRun {
+        which: Vk::S3tir,
+        label: "s3tir mode",
+        dir: "vk-s3tir",
+        mode: Mode::S3tir,
+        partner: ConsistPartner::Previous,
+        scene: Scene::Thermal,
+        device_losses: true,
+    },
+    VulkanRun {
+        which: Vk::RenderedPartner,
+        label: "s3tir mode, consistency partner rendered each step",
+        dir: "vk-s3tir-render",
+        mode: Mode::S3tir,
+        partner: ConsistPartner::Render,
+        scene: Scene::Thermal,
+        device_losses: true,
+    },
+    VulkanRun {
+        which: Vk::Joint,
+        label: "s3tir mode, joint RGB + thermal scene",
+        dir: "vk-joint",
+        mode: Mode::S3tir,
+        partner: ConsistPartner::Previous,
+        scene: Scene::Joint,
+        device_losses: true,
+    },
+    VulkanRun {
+        which: Vk::JointSingle,
+        label: "s3tir mode, joint scene, one image per step",
+        dir: "vk-joint-single",
+        mode: Mode::S3tir,
+        partner: ConsistPartner::Previous,
+        scene: Scene::JointSingle,
+        device_losses: true,
+    },
+    VulkanRun {
+        which: Vk::HostPath,
+        label: "s3tir mode, host path (device losses off)",
+        dir: "vk-host",
+        mode: Mode::S3tir,
+        partner: ConsistPartner::Previous,
+        scene: Scene::Thermal,
+        device_losses: false,
+    },
+];
+
+/// What the timed configurations measured: the CPU backend on every core and on one thread,
+/// and every Vulkan configuration (indexed by [`Vk`]).
+struct Timings {
+    cpu: Measured,
+    cpu_one_thread: Measured,
+    vulkan: Vec<Measured>,
+    /// The Vulkan device's name.
+    device: String,
+}
+
+impl Timings {
+    fn vk(&self, which: Vk) -> &Measured {
+        &self.vulkan[which as usize]
+    }
+}
+
+/// The per-kernel GPU times of the profiled runs.
+struct Profiles {
+    s3tir: KernelTimes,
+    gaussian: KernelTimes,
+    joint: KernelTimes,
+    /// Peak device memory of the s3tir run.
+    peak_gpu_bytes: u64,
+}
+
 fn run_in(
     root: &Path,
     opts: &BenchOptions,
@@ -370,108 +476,69 @@ fn run_in(
         source,
     })?;
     let settings = RenderSettings::default();
-    let gpu = |source| BenchError::Gpu { source };
+    let timings = time_steps(&data_dir, root, opts, settings, progress)?;
+    // Timestamps add work of their own: time the kernels in separate passes (the timed runs'
+    // backends are dropped by now).
+    let profiles = profile_kernels(&data_dir, root, opts, settings, progress)?;
+    Ok(report(opts, &timings, profiles))
+}
 
-    // The configurations run side by side and are timed in interleaved rounds, so a
-    // slow spell of the machine (other tenants, frequency changes) falls on all of them alike
-    // and the ratios stay fair.
-    let vulkan_traffic = |b: &VulkanBackend| b.context().traffic();
-    let no_traffic = |_: &CpuBackend| (0, 0, 0);
+fn vulkan_traffic(b: &VulkanBackend) -> (u64, u64, u64) {
+    b.context().traffic()
+}
+
+fn no_traffic(_: &CpuBackend) -> (u64, u64, u64) {
+    (0, 0, 0)
+}
+
+/// Warms every configuration up, then times them in interleaved rounds, so a slow spell of the
+/// machine (other tenants, frequency changes) falls on all of them alike and the ratios stay
+/// fair.
+fn time_steps(
+    data_dir: &Path,
+    root: &Path,
+    opts: &BenchOptions,
+    settings: RenderSettings,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Timings, BenchError> {
+    let thermal = (Mode::S3tir, ConsistPartner::Previous, Scene::Thermal);
     progress("CPU backend, s3tir mode: warm-up");
-    let mut cpu = Timed::start(
-        &data_dir,
-        &root.join("cpu"),
-        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
-        opts,
-        CpuBackend { settings },
-        &mut |_| {},
-        &no_traffic,
-    )?;
+    let cpu_run = |dir: &str| {
+        Timed::start(
+            data_dir,
+            &root.join(dir),
+            thermal,
+            opts,
+            CpuBackend { settings },
+            &mut |_| {},
+            &no_traffic,
+        )
+    };
+    let mut cpu = cpu_run("cpu")?;
     // The CPU backend once more, its rayon work on one thread: the parallel speed-up.
     progress("CPU backend, s3tir mode, one thread: warm-up");
     let one_thread = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .map_err(|source| BenchError::ThreadPool { source })?;
-    let mut cpu1 = one_thread.install(|| {
-        Timed::start(
-            &data_dir,
-            &root.join("cpu-1"),
-            (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
+    let mut cpu1 = one_thread.install(|| cpu_run("cpu-1"))?;
+    let mut vulkan = Vec::with_capacity(VULKAN_RUNS.len());
+    for (k, run) in VULKAN_RUNS.iter().enumerate() {
+        debug_assert_eq!(run.which as usize, k, "VULKAN_RUNS is in the order of Vk");
+        progress(&format!("Vulkan backend, {}: warm-up", run.label));
+        let mut vk = VulkanBackend::new(&opts.device, settings)
+            .map_err(|source| BenchError::Gpu { source })?;
+        vk.set_device_losses(run.device_losses);
+        vulkan.push(Timed::start(
+            data_dir,
+            &root.join(run.dir),
+            (run.mode, run.partner, run.scene),
             opts,
-            CpuBackend { settings },
+            vk,
             &mut |_| {},
-            &no_traffic,
-        )
-    })?;
-    progress("Vulkan backend, 3dgs mode: warm-up");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let mut gaussian = Timed::start(
-        &data_dir,
-        &root.join("vk-3dgs"),
-        (Mode::Gaussian, ConsistPartner::default(), Scene::Thermal),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
-    progress("Vulkan backend, s3tir mode: warm-up");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let device = vk.context().report().name.clone();
-    let mut s3tir = Timed::start(
-        &data_dir,
-        &root.join("vk-s3tir"),
-        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
-    progress("Vulkan backend, s3tir mode, consistency partner rendered each step: warm-up");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let mut rendered = Timed::start(
-        &data_dir,
-        &root.join("vk-s3tir-render"),
-        (Mode::S3tir, ConsistPartner::Render, Scene::Thermal),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
-    progress("Vulkan backend, s3tir mode, joint RGB + thermal scene: warm-up");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let mut joint = Timed::start(
-        &data_dir,
-        &root.join("vk-joint"),
-        (Mode::S3tir, ConsistPartner::default(), Scene::Joint),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
-    progress("Vulkan backend, s3tir mode, joint scene, one image per step: warm-up");
-    let vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    let mut joint_single = Timed::start(
-        &data_dir,
-        &root.join("vk-joint-single"),
-        (Mode::S3tir, ConsistPartner::default(), Scene::JointSingle),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
-    progress("Vulkan backend, s3tir mode, host path (device losses off): warm-up");
-    let mut vk = VulkanBackend::new(&opts.device, settings).map_err(gpu)?;
-    vk.set_device_losses(false);
-    let mut host_path = Timed::start(
-        &data_dir,
-        &root.join("vk-host"),
-        (Mode::S3tir, ConsistPartner::default(), Scene::Thermal),
-        opts,
-        vk,
-        &mut |_| {},
-        &vulkan_traffic,
-    )?;
+            &vulkan_traffic,
+        )?);
+    }
     let rounds = opts.steps.div_ceil(ROUND_STEPS);
     let mut left = opts.steps;
     for r in 0..rounds {
@@ -483,68 +550,57 @@ fn run_in(
         ));
         cpu.round(n)?;
         one_thread.install(|| cpu1.round(n))?;
-        gaussian.round(n)?;
-        s3tir.round(n)?;
-        rendered.round(n)?;
-        joint.round(n)?;
-        joint_single.round(n)?;
-        host_path.round(n)?;
+        for timed in &mut vulkan {
+            timed.round(n)?;
+        }
     }
-    let cpu = cpu.finish(&no_traffic)?;
-    let cpu1 = cpu1.finish(&no_traffic)?;
-    let gaussian = gaussian.finish(&vulkan_traffic)?;
-    let s3tir = s3tir.finish(&vulkan_traffic)?;
-    let rendered = rendered.finish(&vulkan_traffic)?;
-    let joint = joint.finish(&vulkan_traffic)?;
-    let joint_single = joint_single.finish(&vulkan_traffic)?;
-    let host_path = host_path.finish(&vulkan_traffic)?;
-    drop(gaussian.backend);
-    drop(s3tir.backend);
-    drop(rendered.backend);
-    drop(joint.backend);
-    drop(joint_single.backend);
-    drop(host_path.backend);
+    let mut device = String::new();
+    let mut measured = Vec::with_capacity(vulkan.len());
+    for (k, timed) in vulkan.into_iter().enumerate() {
+        let (m, backend) = timed.finish(&vulkan_traffic)?;
+        if k == Vk::S3tir as usize {
+            device.clone_from(&backend.context().report().name);
+        }
+        measured.push(m);
+        // The backend (its device memory) goes here, before the profiled runs.
+    }
+    Ok(Timings {
+        cpu: cpu.finish(&no_traffic)?.0,
+        cpu_one_thread: cpu1.finish(&no_traffic)?.0,
+        vulkan: measured,
+        device,
+    })
+}
 
-    // Timestamps add work of their own: time the kernels in separate passes.
-    let (s3tir_kernels, vk) = profile(
-        &data_dir,
-        root,
-        (Mode::S3tir, Scene::Thermal),
-        opts,
-        settings,
-        progress,
-    )?;
-    let (gaussian_kernels, _) = profile(
-        &data_dir,
-        root,
-        (Mode::Gaussian, Scene::Thermal),
-        opts,
-        settings,
-        progress,
-    )?;
-    let (joint_kernels, _) = profile(
-        &data_dir,
-        root,
-        (Mode::S3tir, Scene::Joint),
-        opts,
-        settings,
-        progress,
-    )?;
-    let ms_per_step = |k: &KernelTimes, colour_only: bool| {
-        k.iter()
-            .filter(|(name, _)| !colour_only || name.ends_with("_rgb"))
-            .map(|(_, t)| t.0)
-            .sum::<f64>()
-            / 1e6
-            / opts.steps as f64
-    };
-    let joint_kernel_ms = ms_per_step(&joint_kernels, false);
-    let total_ns: f64 = s3tir_kernels.values().map(|k| k.0).sum();
-    let steps = opts.steps as f64;
-    let mut kernels: Vec<KernelShare> = s3tir_kernels
+/// GPU time per kernel in s3tir mode, 3dgs mode and the joint scene, each its own run.
+fn profile_kernels(
+    data_dir: &Path,
+    root: &Path,
+    opts: &BenchOptions,
+    settings: RenderSettings,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Profiles, BenchError> {
+    let mut run = |mode, scene| profile(data_dir, root, (mode, scene), opts, settings, progress);
+    let (s3tir, vk) = run(Mode::S3tir, Scene::Thermal)?;
+    let peak_gpu_bytes = vk.context().peak_allocated_bytes();
+    drop(vk);
+    let (gaussian, _) = run(Mode::Gaussian, Scene::Thermal)?;
+    let (joint, _) = run(Mode::S3tir, Scene::Joint)?;
+    Ok(Profiles {
+        s3tir,
+        gaussian,
+        joint,
+        peak_gpu_bytes,
+    })
+}
+
+/// Each kernel's GPU time per step in both modes, largest (in s3tir mode) first.
+fn kernel_shares(s3tir: &KernelTimes, gaussian: &KernelTimes, steps: f64) -> Vec<KernelShare> {
+    let total_ns: f64 = s3tir.values().map(|k| k.0).sum();
+    let mut kernels: Vec<KernelShare> = s3tir
         .iter()
         .map(|(kernel, &(ns, count))| {
-            let (g_ns, g_count) = gaussian_kernels.get(kernel).copied().unwrap_or((0.0, 0));
+            let (g_ns, g_count) = gaussian.get(kernel).copied().unwrap_or((0.0, 0));
             KernelShare {
                 kernel: kernel.clone(),
                 ms_per_step: ns / 1e6 / steps,
@@ -556,9 +612,9 @@ fn run_in(
         })
         .collect();
     kernels.extend(
-        gaussian_kernels
+        gaussian
             .iter()
-            .filter(|(k, _)| !s3tir_kernels.contains_key(*k))
+            .filter(|(k, _)| !s3tir.contains_key(*k))
             .map(|(kernel, &(ns, count))| KernelShare {
                 kernel: kernel.clone(),
                 ms_per_step: 0.0,
@@ -569,44 +625,59 @@ fn run_in(
             }),
     );
     kernels.sort_by(|a, b| b.ms_per_step.total_cmp(&a.ms_per_step));
-    let peak_gpu_bytes = vk.context().peak_allocated_bytes();
-    let per_step = |x: u64| x as f64 / opts.steps as f64;
-    let report = BenchReport {
-        device,
+    kernels
+}
+
+/// The figures, as ratios between the configurations.
+fn report(opts: &BenchOptions, t: &Timings, p: Profiles) -> BenchReport {
+    let steps = opts.steps as f64;
+    let kernel_ms = |k: &KernelTimes, colour_only: bool| {
+        k.iter()
+            .filter(|(name, _)| !colour_only || name.ends_with("_rgb"))
+            .map(|(_, t)| t.0)
+            .sum::<f64>()
+            / 1e6
+            / steps
+    };
+    let sps = |which: Vk| t.vk(which).steps_per_s;
+    let s3tir = t.vk(Vk::S3tir);
+    let per_step = |x: u64| x as f64 / steps;
+    let joint_kernel_ms = kernel_ms(&p.joint, false);
+    BenchReport {
+        device: t.device.clone(),
         width: opts.width,
         height: opts.height,
         primitives: opts.primitives,
         steps: opts.steps,
-        cpu_steps_per_s: cpu.steps_per_s,
+        cpu_steps_per_s: t.cpu.steps_per_s,
         cpu_threads: rayon::current_num_threads(),
-        cpu_one_thread_steps_per_s: cpu1.steps_per_s,
-        cpu_parallel_speedup: cpu.steps_per_s / cpu1.steps_per_s,
+        cpu_one_thread_steps_per_s: t.cpu_one_thread.steps_per_s,
+        cpu_parallel_speedup: t.cpu.steps_per_s / t.cpu_one_thread.steps_per_s,
         vulkan_steps_per_s: s3tir.steps_per_s,
         s3tir_steps_per_s: s3tir.steps_per_s,
-        gaussian_steps_per_s: gaussian.steps_per_s,
-        vulkan_speedup_over_cpu: s3tir.steps_per_s / cpu.steps_per_s,
-        s3tir_cost_over_gaussian: gaussian.steps_per_s / s3tir.steps_per_s,
-        s3tir_render_partner_steps_per_s: rendered.steps_per_s,
-        s3tir_render_partner_cost_over_gaussian: gaussian.steps_per_s / rendered.steps_per_s,
-        cpu_backend_cpu_ms_per_step: cpu.cpu_ms_per_step,
+        gaussian_steps_per_s: sps(Vk::Gaussian),
+        vulkan_speedup_over_cpu: s3tir.steps_per_s / t.cpu.steps_per_s,
+        s3tir_cost_over_gaussian: sps(Vk::Gaussian) / s3tir.steps_per_s,
+        s3tir_render_partner_steps_per_s: sps(Vk::RenderedPartner),
+        s3tir_render_partner_cost_over_gaussian: sps(Vk::Gaussian) / sps(Vk::RenderedPartner),
+        cpu_backend_cpu_ms_per_step: t.cpu.cpu_ms_per_step,
         vulkan_cpu_ms_per_step: s3tir.cpu_ms_per_step,
-        gaussian_cpu_ms_per_step: gaussian.cpu_ms_per_step,
-        kernels,
-        peak_gpu_bytes,
+        gaussian_cpu_ms_per_step: t.vk(Vk::Gaussian).cpu_ms_per_step,
+        kernels: kernel_shares(&p.s3tir, &p.gaussian, steps),
+        peak_gpu_bytes: p.peak_gpu_bytes,
         host_reads_per_step: per_step(s3tir.traffic.0),
         host_read_bytes_per_step: per_step(s3tir.traffic.1),
         submissions_per_step: per_step(s3tir.traffic.2),
-        joint_steps_per_s: joint.steps_per_s,
-        joint_over_thermal: s3tir.steps_per_s / joint.steps_per_s,
-        joint_single_steps_per_s: joint_single.steps_per_s,
-        joint_single_over_thermal: s3tir.steps_per_s / joint_single.steps_per_s,
-        thermal_host_path_steps_per_s: host_path.steps_per_s,
-        thermal_kernel_ms_per_step: ms_per_step(&s3tir_kernels, false),
+        joint_steps_per_s: sps(Vk::Joint),
+        joint_over_thermal: s3tir.steps_per_s / sps(Vk::Joint),
+        joint_single_steps_per_s: sps(Vk::JointSingle),
+        joint_single_over_thermal: s3tir.steps_per_s / sps(Vk::JointSingle),
+        thermal_host_path_steps_per_s: sps(Vk::HostPath),
+        thermal_kernel_ms_per_step: kernel_ms(&p.s3tir, false),
         joint_kernel_ms_per_step: joint_kernel_ms,
-        joint_colour_kernel_ms_per_step: ms_per_step(&joint_kernels, true),
-        joint_host_ms_per_step: (1e3 / joint.steps_per_s - joint_kernel_ms).max(0.0),
-    };
-    Ok(report)
+        joint_colour_kernel_ms_per_step: kernel_ms(&p.joint, true),
+        joint_host_ms_per_step: (1e3 / sps(Vk::Joint) - joint_kernel_ms).max(0.0),
+    }
 }
 
 /// Per kernel name: GPU time (ns) and dispatches.
@@ -636,19 +707,17 @@ fn profile(
     let mut profiled = Timed::start(
         data_dir,
         &root.join(format!("vk-prof-{name}")),
-        (mode, ConsistPartner::default(), scene),
+        (mode, ConsistPartner::Previous, scene),
         opts,
         vk,
         &mut |b: &mut VulkanBackend| {
             b.set_profiling(true);
             let _ = b.take_timings();
         },
-        &|b: &VulkanBackend| b.context().traffic(),
+        &vulkan_traffic,
     )?;
     profiled.round(opts.steps)?;
-    let vk = profiled
-        .finish(&|b: &VulkanBackend| b.context().traffic())?
-        .backend;
+    let (_, vk) = profiled.finish(&vulkan_traffic)?;
     let mut per_kernel = KernelTimes::new();
     for t in vk.take_timings() {
         let k = per_kernel.entry(t.kernel).or_default();
