@@ -43,7 +43,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::error::RenderError;
-use crate::primitive::{Group, Groups, Primitives};
+use crate::primitive::{Groups, Primitives};
 
 /// Format written into every checkpoint: 2 is the JSON header with a safetensors arrays file.
 pub const CHECKPOINT_VERSION: u32 = 2;
@@ -98,127 +98,28 @@ pub enum CheckpointError {
 }
 
 /// The first non-finite value of `p`, as (parameter group, index, value).
-fn first_non_finite(p: &PrimitivesData) -> Option<(&'static str, usize, f32)> {
-    p.arrays().into_iter().find_map(|(name, v)| {
+fn first_non_finite(p: &Primitives<f32>) -> Option<(&'static str, usize, f32)> {
+    p.groups().into_iter().find_map(|(name, v)| {
         v.iter()
             .position(|x| !x.is_finite())
             .map(|i| (name.name(), i, v[i]))
     })
 }
 
-/// Serialisable mirror of [`Primitives<f32>`].
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct PrimitivesData {
-    pub bands: usize,
-    pub sh_degree: Option<usize>,
-    pub means: Vec<f32>,
-    pub log_scales: Vec<f32>,
-    pub quats: Vec<f32>,
-    pub opacity_logits: Vec<f32>,
-    pub beta_raw: Vec<f32>,
-    pub omega_low: Vec<f32>,
-    pub band_amp: Vec<f32>,
-    pub band_freq: Vec<f32>,
-    pub band_phase: Vec<f32>,
-    pub sh: Vec<f32>,
-    /// Live bands per primitive (missing in checkpoints written before the mask existed: then
-    /// every slot is live).
-    #[serde(default)]
-    pub band_count: Vec<u32>,
-}
-
-impl PrimitivesData {
-    /// The f32 arrays with their groups (a group's name is the tensor name's second part), in
-    /// [`Group::ALL`]'s order.
-    fn arrays(&self) -> [(Group, &Vec<f32>); 10] {
-        [
-            (Group::Means, &self.means),
-            (Group::LogScales, &self.log_scales),
-            (Group::Quats, &self.quats),
-            (Group::OpacityLogits, &self.opacity_logits),
-            (Group::BetaRaw, &self.beta_raw),
-            (Group::OmegaLow, &self.omega_low),
-            (Group::BandAmp, &self.band_amp),
-            (Group::BandFreq, &self.band_freq),
-            (Group::BandPhase, &self.band_phase),
-            (Group::Sh, &self.sh),
-        ]
-    }
-
-    fn arrays_mut(&mut self) -> [(Group, &mut Vec<f32>); 10] {
-        [
-            (Group::Means, &mut self.means),
-            (Group::LogScales, &mut self.log_scales),
-            (Group::Quats, &mut self.quats),
-            (Group::OpacityLogits, &mut self.opacity_logits),
-            (Group::BetaRaw, &mut self.beta_raw),
-            (Group::OmegaLow, &mut self.omega_low),
-            (Group::BandAmp, &mut self.band_amp),
-            (Group::BandFreq, &mut self.band_freq),
-            (Group::BandPhase, &mut self.band_phase),
-            (Group::Sh, &mut self.sh),
-        ]
-    }
-
-    /// Empty arrays with `layout`'s bands and SH degree.
-    fn empty(layout: Layout) -> Self {
-        Self {
-            bands: layout.bands,
-            sh_degree: layout.sh_degree,
-            ..Self::default()
-        }
-    }
-
-    fn layout(&self) -> Layout {
-        Layout {
-            bands: self.bands,
-            sh_degree: self.sh_degree,
-        }
+/// A parameter set's layout as the header keeps it.
+fn layout(p: &Primitives<f32>) -> Layout {
+    Layout {
+        bands: p.bands,
+        sh_degree: p.sh_degree,
     }
 }
 
-impl From<&Primitives<f32>> for PrimitivesData {
-    fn from(p: &Primitives<f32>) -> Self {
-        Self {
-            bands: p.bands,
-            sh_degree: p.sh_degree,
-            means: p.means.clone(),
-            log_scales: p.log_scales.clone(),
-            quats: p.quats.clone(),
-            opacity_logits: p.opacity_logits.clone(),
-            beta_raw: p.beta_raw.clone(),
-            omega_low: p.omega_low.clone(),
-            band_amp: p.band_amp.clone(),
-            band_freq: p.band_freq.clone(),
-            band_phase: p.band_phase.clone(),
-            sh: p.sh.clone(),
-            band_count: p.band_count.clone(),
-        }
-    }
-}
-
-impl From<PrimitivesData> for Primitives<f32> {
-    fn from(d: PrimitivesData) -> Self {
-        let band_count = if d.band_count.is_empty() {
-            vec![u32::try_from(d.bands).unwrap_or(u32::MAX); d.opacity_logits.len()]
-        } else {
-            d.band_count
-        };
-        Self {
-            bands: d.bands,
-            sh_degree: d.sh_degree,
-            means: d.means,
-            log_scales: d.log_scales,
-            quats: d.quats,
-            opacity_logits: d.opacity_logits,
-            beta_raw: d.beta_raw,
-            omega_low: d.omega_low,
-            band_amp: d.band_amp,
-            band_freq: d.band_freq,
-            band_phase: d.band_phase,
-            sh: d.sh,
-            band_count,
-        }
+/// Checkpoints of format 1 written before the live-band mask existed have no `band_count`:
+/// every slot of theirs is live.
+fn fill_legacy_band_count(p: &mut Primitives<f32>) {
+    if p.band_count.is_empty() {
+        let all = u32::try_from(p.bands).unwrap_or(u32::MAX);
+        p.band_count = vec![all; p.opacity_logits.len()];
     }
 }
 
@@ -232,9 +133,9 @@ pub struct Checkpoint {
     pub iteration: u64,
     /// Training wall time so far (evaluation excluded), seconds.
     pub train_seconds: f64,
-    pub primitives: PrimitivesData,
-    pub adam_m: PrimitivesData,
-    pub adam_v: PrimitivesData,
+    pub primitives: Primitives<f32>,
+    pub adam_m: Primitives<f32>,
+    pub adam_v: Primitives<f32>,
     pub adam_step: u64,
     /// Each parameter group's Adam steps (its bias corrections, [`crate::train::adam`]).
     /// Absent in checkpoints written before groups kept their own count: every group at
@@ -309,7 +210,7 @@ fn tensors(ck: &Checkpoint) -> Vec<(String, Dtype, usize, Cow<'_, [u8]>)> {
         ("adam_m", &ck.adam_m),
         ("adam_v", &ck.adam_v),
     ] {
-        for (group, v) in d.arrays() {
+        for (group, v) in d.groups() {
             out.push((
                 format!("{set}.{group}"),
                 Dtype::F32,
@@ -398,9 +299,9 @@ pub fn save(path: &Path, ck: &Checkpoint) -> Result<(), CheckpointError> {
         adam_group_steps: ck.adam_group_steps,
         state: ck.state.clone(),
         arrays: slot,
-        primitives: ck.primitives.layout(),
-        adam_m: ck.adam_m.layout(),
-        adam_v: ck.adam_v.layout(),
+        primitives: layout(&ck.primitives),
+        adam_m: layout(&ck.adam_m),
+        adam_v: layout(&ck.adam_v),
     };
     let json = serde_json::to_vec_pretty(&header).map_err(|source| CheckpointError::Json {
         path: path.to_path_buf(),
@@ -460,12 +361,12 @@ pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
         ck.adam_group_steps = Groups::splat(ck.adam_step);
     }
     for (set, d) in [
-        ("primitives", &ck.primitives),
-        ("adam_m", &ck.adam_m),
-        ("adam_v", &ck.adam_v),
+        ("primitives", &mut ck.primitives),
+        ("adam_m", &mut ck.adam_m),
+        ("adam_v", &mut ck.adam_v),
     ] {
-        Primitives::from(d.clone())
-            .validate()
+        fill_legacy_band_count(d);
+        d.validate()
             .map_err(|source| CheckpointError::Shape {
                 path: path.to_path_buf(),
                 set,
@@ -515,8 +416,8 @@ fn load_arrays(path: &Path, header: Header) -> Result<Checkpoint, CheckpointErro
         ("adam_m", header.adam_m),
         ("adam_v", header.adam_v),
     ] {
-        let mut d = PrimitivesData::empty(layout);
-        for (group, v) in d.arrays_mut() {
+        let mut d = Primitives::<f32>::new(layout.bands, layout.sh_degree);
+        for (group, v) in d.groups_mut() {
             *v = tensor(&format!("{set}.{group}"), Dtype::F32)?
                 .chunks_exact(4)
                 .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
@@ -528,7 +429,7 @@ fn load_arrays(path: &Path, header: Header) -> Result<Checkpoint, CheckpointErro
             .collect();
         sets.push(d);
     }
-    let [primitives, adam_m, adam_v]: [PrimitivesData; 3] = sets
+    let [primitives, adam_m, adam_v]: [Primitives<f32>; 3] = sets
         .try_into()
         .map_err(|_| bad("three parameter sets expected".into()))?;
     Ok(Checkpoint {
@@ -591,9 +492,9 @@ mod tests {
             version: CHECKPOINT_VERSION,
             iteration: 1234,
             train_seconds: 5.5,
-            primitives: p.into(),
-            adam_m: (&m).into(),
-            adam_v: p.into(),
+            primitives: p.clone(),
+            adam_m: m,
+            adam_v: p.clone(),
             adam_step: 1234,
             adam_group_steps: Groups {
                 band_amp: 934,
@@ -603,9 +504,9 @@ mod tests {
         }
     }
 
-    fn bits(d: &PrimitivesData) -> Vec<(&'static str, Vec<u32>)> {
+    fn bits(d: &Primitives<f32>) -> Vec<(&'static str, Vec<u32>)> {
         let mut out: Vec<_> = d
-            .arrays()
+            .groups()
             .into_iter()
             .map(|(n, v)| (n.name(), v.iter().map(|x| x.to_bits()).collect()))
             .collect();
@@ -627,7 +528,7 @@ mod tests {
                 (&ck.adam_v, &back.adam_v),
             ] {
                 assert_eq!(bits(a), bits(b), "bit-exact arrays");
-                assert_eq!(a.layout(), b.layout());
+                assert_eq!(layout(a), layout(b));
             }
             assert_eq!(back, ck);
         }
@@ -751,7 +652,7 @@ mod tests {
         // array with random floats of varied magnitude.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         for d in [&mut ck.primitives, &mut ck.adam_m, &mut ck.adam_v] {
-            for (_, v) in d.arrays_mut() {
+            for (_, v) in d.groups_mut() {
                 v.iter_mut().for_each(|x| {
                     *x = rng.random_range(-1.0f32..1.0) * 10f32.powi(rng.random_range(-8..2))
                 });

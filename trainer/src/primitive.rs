@@ -59,7 +59,9 @@ pub const QUAT_NORM_MIN: f64 = 1e-12;
 pub const DEFAULT_BANDS: usize = 4;
 
 /// A set of S³-TIR primitives, structure-of-arrays (see the module docs for every field).
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Serialisable as is: format-1 checkpoints hold it as JSON (see [`crate::checkpoint`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Primitives<T> {
     /// Gabor bands per primitive (M).
     pub bands: usize,
@@ -78,7 +80,9 @@ pub struct Primitives<T> {
     /// Live band slots per primitive (slots `0..band_count[i]`, read through
     /// [`Primitives::live_bands`], which clamps to M; see the module docs). Not a
     /// parameter group: no gradient, no optimiser moments (a gradient or moment set carries a
-    /// copy of its parameters' counts).
+    /// copy of its parameters' counts). Absent from format-1 checkpoints written before the
+    /// mask existed (the checkpoint reader fills it: every slot live).
+    #[serde(default)]
     pub band_count: Vec<u32>,
 }
 
