@@ -366,12 +366,11 @@ pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
         ("adam_v", &mut ck.adam_v),
     ] {
         fill_legacy_band_count(d);
-        d.validate()
-            .map_err(|source| CheckpointError::Shape {
-                path: path.to_path_buf(),
-                set,
-                source: Box::new(source),
-            })?;
+        d.validate().map_err(|source| CheckpointError::Shape {
+            path: path.to_path_buf(),
+            set,
+            source: Box::new(source),
+        })?;
     }
     Ok(ck)
 }

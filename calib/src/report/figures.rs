@@ -42,7 +42,11 @@ pub fn write_all(c: &Calibration, dir: &Path) -> Result<(Vec<PathBuf>, Vec<Block
         figure(file, format!("{name}: corner coverage"));
     }
     for (by_time, file, caption) in [
-        (false, "rms_vs_iteration.png", "joint RMS vs solver iteration"),
+        (
+            false,
+            "rms_vs_iteration.png",
+            "joint RMS vs solver iteration",
+        ),
         (true, "rms_vs_time.png", "joint RMS vs solver wall time"),
     ] {
         rms_curve(c, by_time, &dir.join(file))?;
@@ -287,4 +291,3 @@ fn rms_curve(c: &Calibration, by_time: bool, path: &Path) -> Result<(), CalibErr
         Ok(())
     })
 }
-

@@ -63,17 +63,26 @@ impl Column {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Block {
     /// A section heading; `id` is its HTML anchor.
-    Heading { text: String, id: String },
+    Heading {
+        text: String,
+        id: String,
+    },
     Paragraph(String),
     /// A bulleted list; an empty list renders as "None.".
-    List { items: Vec<String>, warn: bool },
+    List {
+        items: Vec<String>,
+        warn: bool,
+    },
     /// A table; no rows renders as "None.".
     Table {
         columns: Vec<Column>,
         rows: Vec<Vec<Cell>>,
     },
     /// A figure: a PNG file beside the page (relative name) and its caption.
-    Figure { file: String, caption: String },
+    Figure {
+        file: String,
+        caption: String,
+    },
 }
 
 impl Block {
@@ -196,7 +205,8 @@ impl Page {
 }
 
 /// The page's style sheet: readable on a phone (tables scroll sideways, images shrink).
-const STYLE: &str = "body { font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; }
+const STYLE: &str =
+    "body { font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; }
 .scroll { overflow-x: auto; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
 th, td { border: 1px solid #bbb; padding: 0.2em 0.6em; text-align: right; }
@@ -343,7 +353,10 @@ mod tests {
         });
         let md = page.markdown();
         assert!(md.starts_with("# A <report>\n"), "{md}");
-        assert!(md.contains("| camera | RMS px |\n|---|--:|\n| `a\\|b` | 0.123 |"), "{md}");
+        assert!(
+            md.contains("| camera | RMS px |\n|---|--:|\n| `a\\|b` | 0.123 |"),
+            "{md}"
+        );
         assert_eq!(md.matches("None.").count(), 2, "{md}");
         let dir = std::env::temp_dir();
         let html = page.html(&dir).unwrap();

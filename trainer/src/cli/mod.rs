@@ -2,6 +2,7 @@
 //! binary's `main.rs` holds the clap top level, the logging set-up and the dispatch.
 //!
 //! - [`train`]: `s3tir-train DATA --out RUN_DIR` / `train`: a new or resumed run.
+//! - [`train_summary`]: what a run prints when it ends (lines, or the `--json` object).
 //! - [`train_args`]: the training options (shared with `ablation`) and the run configuration
 //!   they make.
 //! - `session` (feature `session`): a recorded session (`SESSION.mcap`) posed into a dataset
@@ -14,6 +15,17 @@
 //! - [`devices`]: `devices`: the Vulkan devices and what the trainer needs of them.
 //! - [`synth`]: `synth`: the built-in analytic test scene as a COLMAP dataset.
 
+/// A human-readable line: on stdout, or on stderr when stdout carries the `--json` summary.
+macro_rules! say {
+    ($json:expr, $($arg:tt)*) => {
+        if $json {
+            eprintln!($($arg)*)
+        } else {
+            println!($($arg)*)
+        }
+    };
+}
+
 pub mod ablation;
 pub mod bench;
 pub mod compare;
@@ -25,6 +37,7 @@ pub mod session;
 pub mod synth;
 pub mod train;
 pub mod train_args;
+pub mod train_summary;
 
 #[cfg(feature = "vulkan")]
 /// The Vulkan context options of `--device-index` and `--no-float-atomics`.

@@ -8,23 +8,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::{Context, Result, bail};
 use s3tir_trainer::dataset::Dataset;
 use s3tir_trainer::train::{
-    self, Backend, BackendKind, CpuBackend, Event, Outcome, TrainConfig, Trainer, files,
+    self, Backend, BackendKind, CpuBackend, Event, Outcome, TrainConfig, Trainer,
 };
 
 #[cfg(feature = "session")]
 use super::session::pose_session;
 
-/// A human-readable line: on stdout, or on stderr when stdout carries the `--json` summary.
-macro_rules! say {
-    ($json:expr, $($arg:tt)*) => {
-        if $json {
-            eprintln!($($arg)*)
-        } else {
-            println!($($arg)*)
-        }
-    };
-}
 use super::train_args::{TrainArgs, new_config};
+use super::train_summary;
 
 /// Trains (or with `--resume` continues) the run `a` describes; a recorded session
 /// (`.mcap`, feature `session`) is posed into a dataset first.
@@ -149,7 +140,8 @@ fn session_dataset(_: &TrainArgs, session: &Path, _: &Path) -> Result<std::path:
     )
 }
 
-/// The training loop on any backend, with a progress bar and Ctrl-C handling.
+/// The training loop on any backend, with a progress bar and Ctrl-C handling; the outcome is
+/// reported by [`super::train_summary`] (Ctrl-C: exit status 130 after the checkpoint).
 fn run_training<B: Backend>(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -163,195 +155,107 @@ fn run_training<B: Backend>(
     } else {
         Trainer::new(cfg, dataset, backend, out)?
     };
-
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
-            .context("installing the Ctrl-C handler")?;
-    }
-    // With a time budget the bar counts training seconds, else iterations.
-    let budget = trainer.cfg.time_budget_s;
-    let (len, unit) = match budget {
-        Some(b) => (b.ceil() as u64, "s"),
-        None => (trainer.cfg.iters, "it"),
-    };
-    let bar = indicatif::ProgressBar::new(len);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{{elapsed_precise}} [{{bar:30}}] {{pos}}/{{len}} {unit}  {{msg}}"
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    let position = |iteration: u64, seconds: f64| match budget {
-        Some(_) => seconds as u64,
-        None => iteration,
-    };
-    bar.set_position(position(trainer.iteration, trainer.train_seconds));
+    let stop = stop_on_ctrl_c()?;
     let wall = std::time::Instant::now();
-    let mut psnr = f64::NAN;
-    let mut loss_ema = f64::NAN;
-    let mut prims = trainer.prims.len();
-    let outcome = trainer.run(&stop, &mut |e| match e {
-        Event::Step {
-            iteration,
-            loss,
-            seconds,
-            primitives,
-        } => {
-            loss_ema = if loss_ema.is_nan() {
-                *loss
-            } else {
-                0.95 * loss_ema + 0.05 * loss
-            };
-            prims = *primitives;
-            bar.set_position(position(*iteration, *seconds));
-            if iteration % 10 == 0 {
-                bar.set_message(format!(
-                    "it {iteration}  loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB  {prims} primitives"
-                ));
-            }
-        }
-        Event::Eval(row) => {
-            psnr = row.psnr;
-            bar.set_message(format!(
-                "loss {loss_ema:.4}  held-out PSNR {psnr:.2} dB  {prims} primitives"
-            ));
-        }
-        Event::Checkpoint { .. } => {}
-    })?;
-    bar.finish();
+    let mut progress = TrainProgress::new(&trainer);
+    let outcome = trainer.run(&stop, &mut |e| progress.event(e))?;
+    progress.bar.finish();
     match outcome {
         Outcome::Interrupted { iteration } => {
-            if json {
-                println!(
-                    "{}",
-                    serde_json::json!({
-                        "outcome": "interrupted",
-                        "out": out,
-                        "iterations": iteration,
-                        "train_seconds": trainer.train_seconds,
-                        "checkpoint": out.join(files::CHECKPOINT),
-                    })
-                );
-            }
-            say!(
-                json,
-                "interrupted at iteration {iteration}: checkpoint written to {}; continue with --resume",
-                out.join(files::CHECKPOINT).display()
-            );
+            train_summary::interrupted(&trainer, out, iteration, json);
             std::process::exit(130);
         }
         Outcome::Finished => {
-            let cap = trainer.capacity_report();
-            say!(
-                json,
-                "done: {} primitives in {}",
-                trainer.prims.len(),
-                out.display()
-            );
-            let written: Vec<std::path::PathBuf> = [
-                files::PLY,
-                files::METRICS_CSV,
-                files::METRICS_PNG,
-                files::EVAL,
-                files::CAPACITY,
-                files::BETA_HIST,
-                files::RENDERS,
-                files::RENDERS_SR,
-                files::GBUFFERS,
-            ]
-            .iter()
-            .map(|f| out.join(f))
-            .filter(|p| p.exists())
-            .collect();
-            for p in &written {
-                say!(json, "  {}", p.display());
-            }
-            say!(
-                json,
-                "left out: colour {}; consistency: {}; bands {} → {} ({} bytes saved); {} primitives on the Gaussian path; view response: {}",
-                if cap.colour_allocated {
-                    "kept"
-                } else {
-                    "not allocated"
-                },
-                cap.consistency_reason,
-                cap.bands_initial,
-                cap.bands_now,
-                cap.band_bytes_saved,
-                cap.gaussian_path_primitives,
-                cap.response.as_ref().map_or("none", |r| r.kind.as_str())
-            );
-            if let Some(r) = &cap.response {
-                say!(json, "view response: {}", r.describe());
-            }
-            if let Some(why) = &cap.rgb_loss {
-                say!(
-                    json,
-                    "joint RGB + thermal: RGB loss {why}; thermal gradient alignment {}; {}",
-                    if cap.thermal_align > 0.0 {
-                        format!("weight {}", cap.thermal_align)
-                    } else {
-                        "off".into()
-                    },
-                    if trainer.cfg.joint.pair_steps {
-                        "each step trains a view with the other camera's image of its instant"
-                    } else {
-                        "each step trains one view (--no-pair-steps)"
-                    }
-                );
-            }
-            say!(
-                json,
-                "density control: {} rounds, {} cloned, {} split, {} pruned, {} relocated; {} primitives at the end (budget {})",
-                cap.densify_rounds.len(),
-                cap.densify_cloned,
-                cap.densify_split,
-                cap.densify_pruned,
-                cap.densify_relocated,
-                cap.primitives,
-                trainer.cfg.budget
-            );
-            if let Some(b) = budget {
-                say!(
-                    json,
-                    "time budget: {:.1} s of training time of {b:.1} s ({} iterations); {:.1} s wall clock with evaluations, checkpoints and outputs",
-                    trainer.train_seconds,
-                    trainer.iteration,
-                    wall.elapsed().as_secs_f64()
-                );
-            }
-            if json {
-                // The held-out figures as `eval` wrote them (absent when nothing is held out).
-                let eval: Option<serde_json::Value> = std::fs::read(out.join(files::EVAL))
-                    .ok()
-                    .and_then(|b| serde_json::from_slice(&b).ok());
-                println!(
-                    "{}",
-                    serde_json::json!({
-                        "outcome": "finished",
-                        "out": out,
-                        "backend": trainer.cfg.backend,
-                        "iterations": trainer.iteration,
-                        "train_seconds": trainer.train_seconds,
-                        "wall_seconds": wall.elapsed().as_secs_f64(),
-                        "primitives": cap.primitives,
-                        "budget": trainer.cfg.budget,
-                        "density_control": {
-                            "rounds": cap.densify_rounds.len(),
-                            "cloned": cap.densify_cloned,
-                            "split": cap.densify_split,
-                            "pruned": cap.densify_pruned,
-                            "relocated": cap.densify_relocated,
-                        },
-                        "eval": eval,
-                        "files": written,
-                    })
-                );
-            }
+            train_summary::finished(&trainer, out, wall, json);
             Ok(())
+        }
+    }
+}
+
+/// A flag Ctrl-C sets; the loop checkpoints and stops at the next step.
+fn stop_on_ctrl_c() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
+        .context("installing the Ctrl-C handler")?;
+    Ok(stop)
+}
+
+/// The progress bar of a run: training seconds with a time budget, else iterations; its
+/// message shows the smoothed loss, the last held-out PSNR and the primitive count.
+struct TrainProgress {
+    bar: indicatif::ProgressBar,
+    budget: Option<f64>,
+    psnr: f64,
+    loss_ema: f64,
+    prims: usize,
+}
+
+impl TrainProgress {
+    fn new<B: Backend>(trainer: &Trainer<B>) -> Self {
+        let budget = trainer.cfg.time_budget_s;
+        let (len, unit) = match budget {
+            Some(b) => (b.ceil() as u64, "s"),
+            None => (trainer.cfg.iters, "it"),
+        };
+        let bar = indicatif::ProgressBar::new(len);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(&format!(
+                "{{elapsed_precise}} [{{bar:30}}] {{pos}}/{{len}} {unit}  {{msg}}"
+            ))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        let progress = Self {
+            bar,
+            budget,
+            psnr: f64::NAN,
+            loss_ema: f64::NAN,
+            prims: trainer.prims.len(),
+        };
+        progress
+            .bar
+            .set_position(progress.position(trainer.iteration, trainer.train_seconds));
+        progress
+    }
+
+    fn position(&self, iteration: u64, seconds: f64) -> u64 {
+        match self.budget {
+            Some(_) => seconds as u64,
+            None => iteration,
+        }
+    }
+
+    fn event(&mut self, e: &Event) {
+        match e {
+            Event::Step {
+                iteration,
+                loss,
+                seconds,
+                primitives,
+            } => {
+                self.loss_ema = if self.loss_ema.is_nan() {
+                    *loss
+                } else {
+                    0.95 * self.loss_ema + 0.05 * loss
+                };
+                self.prims = *primitives;
+                self.bar.set_position(self.position(*iteration, *seconds));
+                if iteration % 10 == 0 {
+                    self.bar.set_message(format!(
+                        "it {iteration}  loss {:.4}  held-out PSNR {:.2} dB  {} primitives",
+                        self.loss_ema, self.psnr, self.prims
+                    ));
+                }
+            }
+            Event::Eval(row) => {
+                self.psnr = row.psnr;
+                self.bar.set_message(format!(
+                    "loss {:.4}  held-out PSNR {:.2} dB  {} primitives",
+                    self.loss_ema, self.psnr, self.prims
+                ));
+            }
+            Event::Checkpoint { .. } => {}
         }
     }
 }

@@ -7,8 +7,8 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::{
-    At, ColmapError, ColmapModel, colmap_camera, image_record, model_name, open_error,
-    param_count, point_record,
+    At, ColmapError, ColmapModel, colmap_camera, image_record, model_name, open_error, param_count,
+    point_record,
 };
 
 /// Little-endian cursor over a binary COLMAP file.
@@ -163,4 +163,3 @@ pub fn read_binary_model(dir: &Path) -> Result<ColmapModel, ColmapError> {
     }
     Ok(model)
 }
-

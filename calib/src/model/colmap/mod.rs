@@ -407,4 +407,3 @@ pub fn colmap_params(model: &CameraModel) -> (&'static str, Vec<f64>) {
         )
     }
 }
-
