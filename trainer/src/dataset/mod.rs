@@ -21,8 +21,11 @@
 //!   there ([`Dataset::fresh_after_ffc`], `train::response`);
 //! - initial points come from `points3D` or, when there are none, uniformly from the scene
 //!   bounds ([`Dataset::bounds_m`]).
+//!
+//! [`Dataset::load`] reads as those steps; each is a function of `load.rs`.
 
 pub mod images;
+mod load;
 /// The COLMAP codec lives in calib's OpenCV-free layer (one codec for every stage).
 pub use s3tir_calib::model::colmap;
 pub mod synth;
@@ -36,7 +39,8 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::camera::PinholeCamera;
-use images::{ColourMode, ImageKind, RawImage, load_image};
+use images::{ColourMode, ImageKind, RawImage};
+use load::{load_view_image, normalised_view, open_model, scene_range, split_views};
 
 /// Errors of dataset loading.
 #[derive(Debug, Error)]
@@ -94,39 +98,6 @@ pub enum DatasetError {
 pub const HOLDOUT_FILE: &str = "holdout.txt";
 /// Views taken right after a flat-field correction, one image name per line.
 pub const FFC_FILE: &str = "ffc.txt";
-
-/// The image names a list file (`holdout.txt`, `ffc.txt`) gives, one per line (`#` comments),
-/// each checked against the registered `views`; `None` when the file does not exist.
-fn read_name_list(
-    root: &Path,
-    file: &str,
-    views: &[View],
-) -> Result<Option<std::collections::BTreeSet<String>>, DatasetError> {
-    let path = root.join(file);
-    if !path.is_file() {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(&path).map_err(|source| DatasetError::Io {
-        path: path.clone(),
-        source,
-    })?;
-    let names: std::collections::BTreeSet<String> = text
-        .lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && !l.starts_with('#'))
-        .map(str::to_owned)
-        .collect();
-    if let Some(unknown) = names.iter().find(|n| !views.iter().any(|v| &v.name == *n)) {
-        return Err(DatasetError::Empty {
-            root: root.to_path_buf(),
-            reason: format!(
-                "{} names {unknown}, which the model does not register",
-                path.display()
-            ),
-        });
-    }
-    Ok(Some(names))
-}
 
 /// Which of a dataset's image sets a run trains on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -272,45 +243,18 @@ pub fn named_rgb(name: &str) -> bool {
             .is_some_and(|f| f.to_string_lossy().starts_with("rgb_"))
 }
 
-fn find_model_dir(root: &Path) -> Option<PathBuf> {
-    let has = |d: &Path| d.join("cameras.txt").exists() || d.join("cameras.bin").exists();
-    [
-        root.join("sparse").join("0"),
-        root.join("sparse"),
-        root.to_path_buf(),
-    ]
-    .into_iter()
-    .find(|d| has(d))
-}
-
 impl Dataset {
-    /// Loads `root` (see the module docs for the layout).
+    /// Loads `root` (see the module docs for the layout): the COLMAP model, every image it
+    /// registers (undistorted, downscaled), one thermal range for the scene, then the views
+    /// split into training and held-out sets.
     pub fn load(root: &Path, opts: &LoadOptions) -> Result<Self, DatasetError> {
-        if !root.is_dir() {
-            return Err(DatasetError::MissingFile {
-                path: root.to_path_buf(),
-                what: "dataset folder",
-            });
-        }
-        let model_dir = find_model_dir(root).ok_or_else(|| DatasetError::MissingFile {
-            path: root.join("sparse").join("0").join("cameras.txt"),
-            what: "COLMAP sparse model (cameras.txt or cameras.bin)",
-        })?;
-        let model = colmap::read_model(&model_dir)?;
-        if model.images.is_empty() {
-            return Err(DatasetError::Empty {
-                root: root.to_path_buf(),
-                reason: format!("{} registers no images", model_dir.display()),
-            });
-        }
+        let (model_dir, model) = open_model(root)?;
         let images_dir = opts
             .images_dir
             .clone()
             .unwrap_or_else(|| root.join("images"));
         let mut ordered = model.images.clone();
         ordered.sort_by(|a, b| a.name.cmp(&b.name));
-
-        let scale = opts.downscale.max(1);
         let mut raws: Vec<(String, PinholeCamera, RawImage)> = Vec::new();
         let mut undistorted_models = Vec::new();
         for im in &ordered {
@@ -323,175 +267,25 @@ impl Dataset {
                     image: im.name.clone(),
                     camera_id: im.camera_id,
                 })?;
-            let path = images_dir.join(&im.name);
-            let raw = load_image(&path, opts.colour)?;
-            // An 8-bit image that is grey by its pixels but named as the RGB camera's (a
-            // neutral scene, a monochrome RGB sensor) stays RGB: a joint dataset's modality
-            // is the camera's, not the content's.
-            let raw = if raw.kind == ImageKind::Grey8 && named_rgb(&im.name) {
-                let n = raw.values.len();
-                RawImage {
-                    kind: ImageKind::Rgb8,
-                    values: raw.values.iter().copied().cycle().take(3 * n).collect(),
-                    ..raw
-                }
-            } else {
-                raw
-            };
-            let (ew, eh) = (cam.model.width_px as usize, cam.model.height_px as usize);
-            if raw.width != ew || raw.height != eh {
-                return Err(DatasetError::SizeMismatch {
-                    path,
-                    camera_id: cam.id,
-                    expected_w: ew,
-                    expected_h: eh,
-                    actual_w: raw.width,
-                    actual_h: raw.height,
-                });
-            }
-            let distorted = cam.model.distortion != s3tir_calib::BrownConrady::default();
-            let raw = if distorted {
-                if !undistorted_models.contains(&cam.model_name) {
-                    undistorted_models.push(cam.model_name.clone());
-                }
-                undistort(&raw, &cam.model)
-            } else {
-                raw
-            };
-            let raw = downsample(&raw, scale);
-            let i = &cam.model.intrinsics;
-            let s = scale as f64;
-            let pin = PinholeCamera {
-                fx_px: i.fx / s,
-                fy_px: i.fy / s,
-                cx_px: (i.cx + 0.5) / s - 0.5,
-                cy_px: (i.cy + 0.5) / s - 0.5,
-                width: raw.width,
-                height: raw.height,
-                cam_from_world: im.cam_from_world,
-            };
+            let (pin, raw) = load_view_image(im, cam, &images_dir, opts, &mut undistorted_models)?;
             raws.push((im.name.clone(), pin, raw));
         }
-
-        // One thermal kind per scene, one range per scene.
-        let mut range: Option<ThermalRange> = None;
-        for (name, _, raw) in &raws {
-            if raw.kind == ImageKind::Rgb8 {
-                continue;
-            }
-            let (lo, hi) = raw
-                .values
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                    (a.min(v), b.max(v))
-                });
-            match &mut range {
-                None => {
-                    range = Some(ThermalRange {
-                        kind: raw.kind,
-                        units: (raw.kind == ImageKind::Thermal16).then_some(opts.thermal_units),
-                        min_raw: lo,
-                        max_raw: hi,
-                    });
-                }
-                Some(r) => {
-                    if r.kind != raw.kind {
-                        return Err(DatasetError::MixedKinds {
-                            root: root.to_path_buf(),
-                            path: images_dir.join(name),
-                            first: r.kind,
-                            other: raw.kind,
-                        });
-                    }
-                    r.min_raw = r.min_raw.min(lo);
-                    r.max_raw = r.max_raw.max(hi);
-                }
-            }
-        }
-        // A flat scene (or NaN-free degenerate range) gets a unit span.
-        if let Some(r) = &mut range
-            && r.max_raw <= r.min_raw
-        {
-            r.max_raw = r.min_raw + 1.0;
-        }
-
+        let range = scene_range(&raws, root, &images_dir, opts)?;
         let views: Vec<View> = raws
             .into_iter()
-            .map(|(name, camera, raw)| {
-                let (thermal, rgb) = if raw.kind == ImageKind::Rgb8 {
-                    (
-                        None,
-                        Some(raw.values.iter().map(|v| (v / 255.0) as f32).collect()),
-                    )
-                } else {
-                    let r = range.unwrap_or(ThermalRange {
-                        kind: raw.kind,
-                        units: None,
-                        min_raw: 0.0,
-                        max_raw: 1.0,
-                    });
-                    (
-                        Some(raw.values.iter().map(|&v| r.normalise(v)).collect()),
-                        None,
-                    )
-                };
-                View {
-                    name,
-                    camera,
-                    thermal,
-                    rgb,
-                }
-            })
+            .map(|(name, camera, raw)| normalised_view(name, camera, &raw, range))
             .collect();
-
-        let k = opts.holdout_every;
-        let held_out = read_name_list(root, HOLDOUT_FILE, &views)?;
-        let fresh = read_name_list(root, FFC_FILE, &views)?;
-        // The image sets not trained on are dropped after the name lists are checked against
-        // the whole model (a joint holdout.txt names both sets).
-        let views: Vec<View> = views
-            .into_iter()
-            .filter(|v| match opts.modality {
-                Modality::Both => true,
-                Modality::Thermal => v.thermal.is_some(),
-                Modality::Rgb => v.rgb.is_some(),
-            })
-            .collect();
-        if views.is_empty() {
-            return Err(DatasetError::Empty {
-                root: root.to_path_buf(),
-                reason: format!("no {} images in the model", opts.modality),
-            });
-        }
-        let (test, train): (Vec<usize>, Vec<usize>) = match held_out {
-            Some(names) => (0..views.len()).partition(|&i| names.contains(&views[i].name)),
-            None => (0..views.len()).partition(|&i| k > 0 && i % k == 0),
-        };
-        let fresh_after_ffc = fresh.map(|names| {
-            (0..views.len())
-                .filter(|&i| names.contains(&views[i].name))
-                .collect()
-        });
-        if train.is_empty() {
-            return Err(DatasetError::Empty {
-                root: root.to_path_buf(),
-                reason: format!(
-                    "no training views left: {} views, {} held out",
-                    views.len(),
-                    test.len()
-                ),
-            });
-        }
+        let split = split_views(root, views, opts)?;
         Ok(Self {
             root: root.to_path_buf(),
-            views,
-            train,
-            test,
+            views: split.views,
+            train: split.train,
+            test: split.test,
             range,
             points_m: model.points.iter().map(|p| p.position_m).collect(),
             point_rgb: model.points.iter().map(|p| p.rgb).collect(),
             undistorted_models,
-            fresh_after_ffc,
+            fresh_after_ffc: split.fresh_after_ffc,
         })
     }
 
