@@ -167,18 +167,20 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
 /// hostile header from sizing the property list).
 pub const MAX_PLY_BANDS: usize = 256;
 
-/// Reads a file written by [`write_ply`] back into primitives (bit-exact). Every number in the
-/// header is checked before it sizes anything.
-pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
-    let fmt = |reason: String| PlyError::Format {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let data = fs::read(path).map_err(|source| PlyError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let (header, end) = Header::read(path, &data).map_err(|e| fmt(e.reason))?;
+/// What a primitives file's header says: bands, SH degree, whether the live-band count is
+/// stored (files written before the band mask lack it), vertices and float properties per row.
+struct PlyLayout {
+    bands: usize,
+    sh_degree: Option<usize>,
+    has_count: bool,
+    vertices: usize,
+    properties: usize,
+}
+
+/// Reads and checks the header of a primitives file: the `s3tir` comments, one `vertex`
+/// element of float properties in [`property_names`]' order. Every number is checked before
+/// it sizes anything.
+fn read_layout(header: &Header) -> Result<PlyLayout, String> {
     let mut bands = None;
     let mut sh_degree: Option<Option<usize>> = None;
     for c in &header.comments {
@@ -194,9 +196,9 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
         [v] if v.name == "vertex" => v,
         _ => {
             let names: Vec<&str> = header.elements.iter().map(|e| e.name.as_str()).collect();
-            return Err(fmt(format!(
+            return Err(format!(
                 "elements {names:?}: an s3tir primitives file has one `vertex` element"
-            )));
+            ));
         }
     };
     let mut names = Vec::with_capacity(vertex.props.len());
@@ -204,32 +206,26 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
         match p {
             Prop::Scalar { name, ty: Ty::F32 } => names.push(name.clone()),
             Prop::Scalar { name, ty } => {
-                return Err(fmt(format!(
+                return Err(format!(
                     "property {name} has type {}; only float is read",
                     ty.name()
-                )));
+                ));
             }
             Prop::List { name, .. } => {
-                return Err(fmt(format!(
-                    "property {name} is a list; only float is read"
-                )));
+                return Err(format!("property {name} is a list; only float is read"));
             }
         }
     }
-    let bands = bands.ok_or_else(|| fmt("missing `comment s3tir bands M`".into()))?;
-    let sh_degree = sh_degree.ok_or_else(|| fmt("missing `comment s3tir sh_degree`".into()))?;
-    let n = vertex.count;
-    // Header numbers are checked before they size anything.
+    let bands = bands.ok_or("missing `comment s3tir bands M`")?;
+    let sh_degree = sh_degree.ok_or("missing `comment s3tir sh_degree`")?;
     if bands > MAX_PLY_BANDS {
-        return Err(fmt(format!(
-            "{bands} bands (at most {MAX_PLY_BANDS} are read)"
-        )));
+        return Err(format!("{bands} bands (at most {MAX_PLY_BANDS} are read)"));
     }
     if sh_degree.is_some_and(|d| d > crate::sh::SH_MAX_DEGREE) {
-        return Err(fmt(format!(
+        return Err(format!(
             "SH degree {sh_degree:?} (at most {} is read)",
             crate::sh::SH_MAX_DEGREE
-        )));
+        ));
     }
     let expected = property_names(bands, sh_degree);
     // Files written before the band mask existed lack `s3tir_band_count`: every slot is live.
@@ -238,13 +234,83 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
         .filter(|n| *n != "s3tir_band_count")
         .cloned()
         .collect();
-    let has_count = names != legacy;
     if names != expected && names != legacy {
-        return Err(fmt(format!(
+        return Err(format!(
             "properties differ from the s3tir layout: got {names:?}, expected {expected:?}"
-        )));
+        ));
     }
-    let stride = names.len() * 4;
+    Ok(PlyLayout {
+        bands,
+        sh_degree,
+        has_count: names != legacy,
+        vertices: vertex.count,
+        properties: names.len(),
+    })
+}
+
+/// Appends one vertex row (its floats in [`property_names`]' order) to `prims`; the derived
+/// columns (normals, 3DGS scales, β) are skipped.
+fn push_row(prims: &mut Primitives<f32>, row: &[f32], has_count: bool) -> Result<(), String> {
+    let bands = prims.bands;
+    let k = prims.sh_k();
+    let mut p = 0;
+    let mut take = |len: usize| {
+        let s = &row[p..p + len];
+        p += len;
+        s.to_vec()
+    };
+    prims.means.extend(take(3));
+    take(3); // normals
+    let dc = take(3);
+    let rest = take(3 * k.saturating_sub(1));
+    if k > 0 {
+        let mut sh = vec![0.0f32; 3 * k];
+        for c in 0..3 {
+            sh[c] = dc[c];
+            for kk in 1..k {
+                sh[kk * 3 + c] = rest[c * (k - 1) + (kk - 1)];
+            }
+        }
+        prims.sh.extend(sh);
+    }
+    prims.opacity_logits.extend(take(1));
+    take(3); // 3DGS scales (derived)
+    prims.quats.extend(take(4));
+    prims.log_scales.extend(take(3));
+    prims.beta_raw.extend(take(1));
+    take(1); // β (derived)
+    prims.omega_low.extend(take(1));
+    let live = if has_count { take(1)[0] } else { bands as f32 };
+    if !(live >= 0.0 && live <= bands as f32 && live.fract() == 0.0) {
+        return Err(format!(
+            "s3tir_band_count {live} is not a whole number in 0..={bands}"
+        ));
+    }
+    prims.band_count.push(live as u32);
+    for _ in 0..bands {
+        let b = take(5);
+        prims.band_amp.push(b[0]);
+        prims.band_freq.extend_from_slice(&b[1..4]);
+        prims.band_phase.push(b[4]);
+    }
+    Ok(())
+}
+
+/// Reads a file written by [`write_ply`] back into primitives (bit-exact). Every number in the
+/// header is checked before it sizes anything.
+pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
+    let fmt = |reason: String| PlyError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let data = fs::read(path).map_err(|source| PlyError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (header, end) = Header::read(path, &data).map_err(|e| fmt(e.reason))?;
+    let layout = read_layout(&header).map_err(fmt)?;
+    let stride = layout.properties * 4;
+    let n = layout.vertices;
     let body = &data[end..];
     if n.checked_mul(stride) != Some(body.len()) {
         return Err(fmt(format!(
@@ -252,53 +318,14 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
             body.len(),
         )));
     }
-    let mut prims = Primitives::<f32>::new(bands, sh_degree);
-    let k = prims.sh_k();
-    for i in 0..n {
-        let row: Vec<f32> = body[i * stride..(i + 1) * stride]
+    let mut prims = Primitives::<f32>::new(layout.bands, layout.sh_degree);
+    for (i, bytes) in body.chunks_exact(stride.max(1)).take(n).enumerate() {
+        let row: Vec<f32> = bytes
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
-        let mut p = 0;
-        let mut take = |len: usize| {
-            let s = &row[p..p + len];
-            p += len;
-            s.to_vec()
-        };
-        prims.means.extend(take(3));
-        take(3); // normals
-        let dc = take(3);
-        let rest = take(3 * k.saturating_sub(1));
-        if k > 0 {
-            let mut sh = vec![0.0f32; 3 * k];
-            for c in 0..3 {
-                sh[c] = dc[c];
-                for kk in 1..k {
-                    sh[kk * 3 + c] = rest[c * (k - 1) + (kk - 1)];
-                }
-            }
-            prims.sh.extend(sh);
-        }
-        prims.opacity_logits.extend(take(1));
-        take(3); // 3DGS scales (derived)
-        prims.quats.extend(take(4));
-        prims.log_scales.extend(take(3));
-        prims.beta_raw.extend(take(1));
-        take(1); // β (derived)
-        prims.omega_low.extend(take(1));
-        let live = if has_count { take(1)[0] } else { bands as f32 };
-        if !(live >= 0.0 && live <= bands as f32 && live.fract() == 0.0) {
-            return Err(fmt(format!(
-                "vertex {i}: s3tir_band_count {live} is not a whole number in 0..={bands}"
-            )));
-        }
-        prims.band_count.push(live as u32);
-        for _ in 0..bands {
-            let b = take(5);
-            prims.band_amp.push(b[0]);
-            prims.band_freq.extend_from_slice(&b[1..4]);
-            prims.band_phase.push(b[4]);
-        }
+        push_row(&mut prims, &row, layout.has_count)
+            .map_err(|reason| fmt(format!("vertex {i}: {reason}")))?;
     }
     prims.validate().map_err(|source| PlyError::Shape {
         path: path.to_path_buf(),

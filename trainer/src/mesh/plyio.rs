@@ -199,6 +199,56 @@ pub fn read_region(path: &Path) -> Result<Option<Region>, MeshError> {
     }
 }
 
+/// Which vertex properties hold what (indices into a vertex row's scalars).
+#[derive(Debug, Clone, Copy)]
+struct VertexColumns {
+    xyz: [usize; 3],
+    kelvin: usize,
+    normal: Option<[usize; 3]>,
+    rgb: Option<[usize; 3]>,
+}
+
+impl VertexColumns {
+    /// Finds x, y, z and kelvin (required) and the normal and colour (optional, all three or
+    /// none) among `vertex`'s properties; none of them may be a list.
+    fn find(path: &Path, vertex: &Element) -> Result<Self, MeshError> {
+        let scalar = |name: &str| -> Result<Option<usize>, MeshError> {
+            match vertex.props.iter().position(|p| p.name() == name) {
+                Some(i) if matches!(vertex.props[i], Prop::List { .. }) => {
+                    Err(ply_err(path, format!("vertex property {name} is a list")))
+                }
+                other => Ok(other),
+            }
+        };
+        let required = |name: &str| {
+            scalar(name)?.ok_or_else(|| {
+                ply_err(
+                    path,
+                    format!(
+                        "the vertices have no `{name}` property (x, y, z and kelvin are required)"
+                    ),
+                )
+            })
+        };
+        let xyz = [required("x")?, required("y")?, required("z")?];
+        let kelvin = required("kelvin")?;
+        let normal = match (scalar("nx")?, scalar("ny")?, scalar("nz")?) {
+            (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+            _ => None,
+        };
+        let rgb = match (scalar("red")?, scalar("green")?, scalar("blue")?) {
+            (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+            _ => None,
+        };
+        Ok(Self {
+            xyz,
+            kelvin,
+            normal,
+            rgb,
+        })
+    }
+}
+
 /// Reads a mesh or a point cloud (module docs for what is read). Errors name the file.
 pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
     let data = fs::read(path).map_err(|source| MeshError::Io {
@@ -207,80 +257,22 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
     })?;
     let err = |r: String| ply_err(path, r);
     let (header, start) = Header::read(path, &data)?;
-    let elements = &header.elements;
     let vertex = header
         .element("vertex")
         .ok_or_else(|| err("no `element vertex`".into()))?;
-    let n_vertices = vertex.count;
-    let scalar = |name: &str| -> Result<Option<usize>, MeshError> {
-        match vertex.props.iter().position(|p| p.name() == name) {
-            Some(i) if matches!(vertex.props[i], Prop::List { .. }) => {
-                Err(err(format!("vertex property {name} is a list")))
-            }
-            other => Ok(other),
-        }
-    };
-    let required = |name: &str| {
-        scalar(name)?.ok_or_else(|| {
-            err(format!(
-                "the vertices have no `{name}` property (x, y, z and kelvin are required)"
-            ))
-        })
-    };
-    let xyz = [required("x")?, required("y")?, required("z")?];
-    let kelvin_at = required("kelvin")?;
-    let normal_at = match (scalar("nx")?, scalar("ny")?, scalar("nz")?) {
-        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
-        _ => None,
-    };
-    let rgb_at = match (scalar("red")?, scalar("green")?, scalar("blue")?) {
-        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
-        _ => None,
-    };
-
+    let columns = VertexColumns::find(path, vertex)?;
     let mut body = Body::new(&data[start..]);
     let mut mesh = Mesh {
-        rgb: rgb_at.map(|_| Vec::new()),
+        rgb: columns.rgb.map(|_| Vec::new()),
         ..Mesh::default()
     };
-    // one row's values of the vertex element (scalars only; lists are skipped)
+    // one row's values (scalars; a list leaves an empty slot)
     let mut raw: Vec<(Ty, &[u8])> = Vec::new();
-    for el in elements {
-        let min_row: usize = el.props.iter().map(Prop::min_bytes).sum();
-        if el.count > 0 && min_row == 0 {
-            return Err(err(format!(
-                "element {} has {} rows and no properties",
-                el.name, el.count
-            )));
-        }
-        if el
-            .count
-            .checked_mul(min_row)
-            .is_none_or(|b| b > body.remaining())
-        {
-            return Err(err(format!(
-                "element {}: {} rows of at least {min_row} bytes, but {} bytes of data are left \
-                 (truncated file?)",
-                el.name,
-                el.count,
-                body.remaining()
-            )));
-        }
+    for el in &header.elements {
+        check_fits(path, el, &body)?;
         let is_vertex = std::ptr::eq(el, vertex);
-        let is_face = el.name == "face";
-        let face_list = if is_face {
-            Some(
-                el.props
-                    .iter()
-                    .position(|p| {
-                        matches!(
-                            p,
-                            Prop::List { name, .. }
-                                if name == "vertex_indices" || name == "vertex_index"
-                        )
-                    })
-                    .ok_or_else(|| err("faces without a `vertex_indices` list".into()))?,
-            )
+        let face_list = if el.name == "face" {
+            Some(face_list_index(path, el)?)
         } else {
             None
         };
@@ -288,79 +280,22 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
             mesh.positions.reserve_exact(el.count);
             mesh.kelvin.reserve_exact(el.count);
         }
+        let faces = Faces {
+            list: face_list,
+            vertices: vertex.count,
+        };
         for row in 0..el.count {
-            raw.clear();
-            for (pi, p) in el.props.iter().enumerate() {
-                let short = || {
-                    err(format!(
-                        "element {} row {row}: the data ends (truncated file?)",
-                        el.name
-                    ))
-                };
-                match *p {
-                    Prop::Scalar { ty, .. } => {
-                        let b = body.take(ty.size()).ok_or_else(short)?;
-                        raw.push((ty, b));
-                    }
-                    Prop::List { count, item, .. } => {
-                        let c = count.value(body.take(count.size()).ok_or_else(short)?);
-                        if c < 0.0 || c.is_nan() {
-                            return Err(err(format!(
-                                "element {} row {row}: list length {c}",
-                                el.name
-                            )));
-                        }
-                        let c = c as usize;
-                        let items = c
-                            .checked_mul(item.size())
-                            .and_then(|b| body.take(b))
-                            .ok_or_else(short)?;
-                        if face_list == Some(pi) {
-                            if item.is_float() {
-                                return Err(err("face vertex indices are not integers".into()));
-                            }
-                            if c < 3 {
-                                return Err(err(format!("face {row}: {c} vertices")));
-                            }
-                            let idx = |k: usize| -> Result<u32, MeshError> {
-                                let v = item.value(&items[k * item.size()..]);
-                                if v >= 0.0 && v < n_vertices as f64 {
-                                    Ok(v as u32)
-                                } else {
-                                    Err(err(format!(
-                                        "face {row}: vertex index {v} outside the {n_vertices} vertices"
-                                    )))
-                                }
-                            };
-                            let first = idx(0)?;
-                            for k in 1..c - 1 {
-                                mesh.triangles.push([first, idx(k)?, idx(k + 1)?]);
-                            }
-                        }
-                        raw.push((item, &[]));
-                    }
-                }
-            }
-            if !is_vertex {
-                continue;
-            }
-            let f = |i: usize| raw[i].0.value_f32(raw[i].1);
-            let p = xyz.map(f);
-            if !p.iter().all(|x| x.is_finite()) {
-                return Err(err(format!("vertex {row}: non-finite position {p:?}")));
-            }
-            mesh.positions.push(p);
-            mesh.kelvin.push(f(kelvin_at));
-            if let Some(nrm) = normal_at {
-                mesh.normals.push(nrm.map(f));
-            }
-            if let (Some(at), Some(rgb)) = (rgb_at, mesh.rgb.as_mut()) {
-                rgb.push(at.map(|i| {
-                    let (ty, b) = raw[i];
-                    let x = ty.value(b);
-                    let x = if ty.is_float() { x * 255.0 } else { x };
-                    x.round().clamp(0.0, 255.0) as u8
-                }));
+            read_row(
+                path,
+                el,
+                row,
+                &mut body,
+                faces,
+                &mut raw,
+                &mut mesh.triangles,
+            )?;
+            if is_vertex {
+                push_vertex(path, &mut mesh, &columns, &raw, row)?;
             }
         }
     }
@@ -371,6 +306,174 @@ pub fn read_mesh_ply(path: &Path) -> Result<Mesh, MeshError> {
         )));
     }
     Ok(mesh)
+}
+
+/// An element's rows must fit in the data left, at their smallest (lists empty): checked
+/// before any row is read, so a hostile count allocates nothing.
+fn check_fits(path: &Path, el: &Element, body: &Body<'_>) -> Result<(), MeshError> {
+    let min_row: usize = el.props.iter().map(Prop::min_bytes).sum();
+    if el.count > 0 && min_row == 0 {
+        return Err(ply_err(
+            path,
+            format!(
+                "element {} has {} rows and no properties",
+                el.name, el.count
+            ),
+        ));
+    }
+    if el
+        .count
+        .checked_mul(min_row)
+        .is_none_or(|b| b > body.remaining())
+    {
+        return Err(ply_err(
+            path,
+            format!(
+                "element {}: {} rows of at least {min_row} bytes, but {} bytes of data are left \
+                 (truncated file?)",
+                el.name,
+                el.count,
+                body.remaining()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The face element's vertex-index list property.
+fn face_list_index(path: &Path, el: &Element) -> Result<usize, MeshError> {
+    el.props
+        .iter()
+        .position(|p| {
+            matches!(
+                p,
+                Prop::List { name, .. } if name == "vertex_indices" || name == "vertex_index"
+            )
+        })
+        .ok_or_else(|| ply_err(path, "faces without a `vertex_indices` list"))
+}
+
+/// Where the face list is in a row (`None`: not the face element) and how many vertices its
+/// indices may name.
+#[derive(Debug, Clone, Copy)]
+struct Faces {
+    list: Option<usize>,
+    vertices: usize,
+}
+
+/// Reads row `row` of `el`: its scalars into `raw` (a list leaves an empty slot), and when it
+/// is a face its polygon fanned into `triangles` (indices checked against the vertex count).
+fn read_row<'a>(
+    path: &Path,
+    el: &Element,
+    row: usize,
+    body: &mut Body<'a>,
+    faces: Faces,
+    raw: &mut Vec<(Ty, &'a [u8])>,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<(), MeshError> {
+    let err = |r: String| ply_err(path, r);
+    raw.clear();
+    for (pi, p) in el.props.iter().enumerate() {
+        let short = || {
+            err(format!(
+                "element {} row {row}: the data ends (truncated file?)",
+                el.name
+            ))
+        };
+        match *p {
+            Prop::Scalar { ty, .. } => {
+                let b = body.take(ty.size()).ok_or_else(short)?;
+                raw.push((ty, b));
+            }
+            Prop::List { count, item, .. } => {
+                let c = count.value(body.take(count.size()).ok_or_else(short)?);
+                if c < 0.0 || c.is_nan() {
+                    return Err(err(format!(
+                        "element {} row {row}: list length {c}",
+                        el.name
+                    )));
+                }
+                let c = c as usize;
+                let items = c
+                    .checked_mul(item.size())
+                    .and_then(|b| body.take(b))
+                    .ok_or_else(short)?;
+                if faces.list == Some(pi) {
+                    fan_face(path, row, item, c, items, faces.vertices, triangles)?;
+                }
+                raw.push((item, &[]));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Face `row`'s `c` vertex indices (`items`, of type `item`) fanned into triangles.
+fn fan_face(
+    path: &Path,
+    row: usize,
+    item: Ty,
+    c: usize,
+    items: &[u8],
+    n_vertices: usize,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<(), MeshError> {
+    let err = |r: String| ply_err(path, r);
+    if item.is_float() {
+        return Err(err("face vertex indices are not integers".into()));
+    }
+    if c < 3 {
+        return Err(err(format!("face {row}: {c} vertices")));
+    }
+    let idx = |k: usize| -> Result<u32, MeshError> {
+        let v = item.value(&items[k * item.size()..]);
+        if v >= 0.0 && v < n_vertices as f64 {
+            Ok(v as u32)
+        } else {
+            Err(err(format!(
+                "face {row}: vertex index {v} outside the {n_vertices} vertices"
+            )))
+        }
+    };
+    let first = idx(0)?;
+    for k in 1..c - 1 {
+        triangles.push([first, idx(k)?, idx(k + 1)?]);
+    }
+    Ok(())
+}
+
+/// Appends vertex `row` (its scalars in `raw`) to `mesh`: position (finite), kelvin, and the
+/// normal and colour when the file has them (float colours in [0, 1] scaled to bytes).
+fn push_vertex(
+    path: &Path,
+    mesh: &mut Mesh,
+    columns: &VertexColumns,
+    raw: &[(Ty, &[u8])],
+    row: usize,
+) -> Result<(), MeshError> {
+    let f = |i: usize| raw[i].0.value_f32(raw[i].1);
+    let p = columns.xyz.map(f);
+    if !p.iter().all(|x| x.is_finite()) {
+        return Err(ply_err(
+            path,
+            format!("vertex {row}: non-finite position {p:?}"),
+        ));
+    }
+    mesh.positions.push(p);
+    mesh.kelvin.push(f(columns.kelvin));
+    if let Some(nrm) = columns.normal {
+        mesh.normals.push(nrm.map(f));
+    }
+    if let (Some(at), Some(rgb)) = (columns.rgb, mesh.rgb.as_mut()) {
+        rgb.push(at.map(|i| {
+            let (ty, b) = raw[i];
+            let x = ty.value(b);
+            let x = if ty.is_float() { x * 255.0 } else { x };
+            x.round().clamp(0.0, 255.0) as u8
+        }));
+    }
+    Ok(())
 }
 
 /// Ironbow colours of `kelvin` over its 1st–99th percentile range (nearest rank on the
