@@ -268,25 +268,20 @@ fn count_blocks(
     keys
 }
 
-/// Renders `cameras` of `prims` on `backend`, fuses and extracts the mesh. `range` converts the
-/// normalised thermal head to kelvin (a non-radiometric range leaves the normalised value).
-pub fn mesh_views<B: Backend>(
+/// Fewest views with an opaque surface a mesh is fused from.
+const MIN_VIEWS: usize = 2;
+
+/// Renders every camera (progress per view); views with no opaque pixel are left out, and
+/// fewer than [`MIN_VIEWS`] left is an error.
+fn render_all<B: Backend>(
     prims: &Primitives<f32>,
     cameras: &[PinholeCamera],
     range: &ThermalRange,
     opts: &MeshOptions,
     backend: &mut B,
     progress: &mut dyn FnMut(MeshStage, usize, usize),
-) -> Result<(Mesh, MeshStats), MeshError> {
-    const MIN_VIEWS: usize = 2;
-    if cameras.len() < MIN_VIEWS {
-        return Err(MeshError::TooFewViews {
-            views: cameras.len(),
-            required: MIN_VIEWS,
-        });
-    }
+) -> Result<Vec<Rendered>, MeshError> {
     let colour = !prims.sh.is_empty();
-    let t0 = Instant::now();
     let mut views = Vec::with_capacity(cameras.len());
     for (i, cam) in cameras.iter().enumerate() {
         let r = render_view(backend, prims, cam, range, opts.min_alpha, colour)?;
@@ -295,7 +290,6 @@ pub fn mesh_views<B: Backend>(
         }
         progress(MeshStage::Render, i + 1, cameras.len());
     }
-    let render_s = t0.elapsed().as_secs_f64();
     if views.is_empty() {
         return Err(MeshError::NoOpaqueSurface {
             views: cameras.len(),
@@ -308,26 +302,20 @@ pub fn mesh_views<B: Backend>(
             required: MIN_VIEWS,
         });
     }
-    let renders_bytes = views.iter().map(Rendered::bytes).sum();
+    Ok(views)
+}
 
-    // Size the volume.
-    let t1 = Instant::now();
-    let budget = opts.memory_budget_bytes;
-    let per_block = Volume::bytes_per_block(colour) as u64;
-    // Counting stops at 4× the budget's blocks: enough to estimate how much the voxel grows.
-    let limit = usize::try_from(budget / per_block.max(1))
-        .unwrap_or(usize::MAX)
-        .saturating_mul(4);
-    let (mut voxel_m, fixed) = match opts.voxel_m {
-        Some(v) if v.is_finite() && v > 0.0 => (v, true),
-        Some(v) => {
-            return Err(MeshError::Run {
-                reason: format!("--voxel-size-m {v}: expected a positive length in metres"),
-            });
-        }
+/// The voxel to start from: `--voxel-size-m` (fixed), else the surfaces' robust extent over
+/// `--resolution`, never finer than a pixel's footprint. Returns (voxel, fixed).
+fn initial_voxel(views: &[Rendered], opts: &MeshOptions) -> Result<(f64, bool), MeshError> {
+    match opts.voxel_m {
+        Some(v) if v.is_finite() && v > 0.0 => Ok((v, true)),
+        Some(v) => Err(MeshError::Run {
+            reason: format!("--voxel-size-m {v}: expected a positive length in metres"),
+        }),
         None => {
             let (mut pts, mut footprints) = (Vec::new(), Vec::new());
-            for r in &views {
+            for r in views {
                 surface_points(r, 7, &mut pts, &mut footprints);
             }
             let extent = robust_extent_m(&mut pts);
@@ -344,13 +332,25 @@ pub fn mesh_views<B: Backend>(
             // Finer than a pixel's footprint the volume resolves only the renders' depth
             // noise, and neighbouring pixels' depths differ by more than the truncation
             // (pinholes where the extraction takes them for occlusion boundaries).
-            (
+            Ok((
                 (extent / opts.resolution.max(1) as f64).max(footprint),
                 false,
-            )
+            ))
         }
-    };
-    let mut keys = count_blocks(&views, voxel_m, opts.trunc_voxels * voxel_m, limit);
+    }
+}
+
+/// The sparse volume, its blocks allocated: the voxel grows (unless fixed) until the blocks
+/// near the surfaces fit `--memory-budget-mib`.
+fn size_volume(views: &[Rendered], opts: &MeshOptions, colour: bool) -> Result<Volume, MeshError> {
+    let budget = opts.memory_budget_bytes;
+    let per_block = Volume::bytes_per_block(colour) as u64;
+    // Counting stops at 4× the budget's blocks: enough to estimate how much the voxel grows.
+    let limit = usize::try_from(budget / per_block.max(1))
+        .unwrap_or(usize::MAX)
+        .saturating_mul(4);
+    let (mut voxel_m, fixed) = initial_voxel(views, opts)?;
+    let mut keys = count_blocks(views, voxel_m, opts.trunc_voxels * voxel_m, limit);
     for _ in 0..32 {
         let need = keys.len() as u64 * per_block;
         if need <= budget {
@@ -366,7 +366,7 @@ pub fn mesh_views<B: Backend>(
         // Surface blocks scale with the voxel's inverse square; a little more keeps the loop
         // short.
         voxel_m *= ((need as f64 / budget as f64).sqrt() * 1.05).max(1.05);
-        keys = count_blocks(&views, voxel_m, opts.trunc_voxels * voxel_m, limit);
+        keys = count_blocks(views, voxel_m, opts.trunc_voxels * voxel_m, limit);
     }
     if keys.len() as u64 * per_block > budget {
         return Err(MeshError::OverBudget {
@@ -385,6 +385,33 @@ pub fn mesh_views<B: Backend>(
     let mut sorted: Vec<[i32; 3]> = keys.into_iter().collect();
     sorted.sort_unstable();
     volume.allocate(sorted);
+    Ok(volume)
+}
+
+/// Renders `cameras` of `prims` on `backend`, fuses and extracts the mesh. `range` converts the
+/// normalised thermal head to kelvin (a non-radiometric range leaves the normalised value).
+pub fn mesh_views<B: Backend>(
+    prims: &Primitives<f32>,
+    cameras: &[PinholeCamera],
+    range: &ThermalRange,
+    opts: &MeshOptions,
+    backend: &mut B,
+    progress: &mut dyn FnMut(MeshStage, usize, usize),
+) -> Result<(Mesh, MeshStats), MeshError> {
+    if cameras.len() < MIN_VIEWS {
+        return Err(MeshError::TooFewViews {
+            views: cameras.len(),
+            required: MIN_VIEWS,
+        });
+    }
+    let colour = !prims.sh.is_empty();
+    let t0 = Instant::now();
+    let views = render_all(prims, cameras, range, opts, backend, progress)?;
+    let render_s = t0.elapsed().as_secs_f64();
+    let renders_bytes = views.iter().map(Rendered::bytes).sum();
+    let t1 = Instant::now();
+    let mut volume = size_volume(&views, opts, colour)?;
+    let (voxel_m, trunc_m) = (volume.voxel_m(), volume.trunc_m());
 
     // Fuse.
     let mut planes = Vec::new();

@@ -147,6 +147,9 @@ pub fn render_backward_prepared<T: Real>(
 }
 
 /// One tile's pixels, back to front per pixel (module docs), summed per primitive of the tile.
+// Why this stays long: the CPU reference of `raster_backward.glsl`, pixel by pixel in the
+// shader's order so the parity and finite-difference tests compare like with like; its
+// accumulators (transmittance, running sums per plane) live across the whole walk.
 fn backward_tile<T: Real>(
     prims: &Primitives<T>,
     prep: &Prepared<T>,

@@ -94,6 +94,9 @@ impl<T> Prepared<T> {
 }
 
 /// Builds the per-view data (validates shapes first).
+// Why this stays long: the CPU reference of `raster_project.glsl` and the binning after it,
+// step for step in the shader's order (validation, projection, 2-D extent, bands, tiles), so a
+// parity failure points at the same line in both.
 pub fn prepare<T: Real>(
     prims: &Primitives<T>,
     cam: &PinholeCamera,

@@ -191,6 +191,9 @@ impl VulkanBackend {
     /// `up_j`, then `after` in the same submission; returns the weighted loss and the views'
     /// key totals, from one read. `after` finds the key totals in the first
     /// [`STEP_OUT_TOTALS`] u32 of `step_out` (for [`KeyGate`]).
+    // Why this stays long: one submission recorded in order (render each view, then each loss
+    // term with its barrier, then `after`), followed by its single read; splitting the
+    // recording would split the borrow of the step's buffers across closures.
     pub(super) fn forward_losses(
         &self,
         prims: &Primitives<f32>,

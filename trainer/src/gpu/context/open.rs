@@ -71,6 +71,8 @@ pub struct ContextOptions {
 impl GpuContext {
     /// Opens the chosen device for compute, checking up front that it offers Vulkan 1.2 and a
     /// compute queue, and enabling float atomics when present (unless disabled).
+    // Why this stays long: Vulkan's opening sequence (instance, device choice, features,
+    // queue, command pool), each step's failure releasing what the previous ones created.
     pub fn new(options: &ContextOptions) -> Result<Self, GpuError> {
         let instance = VulkanInstance::new()?;
         let physical = instance.physical_devices()?;

@@ -56,6 +56,10 @@ impl GpuContext {
         self.submit_inner(record, self.caps.compute_timestamps)
     }
 
+    // Why this stays long: it is one `unsafe` block in which every exit (each Vulkan error,
+    // the bounded wait's timeout) releases exactly the objects created so far — pools, views,
+    // the command buffer, the fence — and a hung submission leaks them on purpose. Split into
+    // functions, each would need the others' handles and the release rules would be spread.
     fn submit_inner<F>(&self, record: F, profile: bool) -> Result<Vec<KernelTiming>, GpuError>
     where
         F: FnOnce(&mut Recorder<'_>) -> Result<(), GpuError>,

@@ -21,6 +21,9 @@ impl GpuRasterizer {
     /// The buffers of one view before any work: camera, parameters (uploaded from the host, or
     /// the resident block to copy in the first submission), primitive views, band views, with
     /// `colour` the primitives' colours, live band counts, tile counts.
+    // Why this stays long: one allocation per buffer of a view, each sized by its own rule
+    // (parameters, primitive and band views, colour, tile counts); a list of sizes, in the
+    // order the kernels bind them.
     pub(super) fn alloc_view<'a, 'b>(
         &'a self,
         ctx: &'a GpuContext,
@@ -169,6 +172,10 @@ impl GpuRasterizer {
     /// every list has room for that many keys (see [`KeySizing`]). Each camera comes with what
     /// its render computes and whether it has the colour (the `*_rgb` kernels: the colours of
     /// the primitives and the R, G, B planes).
+    // Why this stays long: it records the two submissions of a render in dispatch order
+    // (projection, counts, scan | keys, sort, ranges, raster) with the barriers between them;
+    // the buffers allocated between the two and the one read of the key totals tie them
+    // together, and the sequence reads as the GPU does it.
     pub(super) fn bin_and_render_views<'a>(
         &'a self,
         ctx: &'a GpuContext,
