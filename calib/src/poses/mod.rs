@@ -81,6 +81,7 @@
 //! [`session_to_dataset`] runs them in order and builds the report.
 
 pub mod agreement;
+pub mod args;
 pub mod board;
 pub mod dataset;
 pub mod fiducials;

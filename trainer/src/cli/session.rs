@@ -21,19 +21,16 @@ pub fn pose_session(a: &TrainArgs, session: &Path, out: &Path) -> Result<PathBuf
         name.push("-dataset");
         out.with_file_name(name)
     });
-    let cal = match &a.calibration {
+    let cal = match &a.posing.calibration {
         Some(p) => Some(CalibrationFile::read(p)?),
         None => None,
     };
     let opts = PosesOptions {
-        colmap: a.colmap.clone(),
-        tags: a.tags.clone(),
-        with_rgb: a.with_rgb,
         holdout_every: a.holdout,
         progress: Some(std::sync::Arc::new(
             s3tir_calib::progress::bars::ProgressBars::new(),
         )),
-        ..PosesOptions::default()
+        ..a.posing.options()
     };
     println!(
         "posing session {} into {}",

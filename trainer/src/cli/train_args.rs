@@ -20,28 +20,15 @@ pub struct TrainArgs {
     /// --dataset, then trained on.
     #[arg(required = true)]
     pub data: Option<PathBuf>,
-    /// Session input: the rig's calibration.yaml [default: the one attached to the session].
-    #[cfg(feature = "session")]
-    #[arg(long)]
-    pub calibration: Option<PathBuf>,
     /// Session input: where to write the posed dataset [default: RUN_DIR-dataset beside the run].
     #[cfg(feature = "session")]
     #[arg(long)]
     pub dataset: Option<PathBuf>,
-    /// Session input: the COLMAP program.
+    /// Session input: how it is posed (`s3tir-calib poses`' options; --holdout holds out
+    /// the posed views too).
     #[cfg(feature = "session")]
-    #[arg(long, env = "S3TIR_COLMAP", default_value = "colmap")]
-    pub colmap: PathBuf,
-    /// Session input: AprilTag map (see `s3tir-calib poses --help`): metric scale, and poses
-    /// without COLMAP where mapped tags are in view.
-    #[cfg(feature = "session")]
-    #[arg(long)]
-    pub tags: Option<PathBuf>,
-    /// Session input: also put the posed RGB keyframes into the dataset (their own camera,
-    /// the same world), so the run trains jointly on RGB and thermal (see --views).
-    #[cfg(feature = "session")]
-    #[arg(long)]
-    pub with_rgb: bool,
+    #[command(flatten, next_help_heading = "Session input (posing a recorded .mcap)")]
+    pub posing: s3tir_calib::poses::args::PosingArgs,
     /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
     /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]
