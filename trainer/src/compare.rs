@@ -96,14 +96,9 @@ pub fn load_run(dir: &Path) -> Result<RunMetrics, CompareError> {
             None
         }
     };
-    let warmup_end_s = cfg.as_ref().and_then(|cfg| match cfg.time_budget_s {
-        Some(budget) if cfg.iters > 0 => Some(budget * cfg.warmup as f64 / cfg.iters as f64),
-        Some(_) => None,
-        None => rows
-            .iter()
-            .find(|r| r.iteration >= cfg.warmup)
-            .map(|r| r.seconds),
-    });
+    let warmup_end_s = cfg
+        .as_ref()
+        .and_then(|cfg| cfg.warmup_end_s(rows.iter().map(|r| (r.iteration, r.seconds))));
     Ok(RunMetrics {
         dir: dir.to_path_buf(),
         mode: cfg.map_or_else(|| "?".to_owned(), |c| c.mode.to_string()),

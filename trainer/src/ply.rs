@@ -168,13 +168,14 @@ pub fn write_ply(path: &Path, prims: &Primitives<f32>) -> Result<(), PlyError> {
 pub const MAX_PLY_BANDS: usize = 256;
 
 /// What a primitives file's header says: bands, SH degree, whether the live-band count is
-/// stored (files written before the band mask lack it), vertices and float properties per row.
+/// stored (files written before the band mask lack it), vertices and bytes per row.
 struct PlyLayout {
     bands: usize,
     sh_degree: Option<usize>,
     has_count: bool,
     vertices: usize,
-    properties: usize,
+    /// Bytes of one vertex row (every property a float).
+    row_bytes: usize,
 }
 
 /// Reads and checks the header of a primitives file: the `s3tir` comments, one `vertex`
@@ -244,7 +245,8 @@ fn read_layout(header: &Header) -> Result<PlyLayout, String> {
         sh_degree,
         has_count: names != legacy,
         vertices: vertex.count,
-        properties: names.len(),
+        // All scalars (checked above): never the `None` of a list.
+        row_bytes: vertex.fixed_row_bytes().unwrap_or(0),
     })
 }
 
@@ -309,7 +311,7 @@ pub fn read_ply(path: &Path) -> Result<Primitives<f32>, PlyError> {
     })?;
     let (header, end) = Header::read(path, &data).map_err(|e| fmt(e.reason))?;
     let layout = read_layout(&header).map_err(fmt)?;
-    let stride = layout.properties * 4;
+    let stride = layout.row_bytes;
     let n = layout.vertices;
     let body = &data[end..];
     if n.checked_mul(stride) != Some(body.len()) {

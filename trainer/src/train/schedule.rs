@@ -27,9 +27,27 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::init::draw_band;
-use super::{Backend, ConsistPartner, GroupLrs, PairChoice, Trainer};
+use super::{Backend, ConsistPartner, GroupLrs, PairChoice, TrainConfig, Trainer};
 use crate::loss::LossWeights;
 use crate::primitive::{BETA_RAW_GAUSSIAN, is_beta_frozen};
+
+impl TrainConfig {
+    /// Training seconds at which this schedule's warm-up ends, for readers of a finished run
+    /// (`compare`): with a time budget the fraction `warmup / iters` of it (the schedule's
+    /// mapping, [`Trainer::progress`]); otherwise the first of the run's `evaluations`
+    /// (iteration, training seconds) at or after the warm-up's iteration. `None` when neither
+    /// says.
+    pub fn warmup_end_s(&self, evaluations: impl IntoIterator<Item = (u64, f64)>) -> Option<f64> {
+        match self.time_budget_s {
+            Some(budget) if self.iters > 0 => Some(budget * self.warmup as f64 / self.iters as f64),
+            Some(_) => None,
+            None => evaluations
+                .into_iter()
+                .find(|&(iteration, _)| iteration >= self.warmup)
+                .map(|(_, seconds)| seconds),
+        }
+    }
+}
 
 impl<B: Backend> Trainer<B> {
     /// How far the run is, 0…1: iterations done of `iters`, or with a time budget the
