@@ -121,7 +121,47 @@ impl<B: Backend> Trainer<B> {
     pub(super) fn densify(&mut self, rng: &mut ChaCha8Rng) {
         // The kept G-buffers show the primitives before this change.
         self.kept = None;
-        let d = self.cfg.densify;
+        let n = self.prims.len();
+        let (mut cand, median_statistic) = self.densify_candidates();
+        let over_threshold = cand.len();
+        let victim = self.relocation_victims(&cand);
+        let relocated = victim.iter().filter(|&&v| v).count();
+        let room = self.growth_room().0;
+        cand.truncate(room + relocated);
+        let (new_rows, split) = self.new_rows(&cand, rng);
+        let n_split = split.iter().filter(|&&s| s).count();
+        let (keep, pruned) = self.survivors(&split, &victim);
+        self.rebuild(&keep, &new_rows);
+        let round = DensifyRound {
+            iteration: self.iteration,
+            seconds: self.train_seconds,
+            before: n,
+            after: self.prims.len(),
+            over_threshold,
+            over_budget: over_threshold - cand.len(),
+            cloned: cand.len() - n_split,
+            split: n_split,
+            pruned,
+            relocated,
+            median_statistic,
+        };
+        tracing::info!(
+            iteration = round.iteration,
+            before = round.before,
+            after = round.after,
+            cloned = round.cloned,
+            split = round.split,
+            pruned = round.pruned,
+            relocated = round.relocated,
+            over_budget = round.over_budget,
+            "density control"
+        );
+        self.state.capacity.densify_rounds.push(round);
+    }
+
+    /// The primitives whose mean view-space gradient statistic passes the threshold, largest
+    /// first (statistic, index), and the median statistic of all that have one.
+    fn densify_candidates(&self) -> (Vec<(f64, usize)>, f64) {
         let n = self.prims.len();
         let stats: Vec<(f64, usize)> = (0..n)
             .filter(|&i| self.grad_count[i] > 0)
@@ -134,29 +174,42 @@ impl<B: Backend> Trainer<B> {
         };
         let mut cand: Vec<(f64, usize)> = stats
             .into_iter()
-            .filter(|(g, _)| *g > d.grad_threshold)
+            .filter(|(g, _)| *g > self.cfg.densify.grad_threshold)
             .collect();
-        let over_threshold = cand.len();
         cand.sort_by(|a, b| b.0.total_cmp(&a.0));
+        (cand, median_statistic)
+    }
+
+    /// How many primitives this round may add (the budget's room, capped at `grow_frac` × n:
+    /// every primitive makes every later step slower, so growth under a time budget has to be
+    /// paid for), and the budget's room alone.
+    fn growth_room(&self) -> (usize, usize) {
+        let d = self.cfg.densify;
+        let n = self.prims.len();
         let room_budget = self.cfg.budget.saturating_sub(n);
-        // At most `grow_frac` × n more primitives per round (0: no cap): every primitive makes
-        // every later step slower, so growth under a time budget has to be paid for.
         let grow_cap = if d.grow_frac > 0.0 {
             (d.grow_frac * n as f64).ceil() as usize
         } else {
             usize::MAX
         };
-        let room = room_budget.min(grow_cap);
-        // With the budget full, the weakest primitives (lowest opacity, not candidates, not
-        // about to be pruned) give their places to the candidates beyond the room: at most
-        // `relocate_frac` × n per round, so growth keeps following the error after the budget
-        // is reached instead of stopping there.
-        let wanted = if room_budget <= grow_cap {
+        (room_budget.min(grow_cap), room_budget)
+    }
+
+    /// With the budget full, the weakest primitives (lowest opacity, not candidates, not
+    /// about to be pruned) give their places to the candidates beyond the room: at most
+    /// `relocate_frac` × n per round, so growth keeps following the error after the budget is
+    /// reached instead of stopping there. Marks them.
+    fn relocation_victims(&self, cand: &[(f64, usize)]) -> Vec<bool> {
+        let d = self.cfg.densify;
+        let n = self.prims.len();
+        let (room, room_budget) = self.growth_room();
+        let grow_cap_binds = room < room_budget;
+        let wanted = if grow_cap_binds {
+            0
+        } else {
             cand.len()
                 .saturating_sub(room)
                 .min((d.relocate_frac.max(0.0) * n as f64) as usize)
-        } else {
-            0
         };
         let mut victim = vec![false; n];
         if wanted > 0 {
@@ -174,13 +227,21 @@ impl<B: Backend> Trainer<B> {
                 victim[i] = true;
             }
         }
-        let relocated = victim.iter().filter(|&&v| v).count();
-        cand.truncate(room + relocated);
-        let split_scale = d.split_scale_frac * self.extent_m;
-        let mut keep: Vec<usize> = Vec::with_capacity(n + cand.len());
-        let mut split = vec![false; n];
-        let mut new_rows: Vec<(usize, Option<[f32; 3]>)> = Vec::new();
-        for &(_, i) in &cand {
+        victim
+    }
+
+    /// The rows the candidates add: a clone (`None`) of a small primitive, or two samples
+    /// from a large one (offsets from its mean), which is marked split (it is replaced).
+    #[allow(clippy::type_complexity)]
+    fn new_rows(
+        &self,
+        cand: &[(f64, usize)],
+        rng: &mut ChaCha8Rng,
+    ) -> (Vec<(usize, Option<[f32; 3]>)>, Vec<bool>) {
+        let split_scale = self.cfg.densify.split_scale_frac * self.extent_m;
+        let mut split = vec![false; self.prims.len()];
+        let mut new_rows = Vec::new();
+        for &(_, i) in cand {
             let s = self.prims.scales(i);
             if f64::from(s[0].max(s[1]).max(s[2])) > split_scale {
                 split[i] = true;
@@ -199,19 +260,32 @@ impl<B: Backend> Trainer<B> {
                 new_rows.push((i, None));
             }
         }
-        let n_split = split.iter().filter(|&&s| s).count();
+        (new_rows, split)
+    }
+
+    /// The primitives kept as they are (not split, not relocated, opaque enough), and how many
+    /// were pruned.
+    fn survivors(&self, split: &[bool], victim: &[bool]) -> (Vec<usize>, usize) {
+        let mut keep = Vec::with_capacity(split.len());
         let mut pruned = 0;
         for (i, &was_split) in split.iter().enumerate() {
             let o = f64::from(self.prims.opacity(i).0);
             if was_split || victim[i] {
                 continue;
             }
-            if o >= d.prune_opacity {
+            if o >= self.cfg.densify.prune_opacity {
                 keep.push(i);
             } else {
                 pruned += 1;
             }
         }
+        (keep, pruned)
+    }
+
+    /// The new parameter set: the kept rows, then the added ones (a split's samples moved by
+    /// their offsets and shrunk by 1.6, as 3DGS does); the added rows' Adam moments start at
+    /// zero; the gradient statistics restart.
+    fn rebuild(&mut self, keep: &[usize], new_rows: &[(usize, Option<[f32; 3]>)]) {
         let n_keep = keep.len();
         let idx: Vec<usize> = keep
             .iter()
@@ -234,31 +308,6 @@ impl<B: Backend> Trainer<B> {
         }
         params::zero_rows_from(&mut m, n_keep);
         params::zero_rows_from(&mut v, n_keep);
-        let round = DensifyRound {
-            iteration: self.iteration,
-            seconds: self.train_seconds,
-            before: n,
-            after: p.len(),
-            over_threshold,
-            over_budget: over_threshold - cand.len(),
-            cloned: cand.len() - n_split,
-            split: n_split,
-            pruned,
-            relocated,
-            median_statistic,
-        };
-        tracing::info!(
-            iteration = round.iteration,
-            before = round.before,
-            after = round.after,
-            cloned = round.cloned,
-            split = round.split,
-            pruned = round.pruned,
-            relocated = round.relocated,
-            over_budget = round.over_budget,
-            "density control"
-        );
-        self.state.capacity.densify_rounds.push(round);
         self.prims = p;
         self.adam.m = m;
         self.adam.v = v;
