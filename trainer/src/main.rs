@@ -48,8 +48,11 @@ use cli::train_args::TrainArgs;
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
+    /// Not an `Option`: clap leaves an optional flattened struct `None` when its options sit
+    /// in a nested flatten (the session's posing flags); without a subcommand DATA and --out
+    /// are required, so a parsed `TrainArgs` with DATA is a training run.
     #[command(flatten)]
-    train: Option<TrainArgs>,
+    train: TrainArgs,
 }
 
 #[derive(Debug, Subcommand)]
@@ -108,14 +111,14 @@ fn run() -> Result<()> {
     match (cli.command, cli.train) {
         (Some(Command::Devices(a)), _) => cli::devices::run(&a),
         (Some(Command::Train(a)), _) => cli::train::run(*a),
-        (None, Some(a)) => cli::train::run(a),
+        (None, a) if a.data.is_some() => cli::train::run(a),
         (Some(Command::Bench(a)), _) => cli::bench::run(&a),
         (Some(Command::Eval(a)), _) => cli::eval::run(&a),
         (Some(Command::Ablation(a)), _) => cli::ablation::run(*a),
         (Some(Command::Mesh(a)), _) => cli::mesh::run(&a),
         (Some(Command::Compare(a)), _) => cli::compare::run(&a),
         (Some(Command::Synth(a)), _) => cli::synth::run(&a),
-        (None, None) => {
+        (None, _) => {
             bail!("nothing to do: give DATA --out RUN_DIR, or a subcommand (see --help)")
         }
     }
