@@ -417,6 +417,23 @@ fn cost_and_rms(p: &Problem, s: &State, huber: f64, cam_w: [f64; 2]) -> (f64, f6
     (cost, (ss / n.max(1) as f64).sqrt(), n)
 }
 
+/// Central differences of `f` over a rigid perturbation's six coordinates ([`perturb`]:
+/// rotation steps 1e-6 rad, translation steps 1e-7).
+fn rigid_jacobian(f: impl Fn(&[f64; 6]) -> DVec2) -> [DVec2; 6] {
+    let mut jac = [DVec2::ZERO; 6];
+    let mut d = [0.0; 6];
+    for q in 0..6 {
+        let step = if q < 3 { 1e-6 } else { 1e-7 };
+        d[q] = step;
+        let plus = f(&d);
+        d[q] = -step;
+        let minus = f(&d);
+        d[q] = 0.0;
+        jac[q] = (plus - minus) / (2.0 * step);
+    }
+    jac
+}
+
 /// Builds H = JᵀWJ and g = JᵀWr in blocks; returns also Σ w|r|² and N.
 fn normal_equations(
     p: &Problem,
@@ -429,7 +446,6 @@ fn normal_equations(
     let mut wss = 0.0;
     let mut count = 0usize;
     let mut global: Vec<(usize, DVec2)> = Vec::with_capacity(15);
-    let mut pose_jac = [DVec2::ZERO; 6];
     for o in &p.observations {
         let (frame, _) = p.poses[o.view];
         let k = o.camera.index();
@@ -462,59 +478,17 @@ fn normal_equations(
                     global.push((off + q, (plus - minus) / (2.0 * step)));
                 }
             }
-            let mut d = [0.0; 6];
             if uses_ext && let Some(off) = layout.ext {
-                for q in 0..6 {
-                    let step = if q < 3 { 1e-6 } else { 1e-7 };
-                    d[q] = step;
-                    let plus = project(
-                        &s.intr[k],
-                        &s.base[k],
-                        frame,
-                        o.camera,
-                        &perturb(&s.ext, &d),
-                        pose,
-                        x,
-                    );
-                    d[q] = -step;
-                    let minus = project(
-                        &s.intr[k],
-                        &s.base[k],
-                        frame,
-                        o.camera,
-                        &perturb(&s.ext, &d),
-                        pose,
-                        x,
-                    );
-                    d[q] = 0.0;
-                    global.push((off + q, (plus - minus) / (2.0 * step)));
-                }
+                let jac = rigid_jacobian(|d| {
+                    let ext = perturb(&s.ext, d);
+                    project(&s.intr[k], &s.base[k], frame, o.camera, &ext, pose, x)
+                });
+                global.extend(jac.iter().enumerate().map(|(q, &v)| (off + q, v)));
             }
-            for q in 0..6 {
-                let step = if q < 3 { 1e-6 } else { 1e-7 };
-                d[q] = step;
-                let plus = project(
-                    &s.intr[k],
-                    &s.base[k],
-                    frame,
-                    o.camera,
-                    &s.ext,
-                    &perturb(pose, &d),
-                    x,
-                );
-                d[q] = -step;
-                let minus = project(
-                    &s.intr[k],
-                    &s.base[k],
-                    frame,
-                    o.camera,
-                    &s.ext,
-                    &perturb(pose, &d),
-                    x,
-                );
-                d[q] = 0.0;
-                pose_jac[q] = (plus - minus) / (2.0 * step);
-            }
+            let pose_jac = rigid_jacobian(|d| {
+                let moved = perturb(pose, d);
+                project(&s.intr[k], &s.base[k], frame, o.camera, &s.ext, &moved, x)
+            });
             normal.add(
                 &ResidualJacobian {
                     global: &global,
