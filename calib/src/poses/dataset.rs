@@ -104,6 +104,21 @@ pub fn write(
 ) -> Result<(), PosesError> {
     let images = out.join("images");
     std::fs::create_dir_all(&images).map_err(|e| out_err(&images, e))?;
+    write_images(session, &images, views, rgb)?;
+    let (model, holdout) = dataset_model(thermal, views, rgb, points);
+    let sparse = out.join("sparse").join("0");
+    write_text_model(&sparse, &model).map_err(|e| out_err(&sparse, e))?;
+    write_lists(out, holdout, fresh)
+}
+
+/// Reads the chosen frames from the session again and writes them into `images` (thermal
+/// 16-bit words as recorded, RGB 8-bit); a frame scanned but not read again is an error.
+fn write_images(
+    session: &Path,
+    images: &Path,
+    views: &[ThermalView],
+    rgb: Option<RgbViews<'_>>,
+) -> Result<(), PosesError> {
     let wanted: BTreeSet<u32> = views.iter().map(|v| v.sequence).collect();
     let wanted_rgb: BTreeSet<u32> = rgb
         .iter()
@@ -163,6 +178,17 @@ pub fn write(
             "RGB frames without any colour (R = G = B everywhere, a monochrome camera or a neutral scene): the trainer may read them as grey thermal images"
         );
     }
+    Ok(())
+}
+
+/// The COLMAP model of the dataset (the thermal camera, with `rgb` the RGB camera as the
+/// second; images in `views` order, then the RGB views) and the held-out image names.
+fn dataset_model(
+    thermal: &CameraModel,
+    views: &[ThermalView],
+    rgb: Option<RgbViews<'_>>,
+    points: &[ColmapPoint],
+) -> (ColmapModel, Vec<String>) {
     let camera = |id: u32, model: &CameraModel| ColmapCamera {
         id,
         model_name: colmap_params(model).0.to_owned(),
@@ -214,8 +240,11 @@ pub fn write(
             .collect(),
         points: points.to_vec(),
     };
-    let sparse = out.join("sparse").join("0");
-    write_text_model(&sparse, &model).map_err(|e| out_err(&sparse, e))?;
+    (model, holdout)
+}
+
+/// `holdout.txt`, and `ffc.txt` when any view is fresh after a flat-field correction.
+fn write_lists(out: &Path, holdout: Vec<String>, fresh: &[u32]) -> Result<(), PosesError> {
     let holdout: String = holdout.into_iter().map(|n| n + "\n").collect();
     let p = out.join("holdout.txt");
     std::fs::write(&p, holdout).map_err(|e| out_err(&p, e))?;
