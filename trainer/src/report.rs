@@ -319,6 +319,55 @@ pub fn plot_runs(path: &Path, runs: &[(String, Vec<MetricsRow>)]) -> Result<(), 
     plot_curves(path, &curves)
 }
 
+/// A panel's figure of a point (`None`: not in the log).
+type Getter = Box<dyn Fn(&CurvePoint) -> Option<Spread>>;
+
+/// The panels of the error-vs-time plot as (title, raw figure, aligned figure); each draws the
+/// raw figure (solid, its range shaded) and, when the log has it, the aligned one (dashed):
+/// PSNR; kelvin MAE (SSIM when not radiometric); LPIPS when the logs have it.
+fn panels(radiometric: bool, with_lpips: bool) -> Vec<(&'static str, Getter, Getter)> {
+    let mut panels: Vec<(&'static str, Getter, Getter)> = vec![
+        (
+            "held-out PSNR (dB); dashed: affine-aligned",
+            Box::new(|p| Some(p.psnr)),
+            Box::new(|p| p.psnr_aligned),
+        ),
+        if radiometric {
+            (
+                "held-out MAE (K); dashed: offset-aligned",
+                Box::new(|p| p.kelvin_mae),
+                Box::new(|p| p.kelvin_mae_aligned),
+            )
+        } else {
+            (
+                "held-out SSIM",
+                Box::new(|p| Some(p.ssim)),
+                Box::new(|_| None),
+            )
+        },
+    ];
+    if with_lpips {
+        panels.push((
+            "held-out LPIPS (AlexNet; lower is better)",
+            Box::new(|p| p.lpips),
+            Box::new(|_| None),
+        ));
+    }
+    panels
+}
+
+/// `[min, max]` of `vals` padded by 5 % (at least 1e-3); `(0, 1)` when there are none.
+fn padded_range(vals: Vec<f64>) -> (f64, f64) {
+    let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if lo.is_finite() && hi.is_finite() {
+        let pad = ((hi - lo) * 0.05).max(1e-3);
+        (lo - pad, hi + pad)
+    } else {
+        (0.0, 1.0)
+    }
+}
+
 /// Plots held-out PSNR (left), kelvin MAE (SSIM when not radiometric) and, when the logs have it,
 /// LPIPS (right; a third 550-px panel) against training seconds, one line per curve: the mean of
 /// its runs, with the range of the raw figure shaded where a curve holds several runs, and the
@@ -332,48 +381,9 @@ pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
         let areas = root.split_evenly((1, if with_lpips { 3 } else { 2 }));
         let t_max = all.iter().map(|p| p.seconds).fold(1e-3, f64::max);
         let radiometric = all.iter().any(|p| p.kelvin_mae.is_some());
-        let range = |vals: Vec<f64>| {
-            let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            if lo.is_finite() && hi.is_finite() {
-                let pad = ((hi - lo) * 0.05).max(1e-3);
-                (lo - pad, hi + pad)
-            } else {
-                (0.0, 1.0)
-            }
-        };
-        type Getter = Box<dyn Fn(&CurvePoint) -> Option<Spread>>;
-        // Each panel: the raw figure (solid, its range shaded) and, when the log has it, the
-        // aligned one (dashed).
-        let mut panels: Vec<(&str, Getter, Getter)> = vec![
-            (
-                "held-out PSNR (dB); dashed: affine-aligned",
-                Box::new(|p| Some(p.psnr)),
-                Box::new(|p| p.psnr_aligned),
-            ),
-            if radiometric {
-                (
-                    "held-out MAE (K); dashed: offset-aligned",
-                    Box::new(|p| p.kelvin_mae),
-                    Box::new(|p| p.kelvin_mae_aligned),
-                )
-            } else {
-                (
-                    "held-out SSIM",
-                    Box::new(|p| Some(p.ssim)),
-                    Box::new(|_| None),
-                )
-            },
-        ];
-        if with_lpips {
-            panels.push((
-                "held-out LPIPS (AlexNet; lower is better)",
-                Box::new(|p| p.lpips),
-                Box::new(|_| None),
-            ));
-        }
+        let panels = panels(radiometric, with_lpips);
         for (area, (label, get, get_aligned)) in areas.iter().zip(panels.iter()) {
-            let (lo, hi) = range(
+            let (lo, hi) = padded_range(
                 all.iter()
                     .flat_map(|p| [get(p), get_aligned(p)])
                     .flatten()
