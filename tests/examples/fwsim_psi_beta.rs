@@ -89,7 +89,10 @@ fn main() {
     stems.sort();
     let names = match layout {
         SceneLayout::Objects => ["box edge", "pipe interior", "floor stripe", "box off-edge"],
-        SceneLayout::Wall => ["wall edge", "pipe band", "(unused)", "rest of the wall"],
+        // Facade is never chosen here (the arguments give objects or wall).
+        SceneLayout::Wall | SceneLayout::Facade => {
+            ["wall edge", "pipe band", "(unused)", "rest of the wall"]
+        }
     };
     let mut total: [Acc; 4] = Default::default();
     for stem in &stems {
@@ -213,7 +216,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn primitives_by_place(run: &std::path::Path, layout: SceneLayout) {
     let place = match layout {
         SceneLayout::Objects => place,
-        SceneLayout::Wall => place_on_wall,
+        SceneLayout::Wall | SceneLayout::Facade => place_on_wall,
     };
     let ck = checkpoint::load(&run.join("checkpoint.json")).unwrap();
     let prims: Primitives<f32> = ck.primitives.into();

@@ -163,6 +163,7 @@ fn pipeline(layout: SceneLayout) -> Figures {
         match layout {
             SceneLayout::Objects => "objects",
             SceneLayout::Wall => "wall",
+            SceneLayout::Facade => "facade",
         },
         "--out",
         data.to_str().unwrap(),

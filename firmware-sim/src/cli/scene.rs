@@ -77,6 +77,11 @@ pub enum LayoutArg {
     /// bare metal on the other (a sharp emissivity edge), warmed by an in-wall heating pipe (a
     /// smooth warm band); cameras on an arc in front of it.
     Wall,
+    /// A brick facade with thermal texture finer than the primitives: warm mortar joints
+    /// (~4 px at 640 px), bricks of slightly different temperatures, a surface-mounted hot pipe
+    /// with sharp edges, a warm cabinet with printed foil labels; the wall's cameras. Meant for
+    /// a real core's resolution: --width 640 --height 512.
+    Facade,
 }
 
 /// `scene --json`: what the scene dataset holds.
@@ -140,10 +145,7 @@ fn scene_summary(
     Ok(SceneSummary {
         command: "scene",
         out: out.clone(),
-        layout: match layout {
-            SceneLayout::Objects => "objects",
-            SceneLayout::Wall => "wall",
-        },
+        layout: layout.name(),
         views: cfg.views,
         seed: cfg.seed,
         joint: joint.map(|j| JointSummary {
@@ -205,6 +207,7 @@ pub fn run(a: SceneArgs) -> Result<()> {
     let layout = match layout {
         LayoutArg::Objects => SceneLayout::Objects,
         LayoutArg::Wall => SceneLayout::Wall,
+        LayoutArg::Facade => SceneLayout::Facade,
     };
     let mut progress = |done: usize, _| bar.set_position(done as u64);
     match joint {

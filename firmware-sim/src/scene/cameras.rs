@@ -55,7 +55,7 @@ pub fn wall_arc(n: usize) -> Vec<Rigid3> {
 pub fn poses(layout: SceneLayout, n: usize) -> Vec<Rigid3> {
     match layout {
         SceneLayout::Objects => orbit(n),
-        SceneLayout::Wall => wall_arc(n),
+        SceneLayout::Wall | SceneLayout::Facade => wall_arc(n),
     }
 }
 

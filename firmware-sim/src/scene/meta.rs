@@ -48,13 +48,12 @@ impl SceneJson {
         netd_k: f64,
     ) -> Self {
         Self {
-            layout: match layout {
-                SceneLayout::Objects => "objects",
-                SceneLayout::Wall => "wall",
-            },
+            layout: layout.name(),
             world_frame: match layout {
                 SceneLayout::Objects => "x east, y north, z up, metres; ground plane z = 0",
-                SceneLayout::Wall => "x east, y north, z up, metres; wall plane y = 0, facing -y",
+                SceneLayout::Wall | SceneLayout::Facade => {
+                    "x east, y north, z up, metres; wall plane y = 0, facing -y"
+                }
             },
             env_k: ENV_K,
             background_k: BACKGROUND_K,

@@ -1,5 +1,7 @@
 //! Simple thermal scenes with ground truth for the trainer, written as a COLMAP text model.
-//! Two layouts ([`SceneLayout`]): `Objects` (the default, below) and `Wall` (further below).
+//! Three layouts ([`SceneLayout`]): `Objects` (the default, below), `Wall` (further below) and
+//! `Facade` (a brick facade with fine thermal texture, for a real core's resolution:
+//! [`facade`]).
 //! The same scenes seen by a thermal + RGB rig, RGB at K× the thermal resolution, with
 //! high-resolution truth: [`joint`] (`scene --rgb-scale K`).
 //!
@@ -69,7 +71,8 @@
 //!
 //! ## Modules
 //!
-//! - [`objects`]: the surfaces of both layouts, their materials and the ray tracer;
+//! - [`objects`]: the surfaces of the layouts, their materials and the ray tracer;
+//! - [`facade`]: the `Facade` layout's brick, mortar, pipe, cabinet and labels;
 //! - [`cameras`]: the scene camera and its poses (orbit, wall arc);
 //! - [`render`]: rendering a view (radiance, colour, depth, temperature) and per-pixel truth;
 //! - `sensing` (private): the thermal core and RGB exposure that turn a render into images;
@@ -86,6 +89,7 @@ use std::path::PathBuf;
 use crate::error::SimError;
 
 pub mod cameras;
+pub mod facade;
 mod files;
 pub mod joint;
 mod meta;
@@ -116,6 +120,20 @@ pub enum SceneLayout {
     Objects,
     /// A wall with an emissivity edge and an in-wall heating pipe, filling every view.
     Wall,
+    /// A brick facade with texture finer than the primitives (joints, labels, a pipe's
+    /// edges), seen from the wall's arc ([`facade`]).
+    Facade,
+}
+
+impl SceneLayout {
+    /// The layout's name, as `scene --layout` takes it and `scene.json` records it.
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneLayout::Objects => "objects",
+            SceneLayout::Wall => "wall",
+            SceneLayout::Facade => "facade",
+        }
+    }
 }
 
 /// Parameters of a scene dataset.

@@ -42,6 +42,13 @@ pub enum SceneObject {
     Radiator,
     /// The wall of the `Wall` layout: painted (x < [`WALL_EDGE_X`]) or bare metal.
     Wall,
+    /// The `Facade` layout ([`super::facade`]): a brick, a mortar joint, the surface-mounted
+    /// pipe, the cabinet's paint and its foil labels.
+    Brick,
+    Mortar,
+    SurfacePipe,
+    Cabinet,
+    Label,
 }
 
 /// Pipe extent along x, metres.
@@ -154,6 +161,7 @@ pub fn trace(layout: SceneLayout, o: DVec3, d: DVec3) -> Option<SurfaceHit> {
     match layout {
         SceneLayout::Objects => trace_objects(o, d),
         SceneLayout::Wall => trace_wall(o, d),
+        SceneLayout::Facade => super::facade::trace_facade(o, d),
     }
 }
 
@@ -318,8 +326,8 @@ fn albedo_to_srgb8(a: [f64; 3]) -> [u8; 3] {
 }
 
 /// `count` points sampled on the surfaces of `layout` (Objects: the objects and the near
-/// ground; Wall: the part of the wall the cameras see, x ∈ ±1.5 m, z ∈ [0.1, 1.8] m), with
-/// colour.
+/// ground; Wall and Facade: the part of the wall the cameras see, x ∈ ±1.5 m,
+/// z ∈ [0.1, 1.8] m), with colour.
 pub fn sample_surface_points(
     layout: SceneLayout,
     count: usize,
@@ -327,6 +335,14 @@ pub fn sample_surface_points(
 ) -> Vec<(DVec3, [u8; 3])> {
     match layout {
         SceneLayout::Objects => sample_object_points(count, rng),
+        SceneLayout::Facade => (0..count)
+            .map(|_| {
+                let x = rng.random_range(-1.5..1.5);
+                let z = rng.random_range(0.1..1.8);
+                let albedo = super::facade::facade_material(x, z).2;
+                (DVec3::new(x, WALL_Y, z), albedo_to_srgb8(albedo))
+            })
+            .collect(),
         SceneLayout::Wall => (0..count)
             .map(|_| {
                 let x = rng.random_range(-1.5..1.5);

@@ -200,7 +200,7 @@ pub fn surface_cell(p: [f32; 3]) -> [i32; 3] {
 pub fn scoring_region(layout: SceneLayout) -> ([f64; 3], [f64; 3]) {
     match layout {
         SceneLayout::Objects => ([-1.0, -1.0, -0.05], [1.0, 1.0, 1.0]),
-        SceneLayout::Wall => ([-1.5, -1.5, 0.1], [1.5, 0.05, 1.8]),
+        SceneLayout::Wall | SceneLayout::Facade => ([-1.5, -1.5, 0.1], [1.5, 0.05, 1.8]),
     }
 }
 

@@ -43,7 +43,7 @@ fn read_surface_ply(path: &Path) -> Vec<SurfacePoint> {
         .parse()
         .expect("a vertex count");
     assert!(
-        [SceneLayout::Objects, SceneLayout::Wall]
+        [SceneLayout::Objects, SceneLayout::Wall, SceneLayout::Facade]
             .iter()
             .any(|&l| header == surface_ply_header(n, l)),
         "{}: expected exactly the documented header of a layout",
@@ -223,6 +223,39 @@ fn surface_camera_is_the_thermal_camera_at_twice_the_resolution() {
         (2.0 * cam.intrinsics.cx + 0.5, 2.0 * cam.intrinsics.cy + 0.5),
         "c' = 2c + 1/2"
     );
+}
+
+/// The facade's truth is its fine texture: points on joints, bricks, the pipe, the cabinet
+/// and its labels, each at its own apparent temperature.
+#[test]
+fn facade_scene_writes_its_texture_as_truth() {
+    let tmp = tempfile::tempdir().unwrap();
+    let c = cfg(tmp.path().join("facade"));
+    write_scene_set_with(
+        &c,
+        SceneLayout::Facade,
+        ResponseEffects::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let points = read_surface_ply(&c.out_dir.join(SURFACE_TRUTH_FILE));
+    let cam = scene_camera(W, H);
+    let poses = poses(SceneLayout::Facade, VIEWS);
+    check_common("facade", &points, SceneLayout::Facade, &cam, &poses);
+    let mut seen = std::collections::BTreeSet::new();
+    for q in &points {
+        let p = v(q.position_m);
+        seen.insert(format!(
+            "{:?}",
+            crate::scene::facade::facade_material(p.x, p.z).3
+        ));
+    }
+    for object in ["Brick", "Mortar", "SurfacePipe", "Cabinet"] {
+        assert!(
+            seen.contains(object),
+            "the facade's truth holds {object} points (seen: {seen:?})"
+        );
+    }
 }
 
 #[test]
