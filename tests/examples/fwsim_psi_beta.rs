@@ -219,7 +219,7 @@ fn primitives_by_place(run: &std::path::Path, layout: SceneLayout) {
         SceneLayout::Wall | SceneLayout::Facade => place_on_wall,
     };
     let ck = checkpoint::load(&run.join("checkpoint.json")).unwrap();
-    let prims: Primitives<f32> = ck.primitives.into();
+    let prims: Primitives<f32> = ck.primitives;
     let mut by: std::collections::BTreeMap<&str, (Vec<f64>, Vec<f64>)> = Default::default();
     for i in 0..prims.len() {
         let e = by.entry(place(prims.mean(i).map(f64::from))).or_default();

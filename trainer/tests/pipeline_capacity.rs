@@ -371,7 +371,7 @@ fn dropped_band_slots_never_regrow_and_the_mask_is_saved() {
     // The mask survives a checkpoint and the PLY.
     t.save_checkpoint().unwrap();
     let ck = s3tir_trainer::checkpoint::load(&run.join("checkpoint.json")).unwrap();
-    let back: Primitives<f32> = ck.primitives.into();
+    let back: Primitives<f32> = ck.primitives;
     assert_eq!(
         back.band_count, t.prims.band_count,
         "band_count through the checkpoint"

@@ -214,11 +214,7 @@ fn checkpoints_round_trip_and_replace_atomically() {
     checkpoint::save(&path, &ck2).unwrap();
     let back = checkpoint::load(&path).unwrap();
     assert_eq!(back, ck2, "checkpoint round trip");
-    assert_eq!(
-        Primitives::from(back.primitives),
-        p,
-        "f32 parameters bit-exact"
-    );
+    assert_eq!(back.primitives, p, "f32 parameters bit-exact");
     // The header and the arrays of the second save (the first's slot was removed).
     let mut names: Vec<String> = std::fs::read_dir(tmp.path())
         .unwrap()

@@ -513,7 +513,6 @@ pub fn mesh_run<B: Backend>(
         crate::checkpoint::load(&run_dir.join(files::CHECKPOINT))
             .map_err(TrainError::from)?
             .primitives
-            .into()
     };
     let cameras: Vec<PinholeCamera> = data.train.iter().map(|&i| data.views[i].camera).collect();
     let backend_name = backend.name().to_owned();

@@ -268,10 +268,10 @@ impl<B: Backend> Trainer<B> {
         backend.check_run(&run_shape(&cfg, &data))?;
         let ck = checkpoint::load(&run_dir.join(files::CHECKPOINT))?;
         let mut t = Self::bare(cfg, data, backend, run_dir);
-        t.prims = ck.primitives.into();
+        t.prims = ck.primitives;
         t.adam = AdamState {
-            m: ck.adam_m.into(),
-            v: ck.adam_v.into(),
+            m: ck.adam_m,
+            v: ck.adam_v,
             step: ck.adam_step,
             group_steps: ck.adam_group_steps,
         };

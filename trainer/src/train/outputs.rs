@@ -289,9 +289,7 @@ pub fn evaluate_run_with<B: Backend>(
     let prims = if ply.exists() {
         crate::ply::read_ply(&ply)?
     } else {
-        checkpoint::load(&run_dir.join(files::CHECKPOINT))?
-            .primitives
-            .into()
+        checkpoint::load(&run_dir.join(files::CHECKPOINT))?.primitives
     };
     let mode = cfg.mode.to_string();
     let mut t = Trainer::bare(cfg, data, backend, run_dir);
