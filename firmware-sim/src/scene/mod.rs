@@ -72,7 +72,8 @@
 //! ## Modules
 //!
 //! - [`objects`]: the surfaces of the layouts, their materials and the ray tracer;
-//! - [`facade`]: the `Facade` layout's brick, mortar, pipe, cabinet and labels;
+//!   [`facade`] (`objects/facade.rs`): the `Facade` layout's brick, mortar, pipe, cabinet and
+//!   labels;
 //! - [`cameras`]: the scene camera and its poses (orbit, wall arc);
 //! - [`render`]: rendering a view (radiance, colour, depth, temperature) and per-pixel truth;
 //! - `sensing` (private): the thermal core and RGB exposure that turn a render into images;
@@ -89,7 +90,6 @@ use std::path::PathBuf;
 use crate::error::SimError;
 
 pub mod cameras;
-pub mod facade;
 mod files;
 pub mod joint;
 mod meta;
@@ -101,6 +101,7 @@ pub mod truth;
 mod write;
 
 pub use cameras::{look_at, orbit, poses, scene_camera, wall_arc};
+pub use objects::facade;
 pub use objects::{
     BACKGROUND_K, BOX_C, BOX_H, ENV_K, FLOOR_PIPE_PEAK_K, FLOOR_PIPE_SIGMA, FLOOR_PIPE_X, PIPE_R,
     PIPE_X, PIPE_YZ, SceneObject, SurfaceHit, WALL_BASE_K, WALL_EDGE_X, WALL_METAL_EMISSIVITY,

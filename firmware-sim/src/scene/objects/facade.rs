@@ -4,7 +4,7 @@
 //! 640 --height 512`, a Boson's): at the wall arc's 1.6 m a pixel covers about 2.7 mm of wall.
 //!
 //! The wall plane, its extent and the cameras are the `Wall` layout's (y = [`WALL_Y`], facing
-//! −y; [`super::wall_arc`]); every pixel of every view sees facade. On it, back to front:
+//! −y; [`crate::scene::wall_arc`]); every pixel of every view sees facade. On it, back to front:
 //! - **Brick in running bond**: bricks [`BRICK_W`] × [`BRICK_H`] (215 × 65 mm, a metric brick
 //!   face) in [`JOINT`] = 10 mm mortar joints, every second course shifted by half a brick.
 //!   Bricks at [`FACADE_BASE_K`] = 278 K, each warmer or colder by up to ±0.4 K (a
@@ -29,7 +29,7 @@
 
 use glam::DVec3;
 
-use super::objects::{
+use super::{
     SceneObject, SurfaceHit, WALL_BASE_K, WALL_X, WALL_Y, WALL_Z, axis_plane, face, wall_temp_k,
 };
 

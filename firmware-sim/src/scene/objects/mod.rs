@@ -9,6 +9,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::SceneLayout;
 
+pub mod facade;
+
 /// Temperature of the surroundings every surface reflects, kelvin.
 pub const ENV_K: f64 = 290.0;
 /// Apparent temperature of rays that hit nothing, kelvin.
@@ -42,7 +44,7 @@ pub enum SceneObject {
     Radiator,
     /// The wall of the `Wall` layout: painted (x < [`WALL_EDGE_X`]) or bare metal.
     Wall,
-    /// The `Facade` layout ([`super::facade`]): a brick, a mortar joint, the surface-mounted
+    /// The `Facade` layout ([`facade`]): a brick, a mortar joint, the surface-mounted
     /// pipe, the cabinet's paint and its foil labels.
     Brick,
     Mortar,
@@ -161,7 +163,7 @@ pub fn trace(layout: SceneLayout, o: DVec3, d: DVec3) -> Option<SurfaceHit> {
     match layout {
         SceneLayout::Objects => trace_objects(o, d),
         SceneLayout::Wall => trace_wall(o, d),
-        SceneLayout::Facade => super::facade::trace_facade(o, d),
+        SceneLayout::Facade => facade::trace_facade(o, d),
     }
 }
 
@@ -339,7 +341,7 @@ pub fn sample_surface_points(
             .map(|_| {
                 let x = rng.random_range(-1.5..1.5);
                 let z = rng.random_range(0.1..1.8);
-                let albedo = super::facade::facade_material(x, z).2;
+                let albedo = facade::facade_material(x, z).2;
                 (DVec3::new(x, WALL_Y, z), albedo_to_srgb8(albedo))
             })
             .collect(),
