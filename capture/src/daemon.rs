@@ -256,6 +256,9 @@ pub fn run_with_events(
     rt.block_on(run_async(cfg, stop, counters, on_event))
 }
 
+/// The recording: the session file opened (the calibration attached), a blocking reader per
+/// source and per serial poller, the writer thread, and the control loop until a stop; then
+/// every task joined and the report made.
 async fn run_async(
     cfg: DaemonConfig,
     stop: Arc<AtomicBool>,
@@ -265,64 +268,28 @@ async fn run_async(
     let started = Instant::now();
     let mut writer = SessionWriter::create(&cfg.out, &cfg.info)?;
     if let Some((name, data)) = &cfg.calibration {
-        let media_type = match name.rsplit('.').next() {
-            Some("yaml" | "yml") => "application/yaml",
-            Some("toml") => "application/toml",
-            Some("json") => "application/json",
-            _ => "application/octet-stream",
-        };
-        writer.attach(name, media_type, data)?;
+        writer.attach(name, attachment_media_type(name), data)?;
     }
-    let (tx, mut rx) = mpsc::channel::<Msg>(cfg.queue_frames.max(2));
-
-    // FFC poller (serial control), when configured.
+    let (tx, rx) = mpsc::channel::<Msg>(cfg.queue_frames.max(2));
     let ffc = Arc::new(AtomicU8::new(FFC_NONE));
     let mut readers = Vec::new();
-    if let Some(mut poll) = cfg.ffc_poll {
-        let (ffc, stop, counters) = (ffc.clone(), stop.clone(), counters.clone());
-        readers.push(tokio::task::spawn_blocking(move || {
-            while !stop.load(Ordering::Relaxed) {
-                match poll() {
-                    Ok(s) => ffc.store(ffc_to_u8(s), Ordering::Relaxed),
-                    Err(e) => {
-                        counters.serial_errors.fetch_add(1, Ordering::Relaxed);
-                        ffc.store(FFC_NONE, Ordering::Relaxed);
-                        tracing::warn!("FFC state poll failed: {}", Chain(&e));
-                    }
-                }
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        }));
+    if let Some(poll) = cfg.ffc_poll {
+        readers.push(spawn_ffc_poller(
+            poll,
+            ffc.clone(),
+            stop.clone(),
+            counters.clone(),
+        ));
     }
-    // Trigger pulses (rig controller), when configured. Pulses are never dropped: the poller
-    // waits for room in the queue (they are few and pairing needs every one).
-    let since0 = cfg.rough_clock.map_or(0, |(_, c)| c);
-    if let Some(mut poll) = cfg.trigger_poll {
-        let (tx, stop, counters) = (tx.clone(), stop.clone(), counters.clone());
-        readers.push(tokio::task::spawn_blocking(move || {
-            let mut since = since0;
-            while !stop.load(Ordering::Relaxed) {
-                match poll(since) {
-                    Ok(events) => {
-                        let full = events.len() >= MAX_TRIGGER_EVENTS;
-                        if let Some(last) = events.last() {
-                            since = last.count;
-                            if tx.blocking_send(Msg::Triggers(events)).is_err() {
-                                return;
-                            }
-                        }
-                        if full {
-                            continue;
-                        }
-                    }
-                    Err(e) => {
-                        counters.serial_errors.fetch_add(1, Ordering::Relaxed);
-                        tracing::warn!("trigger poll failed: {}", Chain(&e));
-                    }
-                }
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        }));
+    if let Some(poll) = cfg.trigger_poll {
+        let since = cfg.rough_clock.map_or(0, |(_, c)| c);
+        readers.push(spawn_trigger_poller(
+            poll,
+            since,
+            tx.clone(),
+            stop.clone(),
+            counters.clone(),
+        ));
     }
     // Readers: one blocking thread per device.
     let stall_timeout = cfg.stall_timeout;
@@ -335,116 +302,19 @@ async fn run_async(
             read_loop(spec, tx, stop, counters, ffc, stall_timeout);
         }));
     }
-
     // Writer: the pipeline and the file, on a blocking thread.
     let wcounters = counters.clone();
-    let pairing = cfg.pairing;
-    let slow = cfg.slow_disk;
-    let rough_clock = cfg.rough_clock;
-    let writer_task =
-        tokio::task::spawn_blocking(move || -> Result<(Pipeline, u64), CaptureError> {
-            let mut pipe = Pipeline::new(pairing);
-            if let Some((rough, _)) = rough_clock {
-                for r in pipe.set_rough_clock(rough) {
-                    writer.write(&r)?;
-                }
-            }
-            let mut last_status = Instant::now();
-            let mut warned = 0u32;
-            while let Some(msg) = rx.blocking_recv() {
-                match msg {
-                    Msg::Frame {
-                        device,
-                        raw,
-                        wall_unix_ns,
-                    } => {
-                        let k = idx(raw.stream);
-                        match pipe.push(&device, &raw, wall_unix_ns) {
-                            Ok(recs) => {
-                                for r in &recs {
-                                    writer.write(r)?;
-                                }
-                                wcounters.frames[k].fetch_add(1, Ordering::Relaxed);
-                                wcounters
-                                    .bytes
-                                    .store(writer.bytes_written(), Ordering::Relaxed);
-                            }
-                            Err(e) => {
-                                wcounters.rejected[k].fetch_add(1, Ordering::Relaxed);
-                                if warned < 20 {
-                                    warned += 1;
-                                    tracing::warn!("rejected buffer: {}", Chain(&e));
-                                }
-                            }
-                        }
-                        if let Some(d) = slow {
-                            std::thread::sleep(d);
-                        }
-                    }
-                    Msg::Triggers(events) => {
-                        for e in events {
-                            let t = TriggerRecord {
-                                count: e.count,
-                                controller_ns: e.time_ns,
-                            };
-                            for r in pipe.push_trigger(t) {
-                                writer.write(&r)?;
-                            }
-                        }
-                    }
-                    Msg::Tick => writer.tick()?,
-                }
-                if last_status.elapsed() >= Duration::from_secs(1) {
-                    last_status = Instant::now();
-                    writer.write(&SessionRecord::Status(wcounters.status()))?;
-                }
-            }
-            for r in pipe.finish() {
-                writer.write(&r)?;
-            }
-            writer.write(&SessionRecord::Status(wcounters.status()))?;
-            let bytes = writer.bytes_written();
-            writer.finish()?;
-            Ok((pipe, bytes))
-        });
-
-    // Control: ticks, status events, duration, the stop flag.
-    let mut tick = tokio::time::interval(Duration::from_millis(100));
-    let mut last_frames = [0u64; 2];
-    let mut last_status = Instant::now();
-    let why = loop {
-        tick.tick().await;
-        if stop.load(Ordering::Relaxed) {
-            break StopReason::Requested;
-        }
-        if cfg.duration.is_some_and(|d| started.elapsed() >= d) {
-            break StopReason::Duration;
-        }
-        // A full queue delays the tick, never drops it. A closed queue means the writer
-        // stopped (disk full, I/O error): stop and report its error.
-        if tx.send(Msg::Tick).await.is_err() {
-            tracing::error!("the session writer stopped; ending the recording");
-            break StopReason::WriterStopped;
-        }
-        if last_status.elapsed() >= Duration::from_secs(1) {
-            let dt = last_status.elapsed().as_secs_f64();
-            last_status = Instant::now();
-            let f = [
-                counters.frames[0].load(Ordering::Relaxed),
-                counters.frames[1].load(Ordering::Relaxed),
-            ];
-            let hz = |k: usize| (f[k] - last_frames[k]) as f64 / dt;
-            let (thermal_hz, rgb_hz) = (hz(0), hz(1));
-            last_frames = f;
-            on_event(DaemonEvent::Status {
-                elapsed: started.elapsed(),
-                thermal_hz,
-                rgb_hz,
-                status: counters.status(),
-                bytes_written: counters.bytes.load(Ordering::Relaxed),
-            });
-        }
+    let (pairing, slow, rough_clock) = (cfg.pairing, cfg.slow_disk, cfg.rough_clock);
+    let writer_task = tokio::task::spawn_blocking(move || {
+        write_loop(writer, rx, pairing, slow, rough_clock, &wcounters)
+    });
+    let control = Control {
+        started,
+        duration: cfg.duration,
+        stop: &stop,
+        counters: &counters,
     };
+    let why = control.run(&tx, &mut on_event).await;
     on_event(DaemonEvent::Stopping { why });
     stop.store(true, Ordering::Relaxed);
     for r in readers {
@@ -465,6 +335,207 @@ async fn run_async(
         bytes_written,
         elapsed_s: started.elapsed().as_secs_f64(),
     })
+}
+
+/// The media type of an attachment, by its file name's extension.
+fn attachment_media_type(name: &str) -> &'static str {
+    match name.rsplit('.').next() {
+        Some("yaml" | "yml") => "application/yaml",
+        Some("toml") => "application/toml",
+        Some("json") => "application/json",
+        _ => "application/octet-stream",
+    }
+}
+
+/// The FFC-state poller (serial control), every 100 ms until the stop: a failed poll is
+/// counted, warned about, and leaves the state unknown.
+fn spawn_ffc_poller(
+    mut poll: FfcPoller,
+    ffc: Arc<AtomicU8>,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::task::spawn_blocking(move || {
+        while !stop.load(Ordering::Relaxed) {
+            match poll() {
+                Ok(s) => ffc.store(ffc_to_u8(s), Ordering::Relaxed),
+                Err(e) => {
+                    counters.serial_errors.fetch_add(1, Ordering::Relaxed);
+                    ffc.store(FFC_NONE, Ordering::Relaxed);
+                    tracing::warn!("FFC state poll failed: {}", Chain(&e));
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    })
+}
+
+/// Trigger pulses (rig controller) from count `since` on, every 100 ms (at once again while a
+/// poll comes back full). Pulses are never dropped: the poller waits for room in the queue
+/// (they are few and pairing needs every one).
+fn spawn_trigger_poller(
+    mut poll: TriggerPoller,
+    since: u32,
+    tx: mpsc::Sender<Msg>,
+    stop: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::task::spawn_blocking(move || {
+        let mut since = since;
+        while !stop.load(Ordering::Relaxed) {
+            match poll(since) {
+                Ok(events) => {
+                    let full = events.len() >= MAX_TRIGGER_EVENTS;
+                    if let Some(last) = events.last() {
+                        since = last.count;
+                        if tx.blocking_send(Msg::Triggers(events)).is_err() {
+                            return;
+                        }
+                    }
+                    if full {
+                        continue;
+                    }
+                }
+                Err(e) => {
+                    counters.serial_errors.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!("trigger poll failed: {}", Chain(&e));
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    })
+}
+
+/// The writer thread: every message through the pipeline into the session file, a status
+/// record each second, the pipeline's last records at the end; returns the pipeline (its
+/// figures) and the bytes written.
+fn write_loop(
+    mut writer: SessionWriter,
+    mut rx: mpsc::Receiver<Msg>,
+    pairing: PairingMode,
+    slow: Option<Duration>,
+    rough_clock: Option<(ClockMap, u32)>,
+    wcounters: &Counters,
+) -> Result<(Pipeline, u64), CaptureError> {
+    let mut pipe = Pipeline::new(pairing);
+    if let Some((rough, _)) = rough_clock {
+        for r in pipe.set_rough_clock(rough) {
+            writer.write(&r)?;
+        }
+    }
+    let mut last_status = Instant::now();
+    let mut warned = 0u32;
+    while let Some(msg) = rx.blocking_recv() {
+        match msg {
+            Msg::Frame {
+                device,
+                raw,
+                wall_unix_ns,
+            } => {
+                let k = idx(raw.stream);
+                match pipe.push(&device, &raw, wall_unix_ns) {
+                    Ok(recs) => {
+                        for r in &recs {
+                            writer.write(r)?;
+                        }
+                        wcounters.frames[k].fetch_add(1, Ordering::Relaxed);
+                        wcounters
+                            .bytes
+                            .store(writer.bytes_written(), Ordering::Relaxed);
+                    }
+                    Err(e) => {
+                        wcounters.rejected[k].fetch_add(1, Ordering::Relaxed);
+                        if warned < 20 {
+                            warned += 1;
+                            tracing::warn!("rejected buffer: {}", Chain(&e));
+                        }
+                    }
+                }
+                if let Some(d) = slow {
+                    std::thread::sleep(d);
+                }
+            }
+            Msg::Triggers(events) => {
+                for e in events {
+                    let t = TriggerRecord {
+                        count: e.count,
+                        controller_ns: e.time_ns,
+                    };
+                    for r in pipe.push_trigger(t) {
+                        writer.write(&r)?;
+                    }
+                }
+            }
+            Msg::Tick => writer.tick()?,
+        }
+        if last_status.elapsed() >= Duration::from_secs(1) {
+            last_status = Instant::now();
+            writer.write(&SessionRecord::Status(wcounters.status()))?;
+        }
+    }
+    for r in pipe.finish() {
+        writer.write(&r)?;
+    }
+    writer.write(&SessionRecord::Status(wcounters.status()))?;
+    let bytes = writer.bytes_written();
+    writer.finish()?;
+    Ok((pipe, bytes))
+}
+
+/// The control loop's view of the recording.
+struct Control<'a> {
+    started: Instant,
+    duration: Option<Duration>,
+    stop: &'a AtomicBool,
+    counters: &'a Counters,
+}
+
+impl Control<'_> {
+    /// Every 100 ms: a tick to the writer, a status event each second; ends on the stop flag,
+    /// the duration, or a writer that stopped (its error is the report's).
+    async fn run(
+        &self,
+        tx: &mpsc::Sender<Msg>,
+        on_event: &mut impl FnMut(DaemonEvent),
+    ) -> StopReason {
+        let (started, stop, counters) = (self.started, self.stop, self.counters);
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        let mut last_frames = [0u64; 2];
+        let mut last_status = Instant::now();
+        loop {
+            tick.tick().await;
+            if stop.load(Ordering::Relaxed) {
+                break StopReason::Requested;
+            }
+            if self.duration.is_some_and(|d| started.elapsed() >= d) {
+                break StopReason::Duration;
+            }
+            // A full queue delays the tick, never drops it. A closed queue means the writer
+            // stopped (disk full, I/O error): stop and report its error.
+            if tx.send(Msg::Tick).await.is_err() {
+                tracing::error!("the session writer stopped; ending the recording");
+                break StopReason::WriterStopped;
+            }
+            if last_status.elapsed() >= Duration::from_secs(1) {
+                let dt = last_status.elapsed().as_secs_f64();
+                last_status = Instant::now();
+                let f = [
+                    counters.frames[0].load(Ordering::Relaxed),
+                    counters.frames[1].load(Ordering::Relaxed),
+                ];
+                let hz = |k: usize| (f[k] - last_frames[k]) as f64 / dt;
+                let (thermal_hz, rgb_hz) = (hz(0), hz(1));
+                last_frames = f;
+                on_event(DaemonEvent::Status {
+                    elapsed: started.elapsed(),
+                    thermal_hz,
+                    rgb_hz,
+                    status: counters.status(),
+                    bytes_written: counters.bytes.load(Ordering::Relaxed),
+                });
+            }
+        }
+    }
 }
 
 fn read_loop(

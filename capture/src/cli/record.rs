@@ -117,7 +117,9 @@ impl RecordArgs {
     }
 }
 
-/// Runs a recording.
+/// Runs a recording: the sources opened (a V4L2 camera pair or the simulated rig), the Boson
+/// and rig controller serial links when given, then the daemon until the duration ends, the
+/// walk ends or a signal stops it; a summary at the end.
 pub fn run(a: RecordArgs) -> Result<()> {
     let Some(device) = a.device.clone() else {
         bail!(
@@ -137,156 +139,27 @@ pub fn run(a: RecordArgs) -> Result<()> {
         rgb_device: a.rgb.clone(),
         ..SessionInfo::default()
     };
-    let mut pairing = PairingMode::Nearest {
-        tolerance_ns: (a.pair_tolerance_ms * 1e6).round() as u64,
-    };
     let counters = Arc::new(Counters::default());
-    let mut sources = Vec::new();
-    let mut _sim_process = None;
-    let units = if a.tlinear {
-        ThermalUnits::CentiKelvin
-    } else {
-        ThermalUnits::RawCounts
-    };
-    if a.walk.is_some() && SimSpec::parse(&device).is_none() {
-        bail!("--walk moves the simulated rig: it needs --device sim[:PROFILE], not {device}");
-    }
-    let walking = a.walk.is_some();
-    if let Some(spec) = SimSpec::parse(&device) {
-        let mut spec = spec?;
-        if let Some(kind) = &a.walk {
-            let stem = out
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "walk".into());
-            spec.walk = Some(sim_backend::SimWalk {
-                kind: kind.clone(),
-                duration_s: a.duration_s.unwrap_or(20.0),
-                truth_dir: out.with_file_name(format!("{stem}-truth")),
-                tags: a.walk_tags.clone(),
-                board: a.walk_board,
-            });
-        }
-        let socket = a
-            .sim_socket
-            .clone()
-            .map_or_else(sim_backend::default_socket, Ok)?;
-        _sim_process = sim_backend::ensure_sim_rig(&spec, a.rgb.is_some(), &socket)?;
-        info.notes = format!("simulated rig, profile {}", spec.profile);
-        sources.push(SourceSpec {
-            name: format!("sim:{}", socket.display()),
-            open: Box::new(move || {
-                SimSource::connect(&socket).map(|s| Box::new(s) as Box<dyn FrameSource>)
-            }),
-        });
-        if let Some(r) = &a.rgb
-            && r != "sim"
-        {
-            bail!("--device sim takes its RGB camera from the simulated rig: use --rgb sim");
-        }
-    } else {
-        sources.push(v4l2_source(&device, Role::Thermal, None, units)?);
-        if let Some(r) = &a.rgb {
-            let max = parse_size(&a.rgb_max_size)?;
-            match s3tir_capture::backend::nokhwa_backend::parse_spec(r) {
-                Some(index) => sources.push(nokhwa_source(index, max)?),
-                None => sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?),
-            }
-        }
-    }
+    let (sources, sim_process) = open_sources(&a, &device, &out, &mut info)?;
     // A simulated rig started here serves the Boson FSLP firmware on a pty: use it.
     let serial_port = a.serial.clone().or_else(|| {
-        _sim_process
+        sim_process
             .as_ref()
             .and_then(|p: &sim_backend::SimRigProcess| p.announced("fslp_pty"))
     });
-    let mut ffc_poll: Option<daemon::FfcPoller> = None;
-    if let Some(port) = &serial_port {
-        let opened = serial::open_port(port).and_then(|p| {
-            let mut c = serial::BosonClient::new(p, port);
-            let sn = c.serial_number()?;
-            let fpa = c.fpa_temp_ck()?;
-            Ok((c, sn, fpa))
-        });
-        match opened {
-            Ok((mut c, sn, fpa)) => {
-                tracing::info!("Boson serial {sn}, FPA {:.2} K", fpa as f64 / 100.0);
-                info.thermal_serial = Some(sn.to_string());
-                ffc_poll = Some(Box::new(move || {
-                    use s3tir_capture::frame::FfcState;
-                    use s3tir_capture::wire::fslp::FfcStateCode;
-                    Ok(match c.ffc_state()? {
-                        FfcStateCode::InProgress => FfcState::InProgress,
-                        FfcStateCode::Imminent => FfcState::Imminent,
-                        FfcStateCode::NeverCommanded | FfcStateCode::Complete => FfcState::Idle,
-                    })
-                }));
-            }
-            Err(e) => {
-                counters
-                    .serial_errors
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                tracing::warn!("Boson serial control unavailable: {}", Chain(&e));
-            }
+    let ffc_poll = serial_port
+        .as_deref()
+        .and_then(|port| boson_control(port, &counters, &mut info));
+    let rig = rig_control(&a, sim_process.as_ref())?;
+    let pairing = if rig.trigger_poll.is_some() {
+        PairingMode::TriggerCounter
+    } else {
+        PairingMode::Nearest {
+            tolerance_ns: (a.pair_tolerance_ms * 1e6).round() as u64,
         }
-    }
-    let mut rig = None;
-    let mut trigger_poll: Option<daemon::TriggerPoller> = None;
-    let mut rough_clock = None;
-    if let Some(port) = &a.rig_serial {
-        let port = if port == "sim" {
-            _sim_process
-                .as_ref()
-                .and_then(|p| p.announced("rig_pty"))
-                .context(
-                    "--rig-serial sim needs a simulated rig started by this program (--device sim)",
-                )?
-        } else {
-            port.clone()
-        };
-        let p = serial::open_port(&port)?;
-        let c = Arc::new(std::sync::Mutex::new(serial::RigClient::new(p, &port)));
-        if let Some(hz) = a.trigger_rate_hz {
-            // Rough controller → camera clock map: the controller's clock at the midpoint of
-            // one status exchange (error ≤ half the round trip).
-            let t0 = s3tir_capture::backend::stamp::monotonic_now_ns();
-            let st = lock(&c).status()?;
-            let t1 = s3tir_capture::backend::stamp::monotonic_now_ns();
-            let rough = s3tir_capture::session::clock_sync::ClockMap::rough(
-                st.uptime_ns,
-                t0 + (t1 - t0) / 2,
-            );
-            tracing::info!(
-                "rig controller clock {} ns at camera clock {} ns (status round trip {:.2} ms)",
-                st.uptime_ns,
-                rough.mono_anchor_ns,
-                (t1 - t0) as f64 / 1e6
-            );
-            rough_clock = Some((rough, st.trigger_count));
-            lock(&c).start_trigger((hz * 1000.0).round() as u32)?;
-            pairing = PairingMode::TriggerCounter;
-            let poller = c.clone();
-            trigger_poll = Some(Box::new(move |since| {
-                lock(&poller).triggers(since).map(|(_, events)| events)
-            }));
-        }
-        rig = Some(c);
-    }
-    info.pairing = serde_json::to_string(&pairing)?;
-    let calibration = match &a.calibration {
-        Some(p) => Some((
-            // The name carries the file's extension, so readers know its format
-            // (calibration.yaml from s3tir-calib).
-            format!(
-                "calibration{}",
-                p.extension()
-                    .map(|e| format!(".{}", e.to_string_lossy()))
-                    .unwrap_or_default()
-            ),
-            std::fs::read(p).with_context(|| format!("read {}", p.display()))?,
-        )),
-        None => None,
     };
+    info.pairing = serde_json::to_string(&pairing)?;
+    let walking = a.walk.is_some();
     let cfg = DaemonConfig {
         sources,
         out: out.clone(),
@@ -299,15 +172,15 @@ pub fn run(a: RecordArgs) -> Result<()> {
             a.duration_s.map(Duration::from_secs_f64)
         },
         queue_frames: a.queue_frames,
-        calibration,
+        calibration: attached_calibration(&a)?,
         slow_disk: None,
         stall_timeout: Duration::from_secs_f64(a.stall_timeout_s),
         ffc_poll,
-        trigger_poll,
-        rough_clock,
+        trigger_poll: rig.trigger_poll,
+        rough_clock: rig.rough_clock,
     };
     let stop = Arc::new(AtomicBool::new(false));
-    if walking && let Some(p) = &_sim_process {
+    if walking && let Some(p) = &sim_process {
         live::watch_walk_end(p.announcements(), counters.clone(), stop.clone());
     }
     live::stop_on_signals(&stop)?;
@@ -315,13 +188,190 @@ pub fn run(a: RecordArgs) -> Result<()> {
     let report = daemon::run_with_events(cfg, stop, counters, |e| status_line.show(&e));
     status_line.finish();
     let report = report?;
-    if let Some(c) = rig
+    if let Some(c) = rig.client
         && a.trigger_rate_hz.is_some()
         && let Err(e) = lock(&c).stop_trigger()
     {
         tracing::warn!("could not stop the trigger: {}", Chain(&e));
     }
-    if a.json {
+    print_summary(a.json, &out, &report)
+}
+
+/// The frame sources of `device` (and `--rgb`): the simulated rig (started here when none runs;
+/// returned so that it lives as long as the recording) or V4L2 / nokhwa cameras.
+fn open_sources(
+    a: &RecordArgs,
+    device: &str,
+    out: &std::path::Path,
+    info: &mut SessionInfo,
+) -> Result<(Vec<SourceSpec>, Option<sim_backend::SimRigProcess>)> {
+    let units = if a.tlinear {
+        ThermalUnits::CentiKelvin
+    } else {
+        ThermalUnits::RawCounts
+    };
+    if a.walk.is_some() && SimSpec::parse(device).is_none() {
+        bail!("--walk moves the simulated rig: it needs --device sim[:PROFILE], not {device}");
+    }
+    let mut sources = Vec::new();
+    let Some(spec) = SimSpec::parse(device) else {
+        sources.push(v4l2_source(device, Role::Thermal, None, units)?);
+        if let Some(r) = &a.rgb {
+            let max = parse_size(&a.rgb_max_size)?;
+            match s3tir_capture::backend::nokhwa_backend::parse_spec(r) {
+                Some(index) => sources.push(nokhwa_source(index, max)?),
+                None => sources.push(v4l2_source(r, Role::Rgb, Some(max), units)?),
+            }
+        }
+        return Ok((sources, None));
+    };
+    let mut spec = spec?;
+    if let Some(kind) = &a.walk {
+        let stem = out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "walk".into());
+        spec.walk = Some(sim_backend::SimWalk {
+            kind: kind.clone(),
+            duration_s: a.duration_s.unwrap_or(20.0),
+            truth_dir: out.with_file_name(format!("{stem}-truth")),
+            tags: a.walk_tags.clone(),
+            board: a.walk_board,
+        });
+    }
+    let socket = a
+        .sim_socket
+        .clone()
+        .map_or_else(sim_backend::default_socket, Ok)?;
+    let sim_process = sim_backend::ensure_sim_rig(&spec, a.rgb.is_some(), &socket)?;
+    info.notes = format!("simulated rig, profile {}", spec.profile);
+    sources.push(SourceSpec {
+        name: format!("sim:{}", socket.display()),
+        open: Box::new(move || {
+            SimSource::connect(&socket).map(|s| Box::new(s) as Box<dyn FrameSource>)
+        }),
+    });
+    if let Some(r) = &a.rgb
+        && r != "sim"
+    {
+        bail!("--device sim takes its RGB camera from the simulated rig: use --rgb sim");
+    }
+    Ok((sources, sim_process))
+}
+
+/// The Boson's FSLP link on `port`: its serial number and FPA temperature into the session
+/// metadata, and the FFC-state poller. A link that does not answer is counted and warned
+/// about; the recording goes on without it.
+fn boson_control(
+    port: &str,
+    counters: &Counters,
+    info: &mut SessionInfo,
+) -> Option<daemon::FfcPoller> {
+    let opened = serial::open_port(port).and_then(|p| {
+        let mut c = serial::BosonClient::new(p, port);
+        let sn = c.serial_number()?;
+        let fpa = c.fpa_temp_ck()?;
+        Ok((c, sn, fpa))
+    });
+    match opened {
+        Ok((mut c, sn, fpa)) => {
+            tracing::info!("Boson serial {sn}, FPA {:.2} K", fpa as f64 / 100.0);
+            info.thermal_serial = Some(sn.to_string());
+            Some(Box::new(move || {
+                use s3tir_capture::frame::FfcState;
+                use s3tir_capture::wire::fslp::FfcStateCode;
+                Ok(match c.ffc_state()? {
+                    FfcStateCode::InProgress => FfcState::InProgress,
+                    FfcStateCode::Imminent => FfcState::Imminent,
+                    FfcStateCode::NeverCommanded | FfcStateCode::Complete => FfcState::Idle,
+                })
+            }))
+        }
+        Err(e) => {
+            counters
+                .serial_errors
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            tracing::warn!("Boson serial control unavailable: {}", Chain(&e));
+            None
+        }
+    }
+}
+
+/// The rig controller, when `--rig-serial` names one: with `--trigger-rate-hz` it triggers both
+/// cameras, and frames pair by trigger counter.
+struct RigControl {
+    client: Option<Arc<std::sync::Mutex<serial::RigClient<Box<dyn serialport::SerialPort>>>>>,
+    trigger_poll: Option<daemon::TriggerPoller>,
+    rough_clock: Option<(s3tir_capture::session::clock_sync::ClockMap, u32)>,
+}
+
+/// Opens the rig controller (`sim`: the simulated rig's) and starts its trigger when asked,
+/// with a rough controller → camera clock map from one status exchange.
+fn rig_control(
+    a: &RecordArgs,
+    sim_process: Option<&sim_backend::SimRigProcess>,
+) -> Result<RigControl> {
+    let mut rig = RigControl {
+        client: None,
+        trigger_poll: None,
+        rough_clock: None,
+    };
+    let Some(port) = &a.rig_serial else {
+        return Ok(rig);
+    };
+    let port = if port == "sim" {
+        sim_process.and_then(|p| p.announced("rig_pty")).context(
+            "--rig-serial sim needs a simulated rig started by this program (--device sim)",
+        )?
+    } else {
+        port.clone()
+    };
+    let p = serial::open_port(&port)?;
+    let c = Arc::new(std::sync::Mutex::new(serial::RigClient::new(p, &port)));
+    if let Some(hz) = a.trigger_rate_hz {
+        // Rough controller → camera clock map: the controller's clock at the midpoint of
+        // one status exchange (error ≤ half the round trip).
+        let t0 = s3tir_capture::backend::stamp::monotonic_now_ns();
+        let st = lock(&c).status()?;
+        let t1 = s3tir_capture::backend::stamp::monotonic_now_ns();
+        let rough =
+            s3tir_capture::session::clock_sync::ClockMap::rough(st.uptime_ns, t0 + (t1 - t0) / 2);
+        tracing::info!(
+            "rig controller clock {} ns at camera clock {} ns (status round trip {:.2} ms)",
+            st.uptime_ns,
+            rough.mono_anchor_ns,
+            (t1 - t0) as f64 / 1e6
+        );
+        rig.rough_clock = Some((rough, st.trigger_count));
+        lock(&c).start_trigger((hz * 1000.0).round() as u32)?;
+        let poller = c.clone();
+        rig.trigger_poll = Some(Box::new(move |since| {
+            lock(&poller).triggers(since).map(|(_, events)| events)
+        }));
+    }
+    rig.client = Some(c);
+    Ok(rig)
+}
+
+/// `--calibration FILE` as the session's attachment: its name keeps the file's extension, so
+/// readers know its format (calibration.yaml from s3tir-calib).
+fn attached_calibration(a: &RecordArgs) -> Result<Option<(String, Vec<u8>)>> {
+    let Some(p) = &a.calibration else {
+        return Ok(None);
+    };
+    let name = format!(
+        "calibration{}",
+        p.extension()
+            .map(|e| format!(".{}", e.to_string_lossy()))
+            .unwrap_or_default()
+    );
+    let bytes = std::fs::read(p).with_context(|| format!("read {}", p.display()))?;
+    Ok(Some((name, bytes)))
+}
+
+/// What was recorded: the `--json` object on stdout, or summary lines on stderr.
+fn print_summary(json: bool, out: &std::path::Path, report: &daemon::DaemonReport) -> Result<()> {
+    if json {
         #[derive(serde::Serialize)]
         struct RecordSummary<'a> {
             session: &'a std::path::Path,
@@ -329,8 +379,8 @@ pub fn run(a: RecordArgs) -> Result<()> {
             report: &'a daemon::DaemonReport,
         }
         let summary = RecordSummary {
-            session: &out,
-            report: &report,
+            session: out,
+            report,
         };
         println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(());
