@@ -17,8 +17,8 @@
 //! `eval --truth` reproduces the table's figures from the files.
 //!
 //! The ablation also meshes each variant (`s3tir-train mesh`'s pipeline, through the same
-//! cameras) and scores the mesh against the scene's truth surface; this test only checks the
-//! scores are there and sane.
+//! cameras) and scores the mesh against the scene's truth surface; this test holds the scores
+//! within the spread measured over two seeds (no ordering between variants).
 //!
 //! Does NOT prove: anything on real data (no real joint RGB + thermal set exists in
 //! ../shared/data), that the thermal gradient alignment loss helps (the table reports it;
@@ -142,13 +142,16 @@ fn joint_rgb_thermal_beats_thermal_only_at_the_rgb_resolution_and_on_depth() {
     assert_eq!(rows.len(), 4, "four variants in ablation.json");
     // The scene has a truth surface: every variant is meshed and scored (the mesh columns of
     // the ablation). No ordering is asserted: at this size the variants' meshes differ by less
-    // than their run-to-run spread.
+    // than their run-to-run spread. The bounds are the measured spread widened by that spread
+    // once more: this ablation (these settings, CPU backend) with --seed 1 and --seed 2, all
+    // four variants, gave Chamfer 0.030–0.040 m, F-score 0.35–0.47 and vertex MAE 3.15–4.01 K
+    // (2026-11-29).
     for r in &rows {
         let m = &r["mesh"];
         assert!(
-            f(m, &["chamfer_m"]) < 0.1 && f(m, &["f_score"]) > 0.2 && f(m, &["kelvin_mae"]) < 6.0,
-            "{}'s mesh should be scored against the truth surface (Chamfer < 10 cm, F > 0.2, \
-             vertex MAE < 6 K), got {m}",
+            f(m, &["chamfer_m"]) < 0.05 && f(m, &["f_score"]) > 0.25 && f(m, &["kelvin_mae"]) < 5.0,
+            "{}'s mesh should match the truth surface as measured (Chamfer < 5 cm, F > 0.25, \
+             vertex MAE < 5 K), got {m}",
             r["variant"]
         );
     }
