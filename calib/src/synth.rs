@@ -446,24 +446,102 @@ pub fn write_board_folder(
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let mut poses = random_poses(rig, opts, &mut rng);
     for pose in poses.iter_mut().take(opts.rgb_partly_out) {
-        let s = opts.board.square_m();
-        let centre_b = DVec3::new(
-            f64::from(opts.board.cols() - 1) * s * 0.5,
-            f64::from(opts.board.rows() - 1) * s * 0.5,
-            0.0,
-        );
-        let centre = rig.rgb_from_thermal.compose(pose).transform_point(centre_b);
-        let i = rig.rgb.intrinsics;
-        let edge_px = if centre.x >= 0.0 {
-            f64::from(rig.rgb.width_px) - 1.0
-        } else {
-            0.0
-        };
-        let shift_rgb = DVec3::new((edge_px - i.cx) / i.fx * centre.z - centre.x, 0.0, 0.0);
-        pose.translation_m += rig.rgb_from_thermal.inverse().transform_vector(shift_rgb);
+        move_half_out_of_rgb(pose, rig, &opts.board);
     }
     std::fs::create_dir_all(dir.join("thermal")).map_err(io_err(dir))?;
     std::fs::create_dir_all(dir.join("rgb")).map_err(io_err(dir))?;
+    write_board_toml(dir, opts)?;
+    let b = &opts.board;
+    let thermal_shades = thermal_shades(opts.coated_bright);
+    let n_views = poses.len();
+    for (k, pose) in poses.iter().enumerate() {
+        let thermal_pose = if k + opts.thermal_partly_out >= n_views {
+            half_out_of_thermal(pose, rig, b)
+        } else {
+            *pose
+        };
+        if opts.write_thermal {
+            let values = render(
+                &rig.thermal,
+                Some(&thermal_pose),
+                b,
+                thermal_shades,
+                opts.thermal_noise,
+                &mut rng,
+            );
+            let path = dir.join(format!("thermal/thermal_{k:04}.png"));
+            write_thermal_png(&path, &values, &rig.thermal, opts.thermal_format)?;
+        }
+        if opts.write_rgb {
+            let rgb_pose = rig.rgb_from_thermal.compose(pose);
+            let show = opts.rgb_board_views.is_none_or(|n| k < n);
+            let values = render(
+                &rig.rgb,
+                show.then_some(&rgb_pose),
+                b,
+                RGB_SHADES,
+                opts.rgb_noise,
+                &mut rng,
+            );
+            let path = dir.join(format!("rgb/rgb_{k:04}.png"));
+            write_rgb_png(&path, &values, &rig.rgb)?;
+        }
+    }
+    let truth = SynthTruth {
+        rig: *rig,
+        thermal_from_board: poses,
+    };
+    let truth_path = dir.join("truth.json");
+    let json = serde_json::to_string_pretty(&truth).unwrap_or_default();
+    std::fs::write(&truth_path, json).map_err(io_err(&truth_path))?;
+    Ok(truth)
+}
+
+/// The centre of the board's inner corners, board frame (m).
+fn board_centre(board: &BoardSpec) -> DVec3 {
+    let s = board.square_m();
+    DVec3::new(
+        f64::from(board.cols() - 1) * s * 0.5,
+        f64::from(board.rows() - 1) * s * 0.5,
+        0.0,
+    )
+}
+
+/// Moves the board sideways (the pose itself, thermal frame) until its centre sits on the
+/// nearer left/right edge of the RGB image ([`SynthOptions::rgb_partly_out`]).
+fn move_half_out_of_rgb(pose: &mut Rigid3, rig: &SynthRig, board: &BoardSpec) {
+    let centre = rig
+        .rgb_from_thermal
+        .compose(pose)
+        .transform_point(board_centre(board));
+    let i = rig.rgb.intrinsics;
+    let edge_px = if centre.x >= 0.0 {
+        f64::from(rig.rgb.width_px) - 1.0
+    } else {
+        0.0
+    };
+    let shift_rgb = DVec3::new((edge_px - i.cx) / i.fx * centre.z - centre.x, 0.0, 0.0);
+    pose.translation_m += rig.rgb_from_thermal.inverse().transform_vector(shift_rgb);
+}
+
+/// The pose moved sideways so the board's centre sits on the nearer left/right thermal image
+/// edge: about half of it leaves the thermal image ([`SynthOptions::thermal_partly_out`]).
+fn half_out_of_thermal(pose: &Rigid3, rig: &SynthRig, board: &BoardSpec) -> Rigid3 {
+    let mut thermal_pose = *pose;
+    let centre = pose.transform_point(board_centre(board));
+    let i = rig.thermal.intrinsics;
+    let edge_px = if centre.x >= 0.0 {
+        f64::from(rig.thermal.width_px) - 1.0
+    } else {
+        0.0
+    };
+    let target_x = (edge_px - i.cx) / i.fx * centre.z;
+    thermal_pose.translation_m.x += target_x - centre.x;
+    thermal_pose
+}
+
+/// Writes the folder's `board.toml` (the seed in a comment; tags when the board has them).
+fn write_board_toml(dir: &Path, opts: &SynthOptions) -> Result<(), CalibError> {
     let b = &opts.board;
     let mut toml = format!(
         "# synthetic board set (s3tir_calib::synth), seed {}\n[board]\ninner_corners = [{}, {}]\nsquare_mm = {}\n",
@@ -479,9 +557,13 @@ pub fn write_board_folder(
         ));
     }
     let toml_path = dir.join("board.toml");
-    std::fs::write(&toml_path, toml).map_err(io_err(&toml_path))?;
+    std::fs::write(&toml_path, toml).map_err(io_err(&toml_path))
+}
+
+/// The thermal scene: coated squares 400 counts darker than the uncoated (or brighter).
+fn thermal_shades(coated_bright: bool) -> Shades {
     let (dark, bright) = (7300.0, 7700.0);
-    let thermal_shades = if opts.coated_bright {
+    if coated_bright {
         Shades {
             coated: bright,
             uncoated: dark,
@@ -497,109 +579,67 @@ pub fn write_board_folder(
             gradient: 120.0,
             tags: false,
         }
-    };
-    let rgb_shades = Shades {
-        coated: 35.0,
-        uncoated: 215.0,
-        background: 110.0,
-        gradient: 60.0,
-        tags: true,
-    };
-    let n_views = poses.len();
-    for (k, pose) in poses.iter().enumerate() {
-        let mut thermal_pose = *pose;
-        if k + opts.thermal_partly_out >= n_views {
-            // Move the board sideways so its centre sits on the nearer left/right image edge:
-            // about half of it leaves the thermal image.
-            let s = b.square_m();
-            let centre_b = DVec3::new(
-                f64::from(b.cols() - 1) * s * 0.5,
-                f64::from(b.rows() - 1) * s * 0.5,
-                0.0,
-            );
-            let centre = pose.transform_point(centre_b);
-            let i = rig.thermal.intrinsics;
-            let edge_px = if centre.x >= 0.0 {
-                f64::from(rig.thermal.width_px) - 1.0
-            } else {
-                0.0
-            };
-            let target_x = (edge_px - i.cx) / i.fx * centre.z;
-            thermal_pose.translation_m.x += target_x - centre.x;
+    }
+}
+
+/// The RGB scene: dark coated squares, white paper, the tags drawn.
+const RGB_SHADES: Shades = Shades {
+    coated: 35.0,
+    uncoated: 215.0,
+    background: 110.0,
+    gradient: 60.0,
+    tags: true,
+};
+
+/// The "buffer size" error of an image whose data does not fit its size.
+fn buffer_size(path: &Path) -> CalibError {
+    CalibError::Image {
+        path: path.to_path_buf(),
+        reason: "buffer size".into(),
+    }
+}
+
+/// Writes a rendered thermal image as 16-bit grey counts or as pseudo-colour.
+fn write_thermal_png(
+    path: &Path,
+    values: &[f64],
+    cam: &CameraModel,
+    format: ThermalFormat,
+) -> Result<(), CalibError> {
+    let (w, h) = (cam.width_px, cam.height_px);
+    match format {
+        ThermalFormat::Grey16 => {
+            let data: Vec<u16> = values
+                .iter()
+                .map(|v| v.round().clamp(0.0, 65535.0) as u16)
+                .collect();
+            let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, data)
+                .ok_or_else(|| buffer_size(path))?;
+            img.save(path).map_err(img_err(path))
         }
-        if opts.write_thermal {
-            let values = render(
-                &rig.thermal,
-                Some(&thermal_pose),
-                b,
-                thermal_shades,
-                opts.thermal_noise,
-                &mut rng,
-            );
-            let path = dir.join(format!("thermal/thermal_{k:04}.png"));
-            let (w, h) = (rig.thermal.width_px, rig.thermal.height_px);
-            match opts.thermal_format {
-                ThermalFormat::Grey16 => {
-                    let data: Vec<u16> = values
-                        .iter()
-                        .map(|v| v.round().clamp(0.0, 65535.0) as u16)
-                        .collect();
-                    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, data)
-                        .ok_or_else(|| CalibError::Image {
-                            path: path.clone(),
-                            reason: "buffer size".into(),
-                        })?;
-                    img.save(&path).map_err(img_err(&path))?;
-                }
-                ThermalFormat::PseudoColour(p) => {
-                    let lut = palette_lut(p).or_else(|| palette_lut(Palette::Ironbow));
-                    let mut data = Vec::with_capacity(values.len() * 3);
-                    for v in &values {
-                        let t = ((v - 7200.0) / 600.0).clamp(0.0, 1.0);
-                        let c = lut.map_or([0.0; 3], |l| l[(t * 255.0).round() as usize]);
-                        data.extend(c.iter().map(|x| x.round().clamp(0.0, 255.0) as u8));
-                    }
-                    let img =
-                        image::RgbImage::from_raw(w, h, data).ok_or_else(|| CalibError::Image {
-                            path: path.clone(),
-                            reason: "buffer size".into(),
-                        })?;
-                    img.save(&path).map_err(img_err(&path))?;
-                }
-            }
-        }
-        if opts.write_rgb {
-            let rgb_pose = rig.rgb_from_thermal.compose(pose);
-            let show = opts.rgb_board_views.is_none_or(|n| k < n);
-            let values = render(
-                &rig.rgb,
-                show.then_some(&rgb_pose),
-                b,
-                rgb_shades,
-                opts.rgb_noise,
-                &mut rng,
-            );
-            let path = dir.join(format!("rgb/rgb_{k:04}.png"));
+        ThermalFormat::PseudoColour(p) => {
+            let lut = palette_lut(p).or_else(|| palette_lut(Palette::Ironbow));
             let mut data = Vec::with_capacity(values.len() * 3);
-            for v in &values {
-                let g = v.round().clamp(0.0, 255.0) as u8;
-                // A slightly warm tint so the image is colour, not grey.
-                data.extend([g, g.saturating_sub(3), g.saturating_sub(6)]);
+            for v in values {
+                let t = ((v - 7200.0) / 600.0).clamp(0.0, 1.0);
+                let c = lut.map_or([0.0; 3], |l| l[(t * 255.0).round() as usize]);
+                data.extend(c.iter().map(|x| x.round().clamp(0.0, 255.0) as u8));
             }
-            let img = image::RgbImage::from_raw(rig.rgb.width_px, rig.rgb.height_px, data)
-                .ok_or_else(|| CalibError::Image {
-                    path: path.clone(),
-                    reason: "buffer size".into(),
-                })?;
-            img.save(&path).map_err(img_err(&path))?;
+            let img = image::RgbImage::from_raw(w, h, data).ok_or_else(|| buffer_size(path))?;
+            img.save(path).map_err(img_err(path))
         }
     }
-    let truth = SynthTruth {
-        rig: *rig,
-        thermal_from_board: poses,
-    };
-    let truth_path = dir.join("truth.json");
-    let json = serde_json::to_string_pretty(&truth).unwrap_or_default();
-    std::fs::write(&truth_path, json).map_err(io_err(&truth_path))?;
-    Ok(truth)
+}
+
+/// Writes a rendered RGB image (grey levels with a slight warm tint).
+fn write_rgb_png(path: &Path, values: &[f64], cam: &CameraModel) -> Result<(), CalibError> {
+    let mut data = Vec::with_capacity(values.len() * 3);
+    for v in values {
+        let g = v.round().clamp(0.0, 255.0) as u8;
+        // A slightly warm tint so the image is colour, not grey.
+        data.extend([g, g.saturating_sub(3), g.saturating_sub(6)]);
+    }
+    let img = image::RgbImage::from_raw(cam.width_px, cam.height_px, data)
+        .ok_or_else(|| buffer_size(path))?;
+    img.save(path).map_err(img_err(path))
 }

@@ -13,10 +13,10 @@
 //!   each stream's frames at the same interval;
 //! - at most `max_views` views are kept (default 300), spread evenly over the session.
 //!
-//! Memory stays bounded however long the session: a first pass keeps only each frame's stream,
-//! sequence, stamp and FFC state and decides the views; a second pass keeps the pixels of the
-//! chosen frames only (an hour of Boson is ~2 GB of thermal frames; 300 views are ~200 MB with
-//! the RGB still compressed).
+//! Memory stays bounded however long the session: a first pass (`Chooser`) keeps only each
+//! frame's stream, sequence, stamp and FFC state and decides the views; a second pass
+//! (`load_chosen`) keeps the pixels of the chosen frames only (an hour of Boson is ~2 GB of
+//! thermal frames; 300 views are ~200 MB with the RGB still compressed).
 //!
 //! The board geometry is not in a session: the caller passes `board.toml`.
 //!
@@ -27,9 +27,11 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use s3tir_capture::CaptureError;
 use s3tir_capture::frame::{CapturedFrame, RgbFrame, StreamKind, ThermalFrame};
 use s3tir_capture::session::{
-    FrameWindow, SessionItem, SessionSequences, parse_recorded, read_session,
+    FrameWindow, PairRecord, ReadOutcome, RecordedFrame, SessionItem, SessionSequences,
+    parse_recorded, read_session,
 };
 
 use crate::detect::board::{Camera, FileProblem, ViewFiles};
@@ -122,82 +124,184 @@ fn spread<T>(items: Vec<T>, max: usize, notes: &mut Vec<String>) -> Vec<T> {
 /// Reads a session and chooses its views (module docs).
 pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, CalibError> {
     let min_interval_ns = (opts.min_interval_s.max(0.0) * 1e9) as u64;
-    // Pass 1: which frames become views. Recent frames (pairs refer to frames a few back),
-    // keyed by arrival, not sequence: sequences restart when a device is reopened.
-    let mut recent: [FrameWindow<(FrameKey, bool)>; 2] = Default::default();
-    // Frames are named by their session sequence: a reopened device's restarted sequence
-    // numbers neither collide nor pick the wrong frame.
-    let mut ids = SessionSequences::default();
-    // Single-stream candidates, used when the session has no pairs.
-    let mut singles: [Vec<FrameKey>; 2] = [Vec::new(), Vec::new()];
-    let mut last_single_ns: [Option<u64>; 2] = [None, None];
-    let mut pairs: Vec<(FrameKey, FrameKey)> = Vec::new();
-    let mut problems = Vec::new();
-    let mut pair_records = 0usize;
-    let mut thinned = 0usize;
-    let mut last_pair_ns: Option<u64> = None;
-    let due = |last: Option<u64>, now: u64| last.is_none_or(|l| now >= l + min_interval_ns);
-    let outcome = read_session(path, |item| {
-        match item {
-            SessionItem::Frame(f) => {
-                let k = usize::from(f.raw.stream == StreamKind::Rgb);
-                let key = (k, ids.next(f.raw.stream, f.raw.sequence));
-                // Parsed for its FFC state (telemetry decides it); pixels dropped.
-                let frame = parse_recorded(path, &f)?;
-                let frozen = matches!(&frame, CapturedFrame::Thermal(t) if t.is_ffc_frozen());
-                // Single-stream views are only needed while no pair has been seen.
-                let t_ns = f.raw.monotonic_ns;
-                if pair_records == 0 && !frozen && due(last_single_ns[k], t_ns) {
-                    last_single_ns[k] = Some(t_ns);
-                    singles[k].push(key);
-                }
-                recent[k].push(f.raw.sequence, (key, frozen));
-            }
-            SessionItem::Pair(p) => {
-                pair_records += 1;
-                singles = [Vec::new(), Vec::new()];
-                let (Some(&(t, frozen)), Some(&(r, _))) = (
-                    recent[0].get(p.thermal_sequence),
-                    recent[1].get(p.rgb_sequence),
-                ) else {
-                    problems.push(FileProblem {
-                        path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
-                        reason: format!(
-                            "pair with RGB frame {} refers to a frame not in the session",
-                            p.rgb_sequence
-                        ),
-                    });
-                    return Ok(());
-                };
-                if frozen {
-                    problems.push(FileProblem {
-                        path: frame_name(path, StreamKind::Thermal, p.thermal_sequence),
-                        reason: "FFC-frozen thermal frame (flat-field correction in progress): pair skipped".into(),
-                    });
-                    return Ok(());
-                }
-                if !due(last_pair_ns, p.thermal_monotonic_ns) {
-                    thinned += 1;
-                    return Ok(());
-                }
-                last_pair_ns = Some(p.thermal_monotonic_ns);
-                pairs.push((t, r));
-            }
-            // Drops, status, rig trigger pulses and the rig clock fit do not change which
-            // frames show the board.
-            SessionItem::Drop(_)
-            | SessionItem::Status(_)
-            | SessionItem::Trigger(_)
-            | SessionItem::Clock(_) => {}
-        }
-        Ok(())
-    })
-    .map_err(|source| CalibError::Session { source })?;
+    // Pass 1: which frames become views.
+    let (chosen, outcome) = Chooser::read(path, min_interval_ns)?;
     let mut capped = Vec::new();
-    let pairs = spread(pairs, opts.max_views, &mut capped);
-    let singles = singles.map(|list| spread(list, opts.max_views, &mut capped));
-
+    let pairs = spread(chosen.pairs, opts.max_views, &mut capped);
+    let singles = chosen
+        .singles
+        .map(|list| spread(list, opts.max_views, &mut capped));
     // Pass 2: the chosen frames' pixels.
+    let (pairs, singles) = load_chosen(path, &pairs, &singles)?;
+    let mut notes = Vec::new();
+    if outcome.truncated {
+        notes.push(format!(
+            "session {} is truncated ({}): read up to its last complete chunk",
+            path.display(),
+            outcome
+                .truncation_reason
+                .as_deref()
+                .unwrap_or("no reason given")
+        ));
+    }
+    notes.extend(capped);
+    if chosen.thinned > 0 {
+        notes.push(format!(
+            "session: {} of {} recorded pairs used, {} skipped as less than {:.2} s after the previous one (--session-interval-s)",
+            pairs.len(),
+            chosen.pair_records,
+            chosen.thinned,
+            opts.min_interval_s
+        ));
+    }
+    let (views, frames) = if chosen.pair_records > 0 {
+        pair_views(path, pairs)
+    } else {
+        notes.push(format!(
+            "session {} has no thermal↔RGB pairs: each recorded stream calibrates its camera alone",
+            path.display()
+        ));
+        single_views(path, singles)
+    };
+    Ok(SessionViews {
+        views,
+        images: SessionImages {
+            path: path.to_path_buf(),
+            frames,
+        },
+        problems: chosen.problems,
+        notes,
+    })
+}
+
+/// Pass 1 of [`read_views`]: the frames chosen as views, remembered without pixels.
+struct Chooser<'a> {
+    path: &'a Path,
+    min_interval_ns: u64,
+    /// Recent frames (pairs refer to frames a few back), keyed by arrival, not sequence:
+    /// sequences restart when a device is reopened.
+    recent: [FrameWindow<(FrameKey, bool)>; 2],
+    /// Frames are named by their session sequence: a reopened device's restarted sequence
+    /// numbers neither collide nor pick the wrong frame.
+    ids: SessionSequences,
+    /// Single-stream candidates, used when the session has no pairs.
+    singles: [Vec<FrameKey>; 2],
+    last_single_ns: [Option<u64>; 2],
+    pairs: Vec<(FrameKey, FrameKey)>,
+    problems: Vec<FileProblem>,
+    /// Pair records read (taken or not).
+    pair_records: usize,
+    /// Pairs skipped as too soon after the previous one taken.
+    thinned: usize,
+    last_pair_ns: Option<u64>,
+}
+
+impl<'a> Chooser<'a> {
+    /// Reads the session at `path` once and chooses its views: pairs at least
+    /// `min_interval_ns` apart, else single-stream frames as far apart.
+    fn read(path: &'a Path, min_interval_ns: u64) -> Result<(Self, ReadOutcome), CalibError> {
+        let mut chooser = Self {
+            path,
+            min_interval_ns,
+            recent: Default::default(),
+            ids: SessionSequences::default(),
+            singles: [Vec::new(), Vec::new()],
+            last_single_ns: [None, None],
+            pairs: Vec::new(),
+            problems: Vec::new(),
+            pair_records: 0,
+            thinned: 0,
+            last_pair_ns: None,
+        };
+        let outcome = read_session(path, |item| {
+            match item {
+                SessionItem::Frame(f) => chooser.frame(&f)?,
+                SessionItem::Pair(p) => chooser.pair(&p),
+                // Drops, status, rig trigger pulses and the rig clock fit do not change which
+                // frames show the board.
+                SessionItem::Drop(_)
+                | SessionItem::Status(_)
+                | SessionItem::Trigger(_)
+                | SessionItem::Clock(_) => {}
+            }
+            Ok(())
+        })
+        .map_err(|source| CalibError::Session { source })?;
+        Ok((chooser, outcome))
+    }
+
+    /// Whether a frame at `now_ns` is at least the minimum interval after `last_ns`.
+    fn due(&self, last_ns: Option<u64>, now_ns: u64) -> bool {
+        last_ns.is_none_or(|l| now_ns >= l + self.min_interval_ns)
+    }
+
+    /// Remembers a frame (stream, session sequence, FFC state) for the pairs to come, and
+    /// takes it as a single-stream candidate while no pair has been seen.
+    fn frame(&mut self, f: &RecordedFrame) -> Result<(), CaptureError> {
+        let k = usize::from(f.raw.stream == StreamKind::Rgb);
+        let key = (k, self.ids.next(f.raw.stream, f.raw.sequence));
+        // Parsed for its FFC state (telemetry decides it); pixels dropped.
+        let frame = parse_recorded(self.path, f)?;
+        let frozen = matches!(&frame, CapturedFrame::Thermal(t) if t.is_ffc_frozen());
+        // Single-stream views are only needed while no pair has been seen.
+        let t_ns = f.raw.monotonic_ns;
+        if self.pair_records == 0 && !frozen && self.due(self.last_single_ns[k], t_ns) {
+            self.last_single_ns[k] = Some(t_ns);
+            self.singles[k].push(key);
+        }
+        self.recent[k].push(f.raw.sequence, (key, frozen));
+        Ok(())
+    }
+
+    /// Takes a pair, unless it refers to a frame not in the session or an FFC-frozen thermal
+    /// frame (both listed as problems) or comes too soon after the previous one taken.
+    fn pair(&mut self, p: &PairRecord) {
+        self.pair_records += 1;
+        self.singles = [Vec::new(), Vec::new()];
+        let (Some(&(t, frozen)), Some(&(r, _))) = (
+            self.recent[0].get(p.thermal_sequence),
+            self.recent[1].get(p.rgb_sequence),
+        ) else {
+            self.problems.push(FileProblem {
+                path: frame_name(self.path, StreamKind::Thermal, p.thermal_sequence),
+                reason: format!(
+                    "pair with RGB frame {} refers to a frame not in the session",
+                    p.rgb_sequence
+                ),
+            });
+            return;
+        };
+        if frozen {
+            self.problems.push(FileProblem {
+                path: frame_name(self.path, StreamKind::Thermal, p.thermal_sequence),
+                reason:
+                    "FFC-frozen thermal frame (flat-field correction in progress): pair skipped"
+                        .into(),
+            });
+            return;
+        }
+        if !self.due(self.last_pair_ns, p.thermal_monotonic_ns) {
+            self.thinned += 1;
+            return;
+        }
+        self.last_pair_ns = Some(p.thermal_monotonic_ns);
+        self.pairs.push((t, r));
+    }
+}
+
+/// A chosen pair with its frames: (session sequence, frame) of each camera.
+type LoadedPair = ((u32, ThermalFrame), (u32, RgbFrame));
+
+/// The chosen frames of each camera used alone, as (session sequence, frame).
+type LoadedSingles = [Vec<(u32, CapturedFrame)>; 2];
+
+/// Pass 2 of [`read_views`]: reads the session again, keeping the chosen frames' pixels; the
+/// pairs and single-stream frames as (session sequence, frame).
+fn load_chosen(
+    path: &Path,
+    pairs: &[(FrameKey, FrameKey)],
+    singles: &[Vec<FrameKey>; 2],
+) -> Result<(Vec<LoadedPair>, LoadedSingles), CalibError> {
     let wanted: std::collections::HashSet<FrameKey> = pairs
         .iter()
         .flat_map(|(t, r)| [*t, *r])
@@ -218,8 +322,7 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
         Ok(())
     })
     .map_err(|source| CalibError::Session { source })?;
-    // (session sequence, frame) of each chosen view.
-    let pairs: Vec<((u32, ThermalFrame), (u32, RgbFrame))> = pairs
+    let pairs: Vec<LoadedPair> = pairs
         .iter()
         .filter_map(|(t, r)| match (found.remove(t), found.remove(r)) {
             (Some(CapturedFrame::Thermal(tf)), Some(CapturedFrame::Rgb(rf))) => {
@@ -228,74 +331,55 @@ pub fn read_views(path: &Path, opts: &SessionOptions) -> Result<SessionViews, Ca
             _ => None,
         })
         .collect();
-    let singles: [Vec<(u32, CapturedFrame)>; 2] = singles.map(|list| {
+    let singles: [Vec<(u32, CapturedFrame)>; 2] = singles.each_ref().map(|list| {
         list.iter()
             .filter_map(|k| found.remove(k).map(|f| (k.1, f)))
             .collect()
     });
-    let mut notes = Vec::new();
-    if outcome.truncated {
-        notes.push(format!(
-            "session {} is truncated ({}): read up to its last complete chunk",
-            path.display(),
-            outcome
-                .truncation_reason
-                .as_deref()
-                .unwrap_or("no reason given")
-        ));
-    }
-    notes.extend(capped);
-    if thinned > 0 {
-        notes.push(format!(
-            "session: {} of {pair_records} recorded pairs used, {thinned} skipped as less than {:.2} s after the previous one (--session-interval-s)",
-            pairs.len(),
-            opts.min_interval_s
-        ));
-    }
+    Ok((pairs, singles))
+}
+
+/// One two-camera view per pair, and the frames by name.
+fn pair_views(path: &Path, pairs: Vec<LoadedPair>) -> (Vec<ViewFiles>, HashMap<PathBuf, Stored>) {
     let mut frames = HashMap::new();
     let mut views = Vec::new();
-    if pair_records > 0 {
-        for ((ts, t), (rs, r)) in pairs {
-            let tn = frame_name(path, StreamKind::Thermal, ts);
-            let rn = frame_name(path, StreamKind::Rgb, rs);
+    for ((ts, t), (rs, r)) in pairs {
+        let tn = frame_name(path, StreamKind::Thermal, ts);
+        let rn = frame_name(path, StreamKind::Rgb, rs);
+        views.push(ViewFiles {
+            key: format!("{ts:06}"),
+            files: [Some(tn.clone()), Some(rn.clone())],
+        });
+        frames.insert(tn, Stored::Thermal(t));
+        frames.insert(rn, Stored::Rgb(r));
+    }
+    (views, frames)
+}
+
+/// One single-camera view per frame (thermal first, then RGB), and the frames by name.
+fn single_views(
+    path: &Path,
+    singles: [Vec<(u32, CapturedFrame)>; 2],
+) -> (Vec<ViewFiles>, HashMap<PathBuf, Stored>) {
+    let mut frames = HashMap::new();
+    let mut views = Vec::new();
+    for (k, list) in singles.into_iter().enumerate() {
+        for (sequence, frame) in list {
+            let (stream, stored) = match frame {
+                CapturedFrame::Thermal(t) => (StreamKind::Thermal, Stored::Thermal(t)),
+                CapturedFrame::Rgb(r) => (StreamKind::Rgb, Stored::Rgb(r)),
+            };
+            let name = frame_name(path, stream, sequence);
+            let mut files = [None, None];
+            files[k] = Some(name.clone());
             views.push(ViewFiles {
-                key: format!("{ts:06}"),
-                files: [Some(tn.clone()), Some(rn.clone())],
+                key: format!("{}-{sequence:06}", stream.name()),
+                files,
             });
-            frames.insert(tn, Stored::Thermal(t));
-            frames.insert(rn, Stored::Rgb(r));
-        }
-    } else {
-        notes.push(format!(
-            "session {} has no thermal↔RGB pairs: each recorded stream calibrates its camera alone",
-            path.display()
-        ));
-        for (k, list) in singles.into_iter().enumerate() {
-            for (sequence, frame) in list {
-                let (stream, stored) = match frame {
-                    CapturedFrame::Thermal(t) => (StreamKind::Thermal, Stored::Thermal(t)),
-                    CapturedFrame::Rgb(r) => (StreamKind::Rgb, Stored::Rgb(r)),
-                };
-                let name = frame_name(path, stream, sequence);
-                let mut files = [None, None];
-                files[k] = Some(name.clone());
-                views.push(ViewFiles {
-                    key: format!("{}-{sequence:06}", stream.name()),
-                    files,
-                });
-                frames.insert(name, stored);
-            }
+            frames.insert(name, stored);
         }
     }
-    Ok(SessionViews {
-        views,
-        images: SessionImages {
-            path: path.to_path_buf(),
-            frames,
-        },
-        problems,
-        notes,
-    })
+    (views, frames)
 }
 
 impl SessionImages {

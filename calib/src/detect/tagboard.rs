@@ -334,21 +334,8 @@ pub fn partial_from_tags(
     board: &BoardSpec,
     tags: &[TagDetection],
 ) -> Result<Result<TagCorners, TagRejection>, CalibError> {
-    let (cols, rows) = (board.cols() as i64, board.rows() as i64);
     // Known points: board position (squares) → image position.
-    let mut known: Vec<(DVec2, DVec2)> = Vec::new();
-    let mut ours: Vec<(&TagDetection, Homography)> = Vec::new();
-    for t in tags {
-        let Some(c) = board.tag_corners_sq(t.id) else {
-            continue;
-        };
-        let img_c: Vec<DVec2> = t.corners_px.iter().map(|p| DVec2::from(*p)).collect();
-        let Some(hm) = Homography::fit(&c, &img_c)? else {
-            continue;
-        };
-        known.extend(c.iter().copied().zip(img_c));
-        ours.push((t, hm));
-    }
+    let (mut known, ours) = board_tags(board, tags)?;
     if ours.is_empty() {
         return Ok(Err(no_board_tags(tags)));
     }
@@ -362,43 +349,16 @@ pub fn partial_from_tags(
         1e-5,
     )
     .map_err(cv("TermCriteria"))?;
-    // Seeds: the inner corners at the four corners of each tag's square.
-    let mut frontier: BTreeSet<(i64, i64)> = BTreeSet::new();
-    for (t, _) in &ours {
-        if let Some(c) = board.tag_corners_sq(t.id) {
-            let centre = (c[0] + c[2]) * 0.5;
-            for (dx, dy) in [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)] {
-                frontier.insert((
-                    (centre.x + dx).round() as i64,
-                    (centre.y + dy).round() as i64,
-                ));
-            }
-        }
-    }
     // Tags painted over (decoded ones by `mask_tags`; the others, e.g. cut by the image
     // border, are painted where a local homography puts them before a corner beside them is
     // refined).
     let mut masked = float_img.try_clone().map_err(cv("copy float image"))?;
-    let mut painted: BTreeSet<(i64, i64)> = ours
-        .iter()
-        .filter_map(|(t, _)| board.tag_corners_sq(t.id))
-        .map(|c| {
-            let centre = (c[0] + c[2]) * 0.5;
-            (
-                (centre.x + 0.5).round() as i64,
-                (centre.y + 0.5).round() as i64,
-            )
-        })
-        .collect();
+    let mut painted = decoded_tag_squares(board, &ours);
     let tagged: BTreeSet<(i64, i64)> = board
         .tag_squares()
         .into_iter()
         .map(|(i, j)| (i64::from(i), i64::from(j)))
         .collect();
-    // Accepted corners keyed (row, column): the map's order is the board's row-major order.
-    let mut accepted: BTreeMap<(i64, i64), DVec2> = BTreeMap::new();
-    let mut refused: BTreeSet<(i64, i64)> = BTreeSet::new();
-    let mut reasons: BTreeMap<&'static str, usize> = BTreeMap::new();
     let mut grow = Grow {
         sample,
         float_img: &mut masked,
@@ -410,28 +370,86 @@ pub fn partial_from_tags(
         size: (f64::from(size.0), f64::from(size.1)),
         criteria: &criteria,
     };
-    while let Some((c, r)) = frontier.pop_first() {
-        if c < 0 || r < 0 || c >= cols || r >= rows || accepted.contains_key(&(r, c)) {
+    let (accepted, reasons) = grow.grow_from(&mut known, seed_corners(board, &ours))?;
+    tag_corners(board, &ours, accepted, reasons)
+}
+
+/// Known points of a growing board: board position (squares) → image position.
+type KnownPoints = Vec<(DVec2, DVec2)>;
+/// The decoded tags of this board, each with the homography of its square.
+type BoardTags<'t> = Vec<(&'t TagDetection, Homography)>;
+
+/// The decoded tags of this board with the homography of their square, and their corners as
+/// known points.
+fn board_tags<'t>(
+    board: &BoardSpec,
+    tags: &'t [TagDetection],
+) -> Result<(KnownPoints, BoardTags<'t>), CalibError> {
+    let mut known: Vec<(DVec2, DVec2)> = Vec::new();
+    let mut ours: Vec<(&TagDetection, Homography)> = Vec::new();
+    for t in tags {
+        let Some(c) = board.tag_corners_sq(t.id) else {
             continue;
-        }
-        let at = DVec2::new(c as f64, r as f64);
-        match grow.try_corner(&known, at)? {
-            Ok(p) => {
-                accepted.insert((r, c), p);
-                known.push((at, p));
-                for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                    let (nc, nr) = (c + dc, r + dr);
-                    if !accepted.contains_key(&(nr, nc)) && !refused.contains(&(nc, nr)) {
-                        frontier.insert((nc, nr));
-                    }
-                }
-            }
-            Err(why) => {
-                refused.insert((c, r));
-                *reasons.entry(why).or_default() += 1;
+        };
+        let img_c: Vec<DVec2> = t.corners_px.iter().map(|p| DVec2::from(*p)).collect();
+        let Some(hm) = Homography::fit(&c, &img_c)? else {
+            continue;
+        };
+        known.extend(c.iter().copied().zip(img_c));
+        ours.push((t, hm));
+    }
+    Ok((known, ours))
+}
+
+/// Seeds: the inner corners `(column, row)` at the four corners of each tag's square.
+fn seed_corners(board: &BoardSpec, ours: &[(&TagDetection, Homography)]) -> BTreeSet<(i64, i64)> {
+    let mut frontier: BTreeSet<(i64, i64)> = BTreeSet::new();
+    for (t, _) in ours {
+        if let Some(c) = board.tag_corners_sq(t.id) {
+            let centre = (c[0] + c[2]) * 0.5;
+            for (dx, dy) in [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)] {
+                frontier.insert((
+                    (centre.x + dx).round() as i64,
+                    (centre.y + dy).round() as i64,
+                ));
             }
         }
     }
+    frontier
+}
+
+/// The squares `(i, j)` of the decoded tags (painted over by [`mask_tags`]).
+fn decoded_tag_squares(
+    board: &BoardSpec,
+    ours: &[(&TagDetection, Homography)],
+) -> BTreeSet<(i64, i64)> {
+    ours.iter()
+        .filter_map(|(t, _)| board.tag_corners_sq(t.id))
+        .map(|c| {
+            let centre = (c[0] + c[2]) * 0.5;
+            (
+                (centre.x + 0.5).round() as i64,
+                (centre.y + 0.5).round() as i64,
+            )
+        })
+        .collect()
+}
+
+/// Corners accepted while growing a board, keyed (row, column): the map's order is the
+/// board's row-major order.
+type Accepted = BTreeMap<(i64, i64), DVec2>;
+/// Refused corners counted by reason.
+type Refusals = BTreeMap<&'static str, usize>;
+
+/// The grown board as [`TagCorners`] (ascending ids, with its planar fit), or
+/// [`TagRejection::TooFewCorners`] below [`MIN_PARTIAL_CORNERS`] or two rows and columns.
+fn tag_corners(
+    board: &BoardSpec,
+    ours: &[(&TagDetection, Homography)],
+    accepted: Accepted,
+    reasons: Refusals,
+) -> Result<Result<TagCorners, TagRejection>, CalibError> {
+    let cols = board.cols() as i64;
     let rows_seen = accepted.keys().map(|k| k.0).collect::<BTreeSet<_>>().len();
     let cols_seen = accepted.keys().map(|k| k.1).collect::<BTreeSet<_>>().len();
     if accepted.len() < MIN_PARTIAL_CORNERS || rows_seen < 2 || cols_seen < 2 {
@@ -479,6 +497,42 @@ struct Grow<'a> {
 }
 
 impl Grow<'_> {
+    /// Grows the board from the seed corners `(column, row)` in `frontier`, each accepted
+    /// corner joining the known points and putting its four neighbours in the frontier.
+    fn grow_from(
+        &mut self,
+        known: &mut Vec<(DVec2, DVec2)>,
+        mut frontier: BTreeSet<(i64, i64)>,
+    ) -> Result<(Accepted, Refusals), CalibError> {
+        let (cols, rows) = (self.board.cols() as i64, self.board.rows() as i64);
+        let mut accepted = Accepted::new();
+        let mut refused: BTreeSet<(i64, i64)> = BTreeSet::new();
+        let mut reasons = Refusals::new();
+        while let Some((c, r)) = frontier.pop_first() {
+            if c < 0 || r < 0 || c >= cols || r >= rows || accepted.contains_key(&(r, c)) {
+                continue;
+            }
+            let at = DVec2::new(c as f64, r as f64);
+            match self.try_corner(known, at)? {
+                Ok(p) => {
+                    accepted.insert((r, c), p);
+                    known.push((at, p));
+                    for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                        let (nc, nr) = (c + dc, r + dr);
+                        if !accepted.contains_key(&(nr, nc)) && !refused.contains(&(nc, nr)) {
+                            frontier.insert((nc, nr));
+                        }
+                    }
+                }
+                Err(why) => {
+                    refused.insert((c, r));
+                    *reasons.entry(why).or_default() += 1;
+                }
+            }
+        }
+        Ok((accepted, reasons))
+    }
+
     /// Predicts, refines and verifies inner corner `at` (square units) from the known points.
     fn try_corner(
         &mut self,

@@ -137,125 +137,30 @@ pub fn detect_views(
     load: impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError> + Sync,
 ) -> Result<DetectedSet, CalibError> {
     let start = Instant::now();
-    // Images are detected in parallel by rayon: OpenCV's own worker threads would only
-    // contend with them. Its thread count is restored afterwards.
-    let cv_threads = opencv::core::get_num_threads().unwrap_or(-1);
-    let _ = opencv::core::set_num_threads(1);
-    let jobs: Vec<(usize, Camera, PathBuf)> = files
-        .iter()
-        .enumerate()
-        .flat_map(|(v, vf)| {
-            Camera::BOTH
-                .into_iter()
-                .filter_map(move |c| vf.files[c.index()].clone().map(|p| (v, c, p)))
-        })
-        .collect();
-    progress.start("detecting images", Some(jobs.len() as u64));
-    let outcomes: Vec<ImageOutcome> = jobs
-        .par_iter()
-        .map(|(_, camera, path)| {
-            let (camera, path) = (*camera, path.as_path());
-            let span = tracing::trace_span!("detect", file = %path.display());
-            let _g = span.enter();
-            // A detector failure on one image (OpenCV, AprilTag) is that image's problem,
-            // named by its file; the other images still calibrate.
-            let outcome = match load(path, camera) {
-                Err(e) => ImageOutcome::Unreadable(Chain(&e).to_string()),
-                Ok(img) => match detect_board(&img, &board) {
-                    Ok(result) => ImageOutcome::Detected {
-                        size: (img.width_px, img.height_px),
-                        source: img.source,
-                        result,
-                    },
-                    Err(e) => ImageOutcome::Failed(Chain(&e).to_string()),
-                },
-            };
-            progress.item(
-                &path
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default(),
-            );
-            progress.advance(1);
-            outcome
-        })
-        .collect();
-    progress.finish();
-    let _ = opencv::core::set_num_threads(cv_threads);
-    let mut image_size: [Option<(u32, u32)>; 2] = [None, None];
-    let mut images = [0usize; 2];
-    let mut source_kinds = Vec::new();
-    let mut views: Vec<DetectedView> = files
-        .into_iter()
-        .map(|vf| DetectedView {
-            key: vf.key,
-            files: vf.files,
-            detections: [None, None],
-        })
-        .collect();
+    let jobs = image_jobs(&files);
+    let outcomes = detect_images(&jobs, &board, progress, &load);
+    let mut collected = Collected {
+        image_size: [None, None],
+        images: [0usize; 2],
+        source_kinds: Vec::new(),
+        views: files
+            .into_iter()
+            .map(|vf| DetectedView {
+                key: vf.key,
+                files: vf.files,
+                detections: [None, None],
+            })
+            .collect(),
+    };
     for ((v, camera, path), outcome) in jobs.iter().zip(outcomes) {
-        let (v, camera, path) = (*v, *camera, path.as_path());
-        images[camera.index()] += 1;
-        let (size, source, result) = match outcome {
-            ImageOutcome::Unreadable(e) => {
-                problems.push(problem(path, format!("unreadable: {e}")));
-                continue;
-            }
-            ImageOutcome::Failed(e) => {
-                problems.push(problem(path, format!("detection failed: {e}")));
-                continue;
-            }
-            ImageOutcome::Detected {
-                size,
-                source,
-                result,
-            } => (size, source, result),
-        };
-        match image_size[camera.index()] {
-            None => image_size[camera.index()] = Some(size),
-            Some(s) if s != size => {
-                problems.push(problem(
-                    path,
-                    format!(
-                        "wrong size {}x{}: the {} camera's images are {}x{}",
-                        size.0,
-                        size.1,
-                        camera.name(),
-                        s.0,
-                        s.1
-                    ),
-                ));
-                continue;
-            }
-            Some(_) => {}
-        }
-        if !source_kinds.contains(&(camera, source)) {
-            source_kinds.push((camera, source));
-        }
-        match result {
-            Ok(d) => views[v].detections[camera.index()] = Some(d),
-            Err(DetectFailure::NotFound) => problems.push(problem(
-                path,
-                format!(
-                    "no {}x{} board found (SB detector, classic detector on both polarities)",
-                    board.cols(),
-                    board.rows()
-                ),
-            )),
-            Err(DetectFailure::Ambiguous(why)) => problems.push(problem(
-                path,
-                format!("ambiguous detection rejected: {why}"),
-            )),
-            Err(DetectFailure::NoPartial(why)) => problems.push(problem(
-                path,
-                format!(
-                    "no whole {}x{} board found (SB detector, classic detector on both polarities); {why}",
-                    board.cols(),
-                    board.rows()
-                ),
-            )),
-        }
+        collected.take(&board, *v, *camera, path, outcome, problems);
     }
+    let Collected {
+        image_size,
+        images,
+        source_kinds,
+        mut views,
+    } = collected;
     let polarity_note = resolve_thermal_order(&board, &mut views, problems);
     Ok(DetectedSet {
         dir: dir.to_path_buf(),
@@ -269,6 +174,159 @@ pub fn detect_views(
         detection_wall_s: start.elapsed().as_secs_f64(),
         notes: Vec::new(),
     })
+}
+
+/// Every listed image as `(view index, camera, path)`, in listing order.
+fn image_jobs(files: &[ViewFiles]) -> Vec<(usize, Camera, PathBuf)> {
+    files
+        .iter()
+        .enumerate()
+        .flat_map(|(v, vf)| {
+            Camera::BOTH
+                .into_iter()
+                .filter_map(move |c| vf.files[c.index()].clone().map(|p| (v, c, p)))
+        })
+        .collect()
+}
+
+/// Decodes and searches every job's image in parallel, reporting progress; the outcomes in
+/// job order.
+fn detect_images(
+    jobs: &[(usize, Camera, PathBuf)],
+    board: &BoardSpec,
+    progress: &dyn Progress,
+    load: &(impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError> + Sync),
+) -> Vec<ImageOutcome> {
+    // Images are detected in parallel by rayon: OpenCV's own worker threads would only
+    // contend with them. Its thread count is restored afterwards.
+    let cv_threads = opencv::core::get_num_threads().unwrap_or(-1);
+    let _ = opencv::core::set_num_threads(1);
+    progress.start("detecting images", Some(jobs.len() as u64));
+    let outcomes: Vec<ImageOutcome> = jobs
+        .par_iter()
+        .map(|(_, camera, path)| {
+            let (camera, path) = (*camera, path.as_path());
+            let span = tracing::trace_span!("detect", file = %path.display());
+            let _g = span.enter();
+            let outcome = detect_image(path, camera, board, load);
+            progress.item(
+                &path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+            );
+            progress.advance(1);
+            outcome
+        })
+        .collect();
+    progress.finish();
+    let _ = opencv::core::set_num_threads(cv_threads);
+    outcomes
+}
+
+/// Decodes one image and searches it for the board.
+fn detect_image(
+    path: &Path,
+    camera: Camera,
+    board: &BoardSpec,
+    load: &impl Fn(&Path, Camera) -> Result<ScalarImage, CalibError>,
+) -> ImageOutcome {
+    // A detector failure on one image (OpenCV, AprilTag) is that image's problem,
+    // named by its file; the other images still calibrate.
+    match load(path, camera) {
+        Err(e) => ImageOutcome::Unreadable(Chain(&e).to_string()),
+        Ok(img) => match detect_board(&img, board) {
+            Ok(result) => ImageOutcome::Detected {
+                size: (img.width_px, img.height_px),
+                source: img.source,
+                result,
+            },
+            Err(e) => ImageOutcome::Failed(Chain(&e).to_string()),
+        },
+    }
+}
+
+/// The outcomes taken so far, in listing order.
+struct Collected {
+    /// Per camera, the size of its first readable image.
+    image_size: [Option<(u32, u32)>; 2],
+    /// Images listed per camera.
+    images: [usize; 2],
+    source_kinds: Vec<(Camera, SourceKind)>,
+    views: Vec<DetectedView>,
+}
+
+impl Collected {
+    /// Takes the outcome of view `v`'s `camera` image: its detection, or the problem that
+    /// keeps it out (unreadable, detection failed, wrong size, no board).
+    fn take(
+        &mut self,
+        board: &BoardSpec,
+        v: usize,
+        camera: Camera,
+        path: &Path,
+        outcome: ImageOutcome,
+        problems: &mut Vec<FileProblem>,
+    ) {
+        self.images[camera.index()] += 1;
+        let (size, source, result) = match outcome {
+            ImageOutcome::Unreadable(e) => {
+                problems.push(problem(path, format!("unreadable: {e}")));
+                return;
+            }
+            ImageOutcome::Failed(e) => {
+                problems.push(problem(path, format!("detection failed: {e}")));
+                return;
+            }
+            ImageOutcome::Detected {
+                size,
+                source,
+                result,
+            } => (size, source, result),
+        };
+        match self.image_size[camera.index()] {
+            None => self.image_size[camera.index()] = Some(size),
+            Some(s) if s != size => {
+                problems.push(problem(
+                    path,
+                    format!(
+                        "wrong size {}x{}: the {} camera's images are {}x{}",
+                        size.0,
+                        size.1,
+                        camera.name(),
+                        s.0,
+                        s.1
+                    ),
+                ));
+                return;
+            }
+            Some(_) => {}
+        }
+        if !self.source_kinds.contains(&(camera, source)) {
+            self.source_kinds.push((camera, source));
+        }
+        match result {
+            Ok(d) => self.views[v].detections[camera.index()] = Some(d),
+            Err(why) => problems.push(problem(path, failure_reason(board, why))),
+        }
+    }
+}
+
+/// The problem report's wording of a detection failure.
+fn failure_reason(board: &BoardSpec, why: DetectFailure) -> String {
+    match why {
+        DetectFailure::NotFound => format!(
+            "no {}x{} board found (SB detector, classic detector on both polarities)",
+            board.cols(),
+            board.rows()
+        ),
+        DetectFailure::Ambiguous(why) => format!("ambiguous detection rejected: {why}"),
+        DetectFailure::NoPartial(why) => format!(
+            "no whole {}x{} board found (SB detector, classic detector on both polarities); {why}",
+            board.cols(),
+            board.rows()
+        ),
+    }
 }
 
 /// The image direction in which the board's corner index grows (least-squares slope of the

@@ -5,7 +5,7 @@
 //! largest reconstruction is kept. Each step's output goes to `colmap/STEP.log`.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
@@ -90,121 +90,176 @@ pub fn run_colmap(
     opts: &PosesOptions,
     times: &mut StageTimes,
 ) -> Result<ColmapModel, PosesError> {
-    let db = workspace.join("database.db");
-    let images = workspace.join("images");
-    let sparse = workspace.join("sparse");
-    std::fs::create_dir_all(&sparse).map_err(|e| PosesError::Write {
-        path: sparse.clone(),
-        source: Box::new(e),
-    })?;
-    let s = |p: &Path| p.display().to_string();
-    let threads = opts.threads.max(1).to_string();
-    let (model, params) = colmap_params(camera);
-    let params = params
-        .iter()
-        .map(|p| format!("{p:?}"))
-        .collect::<Vec<_>>()
-        .join(",");
+    let run = ColmapRun::new(workspace, opts)?;
 
     let t = Instant::now();
-    run_step(
-        &opts.colmap,
-        workspace,
-        "feature_extractor",
-        &[
-            "--database_path".into(),
-            s(&db),
-            "--image_path".into(),
-            s(&images),
-            "--ImageReader.single_camera".into(),
-            "1".into(),
-            "--ImageReader.camera_model".into(),
-            model.into(),
-            "--ImageReader.camera_params".into(),
-            params,
-            "--SiftExtraction.use_gpu".into(),
-            "0".into(),
-            // At most 1 024 features per keyframe (COLMAP's default is 8 192): matching cost
-            // grows with their square; consecutive video keyframes need far fewer.
-            "--SiftExtraction.max_num_features".into(),
-            "1024".into(),
-            "--SiftExtraction.num_threads".into(),
-            threads.clone(),
-        ],
-    )?;
+    run.extract_features(camera)?;
     times.colmap_features_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    // Exhaustive matching costs n² pairs (~0.03 s each on 2 cores at 1 024 features): beyond
-    // 30 keyframes the video order is used (each keyframe with its 10 successors).
-    let matcher = opts.matcher.unwrap_or(if keyframes <= 30 {
-        Matcher::Exhaustive
-    } else {
-        Matcher::Sequential { overlap: 10 }
-    });
-    let mut args = vec![
-        "--database_path".into(),
-        s(&db),
-        "--SiftMatching.use_gpu".into(),
-        "0".into(),
-        "--SiftMatching.num_threads".into(),
-        threads.clone(),
-    ];
-    let step = match matcher {
-        Matcher::Exhaustive => "exhaustive_matcher",
-        Matcher::Sequential { overlap } => {
-            args.extend([
-                "--SequentialMatching.overlap".into(),
-                overlap.to_string(),
-                "--SequentialMatching.loop_detection".into(),
-                "0".into(),
-            ]);
-            "sequential_matcher"
-        }
-    };
-    run_step(&opts.colmap, workspace, step, &args)?;
+    run.match_features(keyframes, opts.matcher)?;
     times.colmap_matching_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let mapped = run_step(
-        &opts.colmap,
-        workspace,
-        "mapper",
-        &[
-            "--database_path".into(),
-            s(&db),
-            "--image_path".into(),
-            s(&images),
-            "--output_path".into(),
-            s(&sparse),
-            "--Mapper.ba_refine_focal_length".into(),
-            "0".into(),
-            "--Mapper.ba_refine_principal_point".into(),
-            "0".into(),
-            "--Mapper.ba_refine_extra_params".into(),
-            "0".into(),
-            "--Mapper.num_threads".into(),
-            threads,
-        ],
-    );
+    let mapped = run.map();
     times.colmap_mapper_s = t.elapsed().as_secs_f64();
     if let Err(PosesError::ColmapFailed { log, .. }) = &mapped
         && std::fs::read_to_string(log).is_ok_and(|text| no_initial_pair(&text))
     {
         // Not a crash: no two keyframes share enough features to start a model (on the
         // simulated walk's thermal-only frames: 16–28 SIFT features each).
-        return Err(PosesError::TooFewRegistered {
-            registered: 0,
-            keyframes,
-            needed: 5,
-            workspace: workspace.to_path_buf(),
-        });
+        return Err(too_few_registered(keyframes, workspace));
     }
     mapped?;
 
-    // The mapper writes one folder per reconstruction (0, 1, …): keep the largest.
+    largest_reconstruction(&run.sparse)?.ok_or_else(|| too_few_registered(keyframes, workspace))
+}
+
+/// Nothing registered: fewer than the 5 keyframes a model needs.
+fn too_few_registered(keyframes: usize, workspace: &Path) -> PosesError {
+    PosesError::TooFewRegistered {
+        registered: 0,
+        keyframes,
+        needed: 5,
+        workspace: workspace.to_path_buf(),
+    }
+}
+
+/// One COLMAP run's program, workspace paths and thread count.
+struct ColmapRun<'a> {
+    program: &'a Path,
+    workspace: &'a Path,
+    db: PathBuf,
+    images: PathBuf,
+    sparse: PathBuf,
+    threads: String,
+}
+
+impl<'a> ColmapRun<'a> {
+    /// The run's paths in `workspace`, creating the mapper's output folder (`sparse`).
+    fn new(workspace: &'a Path, opts: &'a PosesOptions) -> Result<Self, PosesError> {
+        let db = workspace.join("database.db");
+        let images = workspace.join("images");
+        let sparse = workspace.join("sparse");
+        std::fs::create_dir_all(&sparse).map_err(|e| PosesError::Write {
+            path: sparse.clone(),
+            source: Box::new(e),
+        })?;
+        Ok(Self {
+            program: &opts.colmap,
+            workspace,
+            db,
+            images,
+            sparse,
+            threads: opts.threads.max(1).to_string(),
+        })
+    }
+
+    /// Runs one COLMAP step with `args` (output to `workspace/STEP.log`).
+    fn step(&self, step: &'static str, args: &[String]) -> Result<(), PosesError> {
+        run_step(self.program, self.workspace, step, args)
+    }
+
+    /// SIFT features of every image on the CPU, with one camera of the calibrated model.
+    fn extract_features(&self, camera: &CameraModel) -> Result<(), PosesError> {
+        let (model, params) = colmap_params(camera);
+        let params = params
+            .iter()
+            .map(|p| format!("{p:?}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        self.step(
+            "feature_extractor",
+            &[
+                "--database_path".into(),
+                arg(&self.db),
+                "--image_path".into(),
+                arg(&self.images),
+                "--ImageReader.single_camera".into(),
+                "1".into(),
+                "--ImageReader.camera_model".into(),
+                model.into(),
+                "--ImageReader.camera_params".into(),
+                params,
+                "--SiftExtraction.use_gpu".into(),
+                "0".into(),
+                // At most 1 024 features per keyframe (COLMAP's default is 8 192): matching
+                // cost grows with their square; consecutive video keyframes need far fewer.
+                "--SiftExtraction.max_num_features".into(),
+                "1024".into(),
+                "--SiftExtraction.num_threads".into(),
+                self.threads.clone(),
+            ],
+        )
+    }
+
+    /// Feature matching: `matcher`, or by default exhaustive for up to 30 keyframes and
+    /// sequential beyond.
+    fn match_features(&self, keyframes: usize, matcher: Option<Matcher>) -> Result<(), PosesError> {
+        // Exhaustive matching costs n² pairs (~0.03 s each on 2 cores at 1 024 features):
+        // beyond 30 keyframes the video order is used (each keyframe with its 10 successors).
+        let matcher = matcher.unwrap_or(if keyframes <= 30 {
+            Matcher::Exhaustive
+        } else {
+            Matcher::Sequential { overlap: 10 }
+        });
+        let mut args = vec![
+            "--database_path".into(),
+            arg(&self.db),
+            "--SiftMatching.use_gpu".into(),
+            "0".into(),
+            "--SiftMatching.num_threads".into(),
+            self.threads.clone(),
+        ];
+        let step = match matcher {
+            Matcher::Exhaustive => "exhaustive_matcher",
+            Matcher::Sequential { overlap } => {
+                args.extend([
+                    "--SequentialMatching.overlap".into(),
+                    overlap.to_string(),
+                    "--SequentialMatching.loop_detection".into(),
+                    "0".into(),
+                ]);
+                "sequential_matcher"
+            }
+        };
+        self.step(step, &args)
+    }
+
+    /// The incremental mapper with focal length, principal point and distortion held fixed.
+    fn map(&self) -> Result<(), PosesError> {
+        self.step(
+            "mapper",
+            &[
+                "--database_path".into(),
+                arg(&self.db),
+                "--image_path".into(),
+                arg(&self.images),
+                "--output_path".into(),
+                arg(&self.sparse),
+                "--Mapper.ba_refine_focal_length".into(),
+                "0".into(),
+                "--Mapper.ba_refine_principal_point".into(),
+                "0".into(),
+                "--Mapper.ba_refine_extra_params".into(),
+                "0".into(),
+                "--Mapper.num_threads".into(),
+                self.threads.clone(),
+            ],
+        )
+    }
+}
+
+/// A path as a command-line argument.
+fn arg(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// The reconstruction with the most images among the mapper's output folders (0, 1, …, the
+/// first on ties); `None` when there is none.
+fn largest_reconstruction(sparse: &Path) -> Result<Option<ColmapModel>, PosesError> {
     let mut best: Option<ColmapModel> = None;
-    if let Ok(entries) = std::fs::read_dir(&sparse) {
+    if let Ok(entries) = std::fs::read_dir(sparse) {
         let mut dirs: Vec<_> = entries.flatten().map(|e| e.path()).collect();
         dirs.sort();
         for dir in dirs.iter().filter(|d| d.is_dir()) {
@@ -220,12 +275,7 @@ pub fn run_colmap(
             }
         }
     }
-    best.ok_or_else(|| PosesError::TooFewRegistered {
-        registered: 0,
-        keyframes,
-        needed: 5,
-        workspace: workspace.to_path_buf(),
-    })
+    Ok(best)
 }
 
 /// Whether a failed mapper's log says it found no pair of images to start from (COLMAP 3.8

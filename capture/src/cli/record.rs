@@ -297,10 +297,13 @@ fn boson_control(
     }
 }
 
+/// The rig controller's client on its serial port.
+type RigClient = serial::RigClient<Box<dyn serialport::SerialPort>>;
+
 /// The rig controller, when `--rig-serial` names one: with `--trigger-rate-hz` it triggers both
 /// cameras, and frames pair by trigger counter.
 struct RigControl {
-    client: Option<Arc<std::sync::Mutex<serial::RigClient<Box<dyn serialport::SerialPort>>>>>,
+    client: Option<Arc<std::sync::Mutex<RigClient>>>,
     trigger_poll: Option<daemon::TriggerPoller>,
     rough_clock: Option<(s3tir_capture::session::clock_sync::ClockMap, u32)>,
 }

@@ -75,15 +75,8 @@ pub fn read_session(
     path: &Path,
     mut visit: impl FnMut(SessionItem) -> Result<(), CaptureError>,
 ) -> Result<ReadOutcome, CaptureError> {
-    let io = |what: &'static str| {
-        move |source| CaptureError::SessionIo {
-            path: path.to_owned(),
-            what,
-            source,
-        }
-    };
-    let mut file = File::open(path).map_err(io("open"))?;
-    let file_len = file.metadata().map_err(io("stat"))?.len();
+    let mut file = File::open(path).map_err(io_error(path, "open"))?;
+    let file_len = file.metadata().map_err(io_error(path, "stat"))?.len();
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_end_magic(true)
@@ -93,127 +86,177 @@ pub fn read_session(
             // a clean "record too large" stop instead of an overflow.
             .with_record_length_limit(MAX_RECORD_BYTES),
     );
-    let mut out = ReadOutcome::default();
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
-    let mut pending_thermal: Option<ThermalMeta> = None;
-    let mut pending_rgb: Option<RgbMeta> = None;
-    let mut saw_footer = false;
-    // Where reading stopped: the offset of the record that could not be read, and why.
-    let mut stop: Option<(u64, String)> = None;
-    // Offset of the next file-level record (after the 8-byte magic).
-    let mut offset: u64 = MAGIC_LEN;
-    while let Some(event) = reader.next_event() {
-        let event = match event {
-            Ok(e) => e,
-            Err(e) => {
-                stop = Some((offset, Chain(&e).to_string()));
-                break;
-            }
-        };
-        match event {
-            LinearReadEvent::ReadRequest(n) => {
-                let buf = reader.insert(n);
-                let got = loop {
-                    match file.read(buf) {
-                        Ok(k) => break k,
-                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                        Err(source) => return Err(io("read")(source)),
+    let mut scan = SessionScan {
+        path,
+        out: ReadOutcome::default(),
+        topics: BTreeMap::new(),
+        pending_thermal: None,
+        pending_rgb: None,
+        saw_footer: false,
+    };
+    let stop = scan.read_records(&mut file, &mut reader, &mut visit)?;
+    scan.conclude(stop, &file, file_len)
+        .map_err(io_error(path, "read"))
+}
+
+/// The error of a failed file operation `what` on the session at `path`.
+fn io_error(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> CaptureError {
+    let path = path.to_owned();
+    move |source| CaptureError::SessionIo { path, what, source }
+}
+
+/// A read in progress: what it found so far, and what messages need across records (the
+/// channels' topics, an image's meta message that comes before it).
+struct SessionScan<'p> {
+    path: &'p Path,
+    out: ReadOutcome,
+    topics: BTreeMap<u16, String>,
+    pending_thermal: Option<ThermalMeta>,
+    pending_rgb: Option<RgbMeta>,
+    saw_footer: bool,
+}
+
+impl SessionScan<'_> {
+    /// Reads the file-level records in order, returning where reading stopped early (the
+    /// offset of the record that could not be read, and why), if it did.
+    fn read_records(
+        &mut self,
+        file: &mut File,
+        reader: &mut LinearReader,
+        visit: &mut impl FnMut(SessionItem) -> Result<(), CaptureError>,
+    ) -> Result<Option<(u64, String)>, CaptureError> {
+        // Offset of the next file-level record (after the 8-byte magic).
+        let mut offset: u64 = MAGIC_LEN;
+        while let Some(event) = reader.next_event() {
+            let event = match event {
+                Ok(e) => e,
+                Err(e) => return Ok(Some((offset, Chain(&e).to_string()))),
+            };
+            match event {
+                LinearReadEvent::ReadRequest(n) => {
+                    let got = read_retrying(file, reader.insert(n))
+                        .map_err(io_error(self.path, "read"))?;
+                    reader.notify_read(got);
+                }
+                LinearReadEvent::Record { data, opcode } => {
+                    let record_offset = offset;
+                    offset += RECORD_PREFIX_LEN + data.len() as u64;
+                    if let Some(reason) = self.file_record(opcode, data, visit)? {
+                        return Ok(Some((record_offset, reason)));
                     }
-                };
-                reader.notify_read(got);
-            }
-            LinearReadEvent::Record { data, opcode } => {
-                let record_offset = offset;
-                offset += RECORD_PREFIX_LEN + data.len() as u64;
-                let record = match mcap::parse_record(opcode, data) {
-                    Ok(r) => r,
-                    Err(e) => {
-                        stop = Some((
-                            record_offset,
-                            format!("corrupt record (opcode {opcode:#04x}): {}", Chain(&e)),
-                        ));
-                        break;
-                    }
-                };
-                let mut handle = |rec: Record<'_>,
-                                  topics: &mut BTreeMap<u16, String>|
-                 -> Result<(), CaptureError> {
-                    match rec {
-                        Record::Channel(c) => {
-                            topics.insert(c.id, c.topic);
-                        }
-                        Record::Message { header, data } => {
-                            let t = topics.get(&header.channel_id).cloned().unwrap_or_default();
-                            if let Some(item) = decode_message(
-                                path,
-                                &t,
-                                header.sequence,
-                                &data,
-                                &mut pending_thermal,
-                                &mut pending_rgb,
-                            )? {
-                                visit(item)?;
-                            }
-                        }
-                        Record::Metadata(m) if m.name == "s3tir.session" => {
-                            out.info = SessionInfo::from_map(&m.metadata);
-                        }
-                        Record::Attachment { header, data, .. } => {
-                            out.attachments.insert(header.name, data.into_owned());
-                        }
-                        Record::Footer(_) => saw_footer = true,
-                        _ => {}
-                    }
-                    Ok(())
-                };
-                match record {
-                    Record::Chunk { header, data } => {
-                        // Decompress the whole chunk before handing out anything from it, so
-                        // a damaged chunk contributes nothing.
-                        match decode_chunk(&header, &data) {
-                            Ok(body) => {
-                                let recs = match split_chunk(&body) {
-                                    Ok(recs) => recs,
-                                    Err(reason) => {
-                                        stop = Some((
-                                            record_offset,
-                                            format!("corrupt chunk: {}", Chain(&reason)),
-                                        ));
-                                        break;
-                                    }
-                                };
-                                out.chunks += 1;
-                                for r in recs {
-                                    handle(r, &mut topics)?;
-                                }
-                            }
-                            Err(reason) => {
-                                stop = Some((
-                                    record_offset,
-                                    format!("corrupt chunk: {}", Chain(&reason)),
-                                ));
-                                break;
-                            }
-                        }
-                    }
-                    other => handle(other, &mut topics)?,
                 }
             }
         }
+        Ok(None)
     }
-    if let Some((at, reason)) = stop {
-        out.truncated = true;
-        if is_cut(&file, file_len, at).map_err(io("read"))? {
-            out.truncation_reason = Some(reason);
-        } else {
-            out.truncation_reason = Some(format!("damaged at byte {at}: {reason}"));
-            out.damage = Some(Damage { offset: at, reason });
+
+    /// Handles one file-level record; returns why reading must stop at it (a corrupt record
+    /// or chunk), if it must.
+    fn file_record(
+        &mut self,
+        opcode: u8,
+        data: &[u8],
+        visit: &mut impl FnMut(SessionItem) -> Result<(), CaptureError>,
+    ) -> Result<Option<String>, CaptureError> {
+        let record = match mcap::parse_record(opcode, data) {
+            Ok(r) => r,
+            Err(e) => {
+                return Ok(Some(format!(
+                    "corrupt record (opcode {opcode:#04x}): {}",
+                    Chain(&e)
+                )));
+            }
+        };
+        let Record::Chunk { header, data } = record else {
+            self.record(record, visit)?;
+            return Ok(None);
+        };
+        // Decompress the whole chunk before handing out anything from it, so a damaged chunk
+        // contributes nothing.
+        let recs = match decode_chunk(&header, &data).and_then(|body| split_chunk(&body)) {
+            Ok(recs) => recs,
+            Err(reason) => return Ok(Some(format!("corrupt chunk: {}", Chain(&reason)))),
+        };
+        self.out.chunks += 1;
+        for r in recs {
+            self.record(r, visit)?;
         }
-    } else if !saw_footer {
-        out.truncated = true;
-        out.truncation_reason = Some("file ends without a footer".into());
+        Ok(None)
     }
-    Ok(out)
+
+    /// Handles one record (file-level or from a chunk): channels, messages (decoded and
+    /// visited), session metadata, attachments, the footer.
+    fn record(
+        &mut self,
+        rec: Record<'_>,
+        visit: &mut impl FnMut(SessionItem) -> Result<(), CaptureError>,
+    ) -> Result<(), CaptureError> {
+        match rec {
+            Record::Channel(c) => {
+                self.topics.insert(c.id, c.topic);
+            }
+            Record::Message { header, data } => {
+                let t = self
+                    .topics
+                    .get(&header.channel_id)
+                    .cloned()
+                    .unwrap_or_default();
+                if let Some(item) = decode_message(
+                    self.path,
+                    &t,
+                    header.sequence,
+                    &data,
+                    &mut self.pending_thermal,
+                    &mut self.pending_rgb,
+                )? {
+                    visit(item)?;
+                }
+            }
+            Record::Metadata(m) if m.name == "s3tir.session" => {
+                self.out.info = SessionInfo::from_map(&m.metadata);
+            }
+            Record::Attachment { header, data, .. } => {
+                self.out.attachments.insert(header.name, data.into_owned());
+            }
+            Record::Footer(_) => self.saw_footer = true,
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The outcome: truncated (a cut, or damage when the bad record is all in the file) when
+    /// reading stopped early at `stop`, or when the file ends without its footer.
+    fn conclude(
+        mut self,
+        stop: Option<(u64, String)>,
+        file: &File,
+        file_len: u64,
+    ) -> std::io::Result<ReadOutcome> {
+        if let Some((at, reason)) = stop {
+            self.out.truncated = true;
+            if is_cut(file, file_len, at)? {
+                self.out.truncation_reason = Some(reason);
+            } else {
+                self.out.truncation_reason = Some(format!("damaged at byte {at}: {reason}"));
+                self.out.damage = Some(Damage { offset: at, reason });
+            }
+        } else if !self.saw_footer {
+            self.out.truncated = true;
+            self.out.truncation_reason = Some("file ends without a footer".into());
+        }
+        Ok(self.out)
+    }
+}
+
+/// Reads what `file` has into `buf`, retrying when interrupted.
+fn read_retrying(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+    loop {
+        match file.read(buf) {
+            Ok(k) => return Ok(k),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        }
+    }
 }
 
 /// MCAP's magic (`\x89MCAP0\r\n`) before the first record.

@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use crate::device::FourCc;
 use crate::error::CaptureError;
-use crate::frame::{CapturedFrame, RgbPayload};
+use crate::frame::{CapturedFrame, FfcState, RgbFrame, RgbPayload, ThermalFrame};
 use crate::session::records::{RgbMeta, SessionInfo, SessionRecord, ThermalMeta, topic};
 use crate::session::ros1::{
     RosImage, compressed_schema, encode_ros_compressed, encode_ros_image, image_schema,
@@ -265,97 +265,11 @@ impl SessionWriter {
             SessionRecord::Frame {
                 frame: CapturedFrame::Thermal(f),
                 ffc_hint,
-            } => {
-                let t = f.time;
-                let meta = ThermalMeta {
-                    sequence: t.sequence,
-                    monotonic_ns: t.monotonic_ns,
-                    wall_unix_ns: t.wall_unix_ns,
-                    width: f.width,
-                    height: f.height,
-                    units: f.units,
-                    ffc: f.ffc,
-                    ffc_hint: *ffc_hint,
-                    telemetry_rows: if f.width == 0 {
-                        0
-                    } else {
-                        (f.telemetry_words.len() / f.width as usize) as u32
-                    },
-                    telemetry_words: f.telemetry_words.clone(),
-                    telemetry: f.telemetry,
-                };
-                let m = self.json(&meta)?;
-                self.put(
-                    ch.thermal_meta,
-                    t.sequence,
-                    t.wall_unix_ns,
-                    t.monotonic_ns,
-                    &m,
-                )?;
-                let mut data = Vec::with_capacity(f.pixels.len() * 2);
-                for p in &f.pixels {
-                    data.extend_from_slice(&p.to_le_bytes());
-                }
-                let img = encode_ros_image(
-                    &RosImage {
-                        seq: t.sequence,
-                        width: f.width,
-                        height: f.height,
-                        encoding: "mono16",
-                        step: f.width * 2,
-                        data: &data,
-                    },
-                    t.wall_unix_ns,
-                    "thermal",
-                );
-                self.put(
-                    ch.thermal_image,
-                    t.sequence,
-                    t.wall_unix_ns,
-                    t.monotonic_ns,
-                    &img,
-                )?;
-            }
+            } => self.write_thermal(f, *ffc_hint)?,
             SessionRecord::Frame {
                 frame: CapturedFrame::Rgb(f),
                 ..
-            } => {
-                let t = f.time;
-                let (fourcc, channel, msg) = match &f.payload {
-                    RgbPayload::Mjpeg(b) => (
-                        FourCc::MJPG,
-                        ch.rgb_compressed,
-                        encode_ros_compressed(t.sequence, t.wall_unix_ns, "rgb", b),
-                    ),
-                    RgbPayload::Yuyv(b) => (
-                        FourCc::YUYV,
-                        ch.rgb_image,
-                        encode_ros_image(
-                            &RosImage {
-                                seq: t.sequence,
-                                width: f.width,
-                                height: f.height,
-                                encoding: "yuv422_yuy2",
-                                step: f.width * 2,
-                                data: b,
-                            },
-                            t.wall_unix_ns,
-                            "rgb",
-                        ),
-                    ),
-                };
-                let meta = RgbMeta {
-                    sequence: t.sequence,
-                    monotonic_ns: t.monotonic_ns,
-                    wall_unix_ns: t.wall_unix_ns,
-                    fourcc,
-                    width: f.width,
-                    height: f.height,
-                };
-                let m = self.json(&meta)?;
-                self.put(ch.rgb_meta, t.sequence, t.wall_unix_ns, t.monotonic_ns, &m)?;
-                self.put(channel, t.sequence, t.wall_unix_ns, t.monotonic_ns, &msg)?;
-            }
+            } => self.write_rgb(f)?,
             SessionRecord::Pair(p) => {
                 let m = self.json(p)?;
                 let t = p.thermal_monotonic_ns.max(p.rgb_monotonic_ns);
@@ -385,6 +299,102 @@ impl SessionWriter {
             }
         }
         self.tick()
+    }
+
+    /// A thermal frame: its meta message (JSON), then the image (`mono16`, the pixels without
+    /// the telemetry rows, which the meta message carries).
+    fn write_thermal(&mut self, f: &ThermalFrame, ffc_hint: FfcState) -> Result<(), CaptureError> {
+        let t = f.time;
+        let meta = ThermalMeta {
+            sequence: t.sequence,
+            monotonic_ns: t.monotonic_ns,
+            wall_unix_ns: t.wall_unix_ns,
+            width: f.width,
+            height: f.height,
+            units: f.units,
+            ffc: f.ffc,
+            ffc_hint,
+            telemetry_rows: if f.width == 0 {
+                0
+            } else {
+                (f.telemetry_words.len() / f.width as usize) as u32
+            },
+            telemetry_words: f.telemetry_words.clone(),
+            telemetry: f.telemetry,
+        };
+        let m = self.json(&meta)?;
+        let ch = self.ch;
+        self.put(
+            ch.thermal_meta,
+            t.sequence,
+            t.wall_unix_ns,
+            t.monotonic_ns,
+            &m,
+        )?;
+        let mut data = Vec::with_capacity(f.pixels.len() * 2);
+        for p in &f.pixels {
+            data.extend_from_slice(&p.to_le_bytes());
+        }
+        let img = encode_ros_image(
+            &RosImage {
+                seq: t.sequence,
+                width: f.width,
+                height: f.height,
+                encoding: "mono16",
+                step: f.width * 2,
+                data: &data,
+            },
+            t.wall_unix_ns,
+            "thermal",
+        );
+        self.put(
+            ch.thermal_image,
+            t.sequence,
+            t.wall_unix_ns,
+            t.monotonic_ns,
+            &img,
+        )
+    }
+
+    /// An RGB frame: its meta message (JSON), then the image (MJPEG as a CompressedImage,
+    /// YUYV as an Image).
+    fn write_rgb(&mut self, f: &RgbFrame) -> Result<(), CaptureError> {
+        let ch = self.ch;
+        let t = f.time;
+        let (fourcc, channel, msg) = match &f.payload {
+            RgbPayload::Mjpeg(b) => (
+                FourCc::MJPG,
+                ch.rgb_compressed,
+                encode_ros_compressed(t.sequence, t.wall_unix_ns, "rgb", b),
+            ),
+            RgbPayload::Yuyv(b) => (
+                FourCc::YUYV,
+                ch.rgb_image,
+                encode_ros_image(
+                    &RosImage {
+                        seq: t.sequence,
+                        width: f.width,
+                        height: f.height,
+                        encoding: "yuv422_yuy2",
+                        step: f.width * 2,
+                        data: b,
+                    },
+                    t.wall_unix_ns,
+                    "rgb",
+                ),
+            ),
+        };
+        let meta = RgbMeta {
+            sequence: t.sequence,
+            monotonic_ns: t.monotonic_ns,
+            wall_unix_ns: t.wall_unix_ns,
+            fourcc,
+            width: f.width,
+            height: f.height,
+        };
+        let m = self.json(&meta)?;
+        self.put(ch.rgb_meta, t.sequence, t.wall_unix_ns, t.monotonic_ns, &m)?;
+        self.put(channel, t.sequence, t.wall_unix_ns, t.monotonic_ns, &msg)
     }
 
     /// Ends the chunk if [`FLUSH_INTERVAL`] has passed or it is large. Cheap otherwise.

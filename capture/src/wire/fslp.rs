@@ -288,18 +288,7 @@ impl fmt::Display for FslpPacket {
 
 /// CRC-16/AUG-CCITT: polynomial 0x1021, initial value 0x1D0F, MSB first, no final xor.
 pub fn crc16(data: &[u8]) -> u16 {
-    let mut crc: u16 = 0x1D0F;
-    for &byte in data {
-        crc ^= u16::from(byte) << 8;
-        for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ 0x1021
-            } else {
-                crc << 1
-            };
-        }
-    }
-    crc
+    super::crc16::crc16_1021(0x1D0F, data)
 }
 
 /// Appends `b` to `out`, escaped if it is one of the three special bytes.

@@ -6,8 +6,10 @@
 //! - [`rig_protocol`]: the rig controller's serial protocol,
 //! - [`simwire`]: V4L2-shaped frames over a local socket (simulated rig → capture).
 //!
-//! [`serial`] (feature `rig`) holds the clients that run them over a serial port.
+//! [`serial`] (feature `rig`) holds the clients that run them over a serial port; the private
+//! `crc16` holds the CRC-16 (polynomial 0x1021) both serial codecs check their frames with.
 
+mod crc16;
 pub mod fslp;
 pub mod rig_protocol;
 #[cfg(feature = "rig")]

@@ -41,10 +41,12 @@
 //! The default layout's `images/NNNN.png`, `rgb/`, `depth/` and `temperature/` are not written.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 
 use glam::{DQuat, DVec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use s3tir_calib::model::colmap::ColmapImage;
 use s3tir_calib::{CameraModel, Rigid3};
 
 use super::cameras::{poses, scene_camera};
@@ -197,93 +199,21 @@ pub fn write_joint_scene_set(
             "truth/rgb/rgb",
         ],
     )?;
-    let (w, h) = (thermal_cam.width_px, thermal_cam.height_px);
-    let (rw, rh) = (rgb_cam.width_px, rgb_cam.height_px);
-    let thermal_grid = RayGrid::new(&thermal_cam);
-    // The RGB camera's grid serves the super-resolved thermal truth too (same camera model).
-    let rgb_grid = RayGrid::new(&rgb_cam);
-    let mut sensor = ThermalSensor::new(scene_thermal_profile(thermal_cam), cfg.seed);
-    let radiometry = Radiometry::new();
-    let rgb_profile = RgbProfile {
-        camera: rgb_cam,
-        exposure: joint.rgb_exposure(),
-        ..RgbProfile::hd720()
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5C3E);
-    let mut response = ResponseSimulator::new(effects, cfg.seed);
-    let rig = thermal_from_rgb();
-    let apparent_ck = |radiance: &[f64]| {
-        let t: Vec<f64> = radiance
-            .iter()
-            .map(|&l| radiometry.temperature_k(l))
-            .collect();
-        centikelvin_words(&t)
-    };
-    let images_dir = out.join("images");
-    let truth = out.join("truth");
-    let mut records = Vec::with_capacity(2 * cfg.views);
-    let mut thermal_poses = Vec::with_capacity(cfg.views);
-    let mut holdout = String::new();
+    let mut writer = InstantWriter::new(cfg, layout, effects, joint, thermal_cam, rgb_cam);
+    let mut index = JointIndex::with_capacity(cfg.views);
     for (k, rgb_from_world) in poses(layout, cfg.views).iter().enumerate() {
-        let thermal_from_world = rig.compose(rgb_from_world);
         let (thermal_name, rgb_name) = image_names(k);
-        // Thermal input and its truth at the thermal resolution.
-        let r = render_scene(layout, &thermal_grid, &thermal_from_world, &radiometry);
-        let words = sense_thermal(&mut sensor, &r.radiance, w, h)?;
-        let exported = response.export(&thermal_name, &words);
-        save_exported(&images_dir.join(&thermal_name), w, h, exported)?;
-        let apparent = apparent_ck(&r.radiance);
-        save_u16(&truth.join("apparent").join(&thermal_name), w, h, apparent)?;
-        let depth = depth_mm_words(&r.depth_m);
-        save_u16(&truth.join("depth").join(&thermal_name), w, h, depth)?;
-        // Super-resolved thermal truth: the thermal pose through the RGB-sized camera.
-        let sr = render_scene(layout, &rgb_grid, &thermal_from_world, &radiometry);
-        let apparent_sr = apparent_ck(&sr.radiance);
-        save_u16(
-            &truth.join("apparent_sr").join(&thermal_name),
-            rw,
-            rh,
-            apparent_sr,
-        )?;
-        drop(sr);
-        // RGB input, its noise-free (and blur-free) truth and its depth.
-        let c = render_scene(layout, &rgb_grid, rgb_from_world, &radiometry);
-        let rgb = expose_scene_rgb(&rgb_profile, &c, rw, rh, &mut rng);
-        save_rgb8(&images_dir.join(&rgb_name), rw, rh, rgb)?;
-        let [c0, c1, c2] = &c.rgb_linear;
-        let clean = expose_rgb_channels_noise_free(&rgb_profile, [c0, c1, c2]);
-        save_rgb8(&truth.join("rgb").join(&rgb_name), rw, rh, clean)?;
-        let depth = depth_mm_words(&c.depth_m);
-        save_u16(&truth.join("depth").join(&rgb_name), rw, rh, depth)?;
-        if k % HOLDOUT_EVERY == 0 {
-            holdout.push_str(&format!("{thermal_name}\n{rgb_name}\n"));
-        }
-        thermal_poses.push(thermal_from_world);
-        records.push(colmap_image(
-            2 * k + 1,
-            THERMAL_CAMERA_ID,
+        let thermal_from_world = writer.write_instant(&thermal_name, &rgb_name, rgb_from_world)?;
+        index.add(
+            k,
             thermal_name,
-            &thermal_from_world,
-        )?);
-        records.push(colmap_image(
-            2 * k + 2,
-            RGB_CAMERA_ID,
             rgb_name,
+            thermal_from_world,
             rgb_from_world,
-        )?);
+        )?;
         progress(k + 1, cfg.views);
     }
-    // Points from their own stream: the same for any image size or exposure.
-    let mut points_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x9017_5EED);
-    let points = sample_surface_points(layout, 2000, &mut points_rng);
-    write_colmap_text(
-        &out.join("sparse/0"),
-        &[(THERMAL_CAMERA_ID, thermal_cam), (RGB_CAMERA_ID, rgb_cam)],
-        records,
-        &points,
-    )?;
-    let p = out.join("holdout.txt");
-    std::fs::write(&p, holdout).map_err(io(&p, "write"))?;
+    let thermal_poses = index.write(cfg, layout, thermal_cam, rgb_cam)?;
     // The visible surface at every instant's thermal pose, for scoring meshes.
     let surface_path = out.join(SURFACE_TRUTH_FILE);
     let surface_n = write_surface_truth_with(
@@ -291,30 +221,246 @@ pub fn write_joint_scene_set(
         layout,
         &thermal_cam,
         &thermal_poses,
-        &radiometry,
+        &writer.radiometry,
     )?;
-    write_response_files(out, effects, &response)?;
-    let mut meta = SceneJson::new(
-        cfg,
-        layout,
-        thermal_cam,
-        effects,
-        "images/thermal/",
-        sensor.profile.netd_k,
-    );
-    meta.depth_units = "truth/depth/: camera z along the pixel-centre ray, millimetres, 0 = no \
-                        surface";
-    meta.temperature_units = "not written in the joint layout (no temperature/ folder): \
-                              apparent temperatures are in truth/apparent/ and truth/apparent_sr/";
-    meta.joint = Some(joint_json(joint, &rig, rgb_cam, (w, h)));
-    meta.truth_surface = Some(TruthSurfaceJson::new(
-        surface_n,
-        surface_camera(&thermal_cam)?,
-        SURFACE_WHAT_JOINT,
-    ));
+    write_response_files(out, effects, &writer.response)?;
+    let meta = writer.scene_json(surface_n)?;
     write_json(&out.join("scene.json"), &meta, "scene.json")
 }
 
+/// Renders, senses and saves each instant's images and truth (module docs, "Images" and
+/// "Truth"); holds the sensor and noise streams that run across the instants.
+struct InstantWriter<'a> {
+    cfg: &'a SceneConfig,
+    layout: SceneLayout,
+    effects: ResponseEffects,
+    joint: &'a JointOptions,
+    thermal_cam: CameraModel,
+    rgb_cam: CameraModel,
+    thermal_grid: RayGrid,
+    /// The RGB camera's grid serves the super-resolved thermal truth too (same camera model).
+    rgb_grid: RayGrid,
+    sensor: ThermalSensor,
+    radiometry: Radiometry,
+    rgb_profile: RgbProfile,
+    /// The RGB camera's shot and read noise.
+    rng: ChaCha8Rng,
+    response: ResponseSimulator,
+    /// [`thermal_from_rgb`].
+    rig: Rigid3,
+    images_dir: PathBuf,
+    truth: PathBuf,
+}
+
+impl<'a> InstantWriter<'a> {
+    /// The cameras' grids, the sensor models and the noise streams, seeded from `cfg.seed`.
+    fn new(
+        cfg: &'a SceneConfig,
+        layout: SceneLayout,
+        effects: ResponseEffects,
+        joint: &'a JointOptions,
+        thermal_cam: CameraModel,
+        rgb_cam: CameraModel,
+    ) -> Self {
+        Self {
+            cfg,
+            layout,
+            effects,
+            joint,
+            thermal_cam,
+            rgb_cam,
+            thermal_grid: RayGrid::new(&thermal_cam),
+            rgb_grid: RayGrid::new(&rgb_cam),
+            sensor: ThermalSensor::new(scene_thermal_profile(thermal_cam), cfg.seed),
+            radiometry: Radiometry::new(),
+            rgb_profile: RgbProfile {
+                camera: rgb_cam,
+                exposure: joint.rgb_exposure(),
+                ..RgbProfile::hd720()
+            },
+            rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5C3E),
+            response: ResponseSimulator::new(effects, cfg.seed),
+            rig: thermal_from_rgb(),
+            images_dir: cfg.out_dir.join("images"),
+            truth: cfg.out_dir.join("truth"),
+        }
+    }
+
+    /// Writes the thermal and RGB images of the instant whose RGB pose is `rgb_from_world`,
+    /// with their truth; returns the thermal pose.
+    fn write_instant(
+        &mut self,
+        thermal_name: &str,
+        rgb_name: &str,
+        rgb_from_world: &Rigid3,
+    ) -> Result<Rigid3, SimError> {
+        let thermal_from_world = self.rig.compose(rgb_from_world);
+        self.write_thermal(thermal_name, &thermal_from_world)?;
+        self.write_rgb(rgb_name, rgb_from_world)?;
+        Ok(thermal_from_world)
+    }
+
+    /// The thermal input and its truth at the thermal resolution, then the super-resolved
+    /// thermal truth: the thermal pose through the RGB-sized camera.
+    fn write_thermal(&mut self, name: &str, thermal_from_world: &Rigid3) -> Result<(), SimError> {
+        let (w, h) = (self.thermal_cam.width_px, self.thermal_cam.height_px);
+        let (rw, rh) = (self.rgb_cam.width_px, self.rgb_cam.height_px);
+        let r = render_scene(
+            self.layout,
+            &self.thermal_grid,
+            thermal_from_world,
+            &self.radiometry,
+        );
+        let words = sense_thermal(&mut self.sensor, &r.radiance, w, h)?;
+        let exported = self.response.export(name, &words);
+        save_exported(&self.images_dir.join(name), w, h, exported)?;
+        let apparent = self.apparent_ck(&r.radiance);
+        save_u16(&self.truth.join("apparent").join(name), w, h, apparent)?;
+        let depth = depth_mm_words(&r.depth_m);
+        save_u16(&self.truth.join("depth").join(name), w, h, depth)?;
+        drop(r);
+        let sr = render_scene(
+            self.layout,
+            &self.rgb_grid,
+            thermal_from_world,
+            &self.radiometry,
+        );
+        let apparent_sr = self.apparent_ck(&sr.radiance);
+        save_u16(
+            &self.truth.join("apparent_sr").join(name),
+            rw,
+            rh,
+            apparent_sr,
+        )
+    }
+
+    /// The RGB input, its noise-free (and blur-free) truth and its depth.
+    fn write_rgb(&mut self, name: &str, rgb_from_world: &Rigid3) -> Result<(), SimError> {
+        let (rw, rh) = (self.rgb_cam.width_px, self.rgb_cam.height_px);
+        let c = render_scene(
+            self.layout,
+            &self.rgb_grid,
+            rgb_from_world,
+            &self.radiometry,
+        );
+        let rgb = expose_scene_rgb(&self.rgb_profile, &c, rw, rh, &mut self.rng);
+        save_rgb8(&self.images_dir.join(name), rw, rh, rgb)?;
+        let [c0, c1, c2] = &c.rgb_linear;
+        let clean = expose_rgb_channels_noise_free(&self.rgb_profile, [c0, c1, c2]);
+        save_rgb8(&self.truth.join("rgb").join(name), rw, rh, clean)?;
+        let depth = depth_mm_words(&c.depth_m);
+        save_u16(&self.truth.join("depth").join(name), rw, rh, depth)
+    }
+
+    /// Apparent temperature (centikelvin words) of in-band radiance.
+    fn apparent_ck(&self, radiance: &[f64]) -> Vec<u16> {
+        let t: Vec<f64> = radiance
+            .iter()
+            .map(|&l| self.radiometry.temperature_k(l))
+            .collect();
+        centikelvin_words(&t)
+    }
+
+    /// `scene.json`: the shared fields, the joint layout's units, [`JointJson`] and the
+    /// truth surface of `surface_n` points.
+    fn scene_json(&self, surface_n: usize) -> Result<SceneJson, SimError> {
+        let (w, h) = (self.thermal_cam.width_px, self.thermal_cam.height_px);
+        let mut meta = SceneJson::new(
+            self.cfg,
+            self.layout,
+            self.thermal_cam,
+            self.effects,
+            "images/thermal/",
+            self.sensor.profile.netd_k,
+        );
+        meta.depth_units = "truth/depth/: camera z along the pixel-centre ray, millimetres, 0 = no \
+                            surface";
+        meta.temperature_units = "not written in the joint layout (no temperature/ folder): \
+                                  apparent temperatures are in truth/apparent/ and truth/apparent_sr/";
+        meta.joint = Some(joint_json(self.joint, &self.rig, self.rgb_cam, (w, h)));
+        meta.truth_surface = Some(TruthSurfaceJson::new(
+            surface_n,
+            surface_camera(&self.thermal_cam)?,
+            SURFACE_WHAT_JOINT,
+        ));
+        Ok(meta)
+    }
+}
+
+/// The dataset's index, gathered instant by instant: the COLMAP images, the thermal poses
+/// (for the surface truth) and `holdout.txt`.
+struct JointIndex {
+    records: Vec<ColmapImage>,
+    thermal_poses: Vec<Rigid3>,
+    holdout: String,
+}
+
+impl JointIndex {
+    /// An empty index for `views` instants.
+    fn with_capacity(views: usize) -> Self {
+        Self {
+            records: Vec::with_capacity(2 * views),
+            thermal_poses: Vec::with_capacity(views),
+            holdout: String::new(),
+        }
+    }
+
+    /// Adds instant `k`: image `2k+1` (thermal) and `2k+2` (RGB), held out when
+    /// k % [`HOLDOUT_EVERY`] == 0.
+    fn add(
+        &mut self,
+        k: usize,
+        thermal_name: String,
+        rgb_name: String,
+        thermal_from_world: Rigid3,
+        rgb_from_world: &Rigid3,
+    ) -> Result<(), SimError> {
+        if k.is_multiple_of(HOLDOUT_EVERY) {
+            self.holdout
+                .push_str(&format!("{thermal_name}\n{rgb_name}\n"));
+        }
+        self.thermal_poses.push(thermal_from_world);
+        self.records.push(colmap_image(
+            2 * k + 1,
+            THERMAL_CAMERA_ID,
+            thermal_name,
+            &thermal_from_world,
+        )?);
+        self.records.push(colmap_image(
+            2 * k + 2,
+            RGB_CAMERA_ID,
+            rgb_name,
+            rgb_from_world,
+        )?);
+        Ok(())
+    }
+
+    /// Writes `sparse/0` (both cameras, the images, surface points) and `holdout.txt`;
+    /// returns the thermal poses.
+    fn write(
+        self,
+        cfg: &SceneConfig,
+        layout: SceneLayout,
+        thermal_cam: CameraModel,
+        rgb_cam: CameraModel,
+    ) -> Result<Vec<Rigid3>, SimError> {
+        let out = &cfg.out_dir;
+        // Points from their own stream: the same for any image size or exposure.
+        let mut points_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x9017_5EED);
+        let points = sample_surface_points(layout, 2000, &mut points_rng);
+        write_colmap_text(
+            &out.join("sparse/0"),
+            &[(THERMAL_CAMERA_ID, thermal_cam), (RGB_CAMERA_ID, rgb_cam)],
+            self.records,
+            &points,
+        )?;
+        let p = out.join("holdout.txt");
+        std::fs::write(&p, self.holdout).map_err(io(&p, "write"))?;
+        Ok(self.thermal_poses)
+    }
+}
+
+/// The `joint` object of `scene.json`: the RGB camera, the rig and the truth folders.
 fn joint_json(
     joint: &JointOptions,
     rig: &Rigid3,

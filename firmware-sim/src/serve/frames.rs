@@ -27,8 +27,8 @@ use crate::rig::{
     BACKGROUND_REFLECTANCE, Rig, SUBPIXELS, ThermalBoardTexture, VisibleBoardTexture,
 };
 use crate::sensor::{
-    LinearizedRadiance, RgbProfile, StaticRgbExposer, ThermalOutput, ThermalProfile, rgb_to_jpeg,
-    rgb_to_yuyv,
+    LinearizedRadiance, RgbProfile, StaticRgbExposer, ThermalOutput, ThermalProfile,
+    ThermalSensorFrame, rgb_to_jpeg, rgb_to_yuyv,
 };
 
 /// The board pose the running rig looks at: 0.8 m ahead, slightly tilted.
@@ -167,17 +167,14 @@ pub(super) fn frame_loop(
     let end = cfg
         .duration_s
         .map(|d| Instant::now() + Duration::from_secs_f64(d));
-    // Streaming starts when the first client connects (as V4L2 streaming starts on STREAMON):
-    // a recorder gets both streams from their first frame.
-    while clients
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .is_empty()
-        && !stop.load(Ordering::Relaxed)
-        && end.is_none_or(|e| Instant::now() < e)
-    {
-        thread::sleep(Duration::from_millis(2));
-    }
+    let streams = Streams {
+        cfg,
+        shared,
+        clients,
+        stop,
+        end,
+    };
+    streams.wait_for_first_client();
     let start = Instant::now();
     let start_mono_ns = monotonic_ns();
     let thermal_pacer = Pacer {
@@ -189,133 +186,26 @@ pub(super) fn frame_loop(
     thread::scope(|scope| -> Result<(), SimError> {
         // Renderer: the image of epoch k+1 from the board as it was when epoch k began (the
         // thermal stream hands it over), so the frames do not depend on thread timing.
-        let (to_renderer, renderer_rx) =
-            std::sync::mpsc::channel::<(u64, BoardThermal, crate::physics::Radiometry)>();
+        let (to_renderer, renderer_rx) = std::sync::mpsc::channel::<RenderJob>();
         let (slots_r, tgrid_r, pose_r) = (&slots, &tgrid, &thermal_from_board);
-        let renderer = scope.spawn(move || {
-            while let Ok((epoch, board, radiometry)) = renderer_rx.recv() {
-                let img = render_radiance(&board, &radiometry, &profile, tgrid_r, pose_r);
-                let mut sl = slots_r
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner);
-                sl.insert(epoch, Arc::new(img));
-                while sl.len() > 2 {
-                    sl.pop_first();
-                }
-            }
-        });
+        let renderer =
+            scope.spawn(move || render_epochs(renderer_rx, slots_r, &profile, tgrid_r, pose_r));
         let rgb = rgb_exposer
             .as_ref()
             .zip(cfg.rgb.as_ref())
             .map(|(exposer, r)| {
-                scope.spawn(move || -> Result<(), SimError> {
-                    // RGB exposures are a quarter frame (of 60 Hz) after the thermal ones, so the
-                    // pairing has a sync error to report.
-                    let pacer = Pacer {
-                        start,
-                        start_mono_ns,
-                        period_ns: 1e9 / r.rate_hz,
-                        phase_ns: 4_166_667,
-                    };
-                    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x0052_4742);
-                    let (rw, rh) = (r.camera.width_px, r.camera.height_px);
-                    let mut stats = StreamStats::default();
-                    let mut n = 0u64;
-                    let mut clock =
-                        StreamClock::new(pacer, TRIGGER_LATENCY_NS[1], cfg.seed ^ 0x0052_4A54);
-                    while let Some(stamp_ns) = clock.next(shared, stop, end, &mut stats) {
-                        let rgb = exposer.expose(&mut rng);
-                        let (fourcc, payload, bpl) = match cfg.rgb_format {
-                            RgbFormat::Mjpeg => (FourCc::MJPG, rgb_to_jpeg(&rgb, rw, rh)?, 0),
-                            RgbFormat::Yuyv => (
-                                FourCc::YUYV,
-                                rgb_to_yuyv(&rgb, rw as usize, rh as usize),
-                                rw * 2,
-                            ),
-                        };
-                        let frame = WireFrame {
-                            stream: StreamId::Rgb,
-                            flags: 0,
-                            fourcc,
-                            width: rw,
-                            height: rh,
-                            bytes_per_line: bpl,
-                            sequence: n as u32,
-                            monotonic_ns: stamp_ns,
-                            payload,
-                        };
-                        broadcast(clients, &frame, &cfg.socket);
-                        n += 1;
-                    }
-                    stats.log("rgb");
-                    Ok(())
-                })
+                // RGB exposures are a quarter frame (of 60 Hz) after the thermal ones, so the
+                // pairing has a sync error to report.
+                let pacer = Pacer {
+                    start,
+                    start_mono_ns,
+                    period_ns: 1e9 / r.rate_hz,
+                    phase_ns: 4_166_667,
+                };
+                scope.spawn(move || streams.rgb(exposer, r, pacer))
             });
         // Thermal stream, on this thread.
-        let w = profile.camera.width_px;
-        let mut stats = StreamStats::default();
-        let mut n = 0u64;
-        let frames_per_epoch = (profile.rate_hz * RENDER_EPOCH_S).round().max(1.0) as u64;
-        let frame_s = 1.0 / profile.rate_hz;
-        let mut clock =
-            StreamClock::new(thermal_pacer, TRIGGER_LATENCY_NS[0], cfg.seed ^ 0x0054_4A54);
-        while let Some(stamp_ns) = clock.next(shared, stop, end, &mut stats) {
-            let epoch = n / frames_per_epoch;
-            // The image of this epoch, or the latest one when the renderer is behind.
-            let img = {
-                let sl = slots
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner);
-                sl.range(..=epoch).next_back().map(|(_, v)| v.clone())
-            };
-            let Some(img) = img else {
-                n += 1;
-                continue;
-            };
-            let out = {
-                let mut s = lock(shared);
-                // The heat model runs in sensor time (the controller's setpoint acts on it).
-                s.board.advance(frame_s);
-                if n.is_multiple_of(frames_per_epoch) {
-                    let _ = to_renderer.send((
-                        epoch + 1,
-                        s.board.clone(),
-                        s.sensor.radiometry().clone(),
-                    ));
-                }
-                s.sensor.next_frame_fast(&img)
-            };
-            if let ThermalOutput::Frame(f) = out {
-                let mut flags = 0;
-                if f.ffc_frozen {
-                    flags |= simwire::FLAG_FFC_FROZEN;
-                }
-                if profile.telemetry_rows > 0 {
-                    flags |= simwire::FLAG_TELEMETRY;
-                }
-                if profile.units == ThermalUnits::CentiKelvin {
-                    flags |= simwire::FLAG_TLINEAR;
-                }
-                let mut payload = Vec::with_capacity(f.words.len() * 2);
-                for v in &f.words {
-                    payload.extend_from_slice(&v.to_le_bytes());
-                }
-                let frame = WireFrame {
-                    stream: StreamId::Thermal,
-                    flags,
-                    fourcc: FourCc::Y16,
-                    width: w,
-                    height: profile.output_height(),
-                    bytes_per_line: w * 2,
-                    sequence: f.sequence,
-                    monotonic_ns: stamp_ns,
-                    payload,
-                };
-                broadcast(clients, &frame, &cfg.socket);
-            }
-            n += 1;
-        }
-        stats.log("thermal");
+        streams.thermal(&profile, thermal_pacer, &slots, &to_renderer);
         // Stop the renderer (and RGB, if the thermal stream ended first).
         stop.store(true, Ordering::Relaxed);
         drop(to_renderer);
@@ -329,4 +219,184 @@ pub(super) fn frame_loop(
             None => Ok(()),
         }
     })
+}
+
+/// What the thermal stream hands the renderer: the epoch to render, the board and the
+/// radiometry as they were when the epoch before it began.
+type RenderJob = (u64, BoardThermal, crate::physics::Radiometry);
+
+/// Renders each epoch's radiance as the thermal stream asks for it, keeping the two latest
+/// in `slots`; returns when the thermal stream drops its sender.
+fn render_epochs(
+    jobs: std::sync::mpsc::Receiver<RenderJob>,
+    slots: &RadianceSlots,
+    profile: &ThermalProfile,
+    tgrid: &RayGrid,
+    thermal_from_board: &Rigid3,
+) {
+    while let Ok((epoch, board, radiometry)) = jobs.recv() {
+        let img = render_radiance(&board, &radiometry, profile, tgrid, thermal_from_board);
+        let mut sl = slots
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        sl.insert(epoch, Arc::new(img));
+        while sl.len() > 2 {
+            sl.pop_first();
+        }
+    }
+}
+
+/// What both streams share: the configuration, the rig's state, the socket's clients, and
+/// when to stop.
+#[derive(Clone, Copy)]
+struct Streams<'a> {
+    cfg: &'a ServeConfig,
+    shared: &'a Mutex<Shared>,
+    clients: &'a Mutex<Vec<UnixStream>>,
+    stop: &'a AtomicBool,
+    end: Option<Instant>,
+}
+
+impl Streams<'_> {
+    /// Waits for the first client: streaming starts when it connects (as V4L2 streaming
+    /// starts on STREAMON), so a recorder gets both streams from their first frame.
+    fn wait_for_first_client(&self) {
+        while self
+            .clients
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .is_empty()
+            && !self.stop.load(Ordering::Relaxed)
+            && self.end.is_none_or(|e| Instant::now() < e)
+        {
+            thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// The RGB stream: exposes the board image (noise) at every due time, encodes it as
+    /// `cfg.rgb_format` and broadcasts it, until the stream's clock ends.
+    fn rgb(
+        &self,
+        exposer: &StaticRgbExposer,
+        r: &RgbProfile,
+        pacer: Pacer,
+    ) -> Result<(), SimError> {
+        let cfg = self.cfg;
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x0052_4742);
+        let (rw, rh) = (r.camera.width_px, r.camera.height_px);
+        let mut stats = StreamStats::default();
+        let mut n = 0u64;
+        let mut clock = StreamClock::new(pacer, TRIGGER_LATENCY_NS[1], cfg.seed ^ 0x0052_4A54);
+        while let Some(stamp_ns) = clock.next(self.shared, self.stop, self.end, &mut stats) {
+            let rgb = exposer.expose(&mut rng);
+            let (fourcc, payload, bpl) = match cfg.rgb_format {
+                RgbFormat::Mjpeg => (FourCc::MJPG, rgb_to_jpeg(&rgb, rw, rh)?, 0),
+                RgbFormat::Yuyv => (
+                    FourCc::YUYV,
+                    rgb_to_yuyv(&rgb, rw as usize, rh as usize),
+                    rw * 2,
+                ),
+            };
+            let frame = WireFrame {
+                stream: StreamId::Rgb,
+                flags: 0,
+                fourcc,
+                width: rw,
+                height: rh,
+                bytes_per_line: bpl,
+                sequence: n as u32,
+                monotonic_ns: stamp_ns,
+                payload,
+            };
+            broadcast(self.clients, &frame, &cfg.socket);
+            n += 1;
+        }
+        stats.log("rgb");
+        Ok(())
+    }
+
+    /// The thermal stream: at every due time advances the board's heat model by one frame,
+    /// senses the epoch's radiance image (asking the renderer for the next epoch's at each
+    /// epoch start) and broadcasts the frame, until the stream's clock ends.
+    fn thermal(
+        &self,
+        profile: &ThermalProfile,
+        pacer: Pacer,
+        slots: &RadianceSlots,
+        to_renderer: &std::sync::mpsc::Sender<RenderJob>,
+    ) {
+        let mut stats = StreamStats::default();
+        let mut n = 0u64;
+        let frames_per_epoch = (profile.rate_hz * RENDER_EPOCH_S).round().max(1.0) as u64;
+        let frame_s = 1.0 / profile.rate_hz;
+        let mut clock = StreamClock::new(pacer, TRIGGER_LATENCY_NS[0], self.cfg.seed ^ 0x0054_4A54);
+        while let Some(stamp_ns) = clock.next(self.shared, self.stop, self.end, &mut stats) {
+            let epoch = n / frames_per_epoch;
+            // The image of this epoch, or the latest one when the renderer is behind.
+            let img = {
+                let sl = slots
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                sl.range(..=epoch).next_back().map(|(_, v)| v.clone())
+            };
+            let Some(img) = img else {
+                n += 1;
+                continue;
+            };
+            let out = {
+                let mut s = lock(self.shared);
+                // The heat model runs in sensor time (the controller's setpoint acts on it).
+                s.board.advance(frame_s);
+                if n.is_multiple_of(frames_per_epoch) {
+                    let _ = to_renderer.send((
+                        epoch + 1,
+                        s.board.clone(),
+                        s.sensor.radiometry().clone(),
+                    ));
+                }
+                s.sensor.next_frame_fast(&img)
+            };
+            if let ThermalOutput::Frame(f) = out {
+                let frame = thermal_wire_frame(profile, &f, stamp_ns);
+                broadcast(self.clients, &frame, &self.cfg.socket);
+            }
+            n += 1;
+        }
+        stats.log("thermal");
+    }
+}
+
+/// A sensed thermal frame as the simwire carries it: Y16 little-endian words, flagged for
+/// FFC, telemetry rows and TLinear units.
+fn thermal_wire_frame(
+    profile: &ThermalProfile,
+    f: &ThermalSensorFrame,
+    stamp_ns: u64,
+) -> WireFrame {
+    let w = profile.camera.width_px;
+    let mut flags = 0;
+    if f.ffc_frozen {
+        flags |= simwire::FLAG_FFC_FROZEN;
+    }
+    if profile.telemetry_rows > 0 {
+        flags |= simwire::FLAG_TELEMETRY;
+    }
+    if profile.units == ThermalUnits::CentiKelvin {
+        flags |= simwire::FLAG_TLINEAR;
+    }
+    let mut payload = Vec::with_capacity(f.words.len() * 2);
+    for v in &f.words {
+        payload.extend_from_slice(&v.to_le_bytes());
+    }
+    WireFrame {
+        stream: StreamId::Thermal,
+        flags,
+        fourcc: FourCc::Y16,
+        width: w,
+        height: profile.output_height(),
+        bytes_per_line: w * 2,
+        sequence: f.sequence,
+        monotonic_ns: stamp_ns,
+        payload,
+    }
 }

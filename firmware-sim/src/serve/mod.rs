@@ -29,7 +29,7 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::thread;
+use std::thread::{self, JoinHandle};
 use std::time::Duration;
 
 use s3tir_capture::wire::fslp::FslpStreamDecoder;
@@ -50,7 +50,7 @@ pub use firmware::{
 };
 use firmware::{Shared, handle_fslp, handle_rig};
 use frames::{frame_loop, prepare};
-use pty::{open_pty, pty_loop};
+use pty::{Pty, open_pty, pty_loop};
 
 /// RGB output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -119,7 +119,36 @@ pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(
     let stop = watch_stop(&cfg);
     let fslp_pty = open_pty("open FSLP pty")?;
     let rig_pty = open_pty("open rig controller pty")?;
+    let (profile, shared) = rig_state(&cfg);
 
+    // Render what the first frames need before clients can connect.
+    let prepared = prepare(&cfg, profile, &shared);
+    let listener = bind_socket(&cfg)?;
+    announce("socket", &cfg.socket.display().to_string());
+    announce("fslp_pty", &fslp_pty.path.display().to_string());
+    announce("rig_pty", &rig_pty.path.display().to_string());
+    announce_streams(&cfg, &profile, announce);
+
+    let clients: Arc<Mutex<Vec<UnixStream>>> = Arc::default();
+    let threads = vec![
+        serve_fslp(fslp_pty, shared.clone(), stop.clone()),
+        serve_rig_controller(rig_pty, shared.clone(), stop.clone()),
+        accept_clients(listener, clients.clone(), stop.clone()),
+    ];
+    announce("ready", "1");
+
+    let result = frame_loop(&cfg, profile, &shared, &clients, &stop, prepared);
+    stop.store(true, Ordering::Relaxed);
+    for t in threads {
+        let _ = t.join();
+    }
+    let _ = std::fs::remove_file(&cfg.socket);
+    result
+}
+
+/// The thermal profile as served (a non-positive automatic FFC period turns automatic FFC
+/// off) and the rig's shared state: the thermal core, the board, the controller.
+fn rig_state(cfg: &ServeConfig) -> (ThermalProfile, Arc<Mutex<Shared>>) {
     let board_spec = BoardSpec::default();
     let mut profile = cfg.thermal;
     let auto_ffc_period_s = profile.auto_ffc_period_s;
@@ -134,9 +163,12 @@ pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(
         auto_ffc_period_s,
         monotonic_ns(),
     )));
+    (profile, shared)
+}
 
-    // Render what the first frames need before clients can connect.
-    let prepared = prepare(&cfg, profile, &shared);
+/// Binds the frame socket (replacing a stale one), non-blocking so the accept loop sees
+/// the stop flag.
+fn bind_socket(cfg: &ServeConfig) -> Result<UnixListener, SimError> {
     if cfg.socket.exists() {
         std::fs::remove_file(&cfg.socket).map_err(|source| SimError::Io {
             path: cfg.socket.clone(),
@@ -156,9 +188,15 @@ pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(
             what: "set non-blocking",
             source,
         })?;
-    announce("socket", &cfg.socket.display().to_string());
-    announce("fslp_pty", &fslp_pty.path.display().to_string());
-    announce("rig_pty", &rig_pty.path.display().to_string());
+    Ok(listener)
+}
+
+/// Announces the streams: `thermal` (profile, size, rate) and, with `--rgb`, `rgb`.
+fn announce_streams(
+    cfg: &ServeConfig,
+    profile: &ThermalProfile,
+    announce: &mut dyn FnMut(&str, &str),
+) {
     let c = profile.camera;
     announce(
         "thermal",
@@ -183,79 +221,78 @@ pub fn serve(cfg: ServeConfig, announce: &mut dyn FnMut(&str, &str)) -> Result<(
             ),
         );
     }
+}
 
-    let mut threads = Vec::new();
-    {
-        let (shared, stop) = (shared.clone(), stop.clone());
-        threads.push(thread::spawn(move || {
-            let mut dec = FslpStreamDecoder::new();
-            pty_loop(fslp_pty, stop, |bytes| {
-                let mut out = Vec::new();
-                for r in dec.push(bytes) {
-                    match r {
-                        Ok(req) if req.is_request() => {
-                            let reply = handle_fslp(&shared, &req);
-                            tracing::debug!("FSLP {req} -> {reply}");
-                            match reply.encode() {
-                                Ok(b) => out.extend(b),
-                                Err(e) => tracing::warn!("FSLP reply not encodable: {e}"),
-                            }
-                        }
-                        Ok(other) => tracing::debug!("FSLP: ignoring non-request {other}"),
-                        // A real Boson drops malformed packets without a reply.
-                        Err(e) => tracing::warn!("FSLP: dropped malformed packet: {e}"),
-                    }
-                }
-                out
-            });
-        }));
-    }
-    {
-        let (shared, stop) = (shared.clone(), stop.clone());
-        threads.push(thread::spawn(move || {
-            let mut dec = RigStreamDecoder::new();
-            pty_loop(rig_pty, stop, |bytes| {
-                let mut out = Vec::new();
-                for r in dec.push(bytes) {
-                    match r {
-                        Ok(req) => match handle_rig(&shared, &req).encode() {
+/// Serves the Boson FSLP firmware on its pty until `stop`, in its own thread.
+fn serve_fslp(pty: Pty, shared: Arc<Mutex<Shared>>, stop: Arc<AtomicBool>) -> JoinHandle<()> {
+    thread::spawn(move || {
+        let mut dec = FslpStreamDecoder::new();
+        pty_loop(pty, stop, |bytes| {
+            let mut out = Vec::new();
+            for r in dec.push(bytes) {
+                match r {
+                    Ok(req) if req.is_request() => {
+                        let reply = handle_fslp(&shared, &req);
+                        tracing::debug!("FSLP {req} -> {reply}");
+                        match reply.encode() {
                             Ok(b) => out.extend(b),
-                            Err(e) => tracing::warn!("rig reply not encodable: {e}"),
-                        },
-                        Err(e) => tracing::warn!("rig controller: dropped malformed frame: {e}"),
+                            Err(e) => tracing::warn!("FSLP reply not encodable: {e}"),
+                        }
                     }
-                }
-                out
-            });
-        }));
-    }
-    let clients: Arc<Mutex<Vec<UnixStream>>> = Arc::default();
-    {
-        let (clients, stop) = (clients.clone(), stop.clone());
-        threads.push(thread::spawn(move || {
-            while !stop.load(Ordering::Relaxed) {
-                match listener.accept() {
-                    Ok((stream, _)) => {
-                        // A client that reads nothing for 2 s is dropped (a frame half-written
-                        // cannot be resumed); a recorder that is merely slow is not.
-                        let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
-                        clients
-                            .lock()
-                            .unwrap_or_else(std::sync::PoisonError::into_inner)
-                            .push(stream);
-                    }
-                    Err(_) => thread::sleep(Duration::from_millis(10)),
+                    Ok(other) => tracing::debug!("FSLP: ignoring non-request {other}"),
+                    // A real Boson drops malformed packets without a reply.
+                    Err(e) => tracing::warn!("FSLP: dropped malformed packet: {e}"),
                 }
             }
-        }));
-    }
-    announce("ready", "1");
+            out
+        });
+    })
+}
 
-    let result = frame_loop(&cfg, profile, &shared, &clients, &stop, prepared);
-    stop.store(true, Ordering::Relaxed);
-    for t in threads {
-        let _ = t.join();
-    }
-    let _ = std::fs::remove_file(&cfg.socket);
-    result
+/// Serves the rig controller firmware on its pty until `stop`, in its own thread.
+fn serve_rig_controller(
+    pty: Pty,
+    shared: Arc<Mutex<Shared>>,
+    stop: Arc<AtomicBool>,
+) -> JoinHandle<()> {
+    thread::spawn(move || {
+        let mut dec = RigStreamDecoder::new();
+        pty_loop(pty, stop, |bytes| {
+            let mut out = Vec::new();
+            for r in dec.push(bytes) {
+                match r {
+                    Ok(req) => match handle_rig(&shared, &req).encode() {
+                        Ok(b) => out.extend(b),
+                        Err(e) => tracing::warn!("rig reply not encodable: {e}"),
+                    },
+                    Err(e) => tracing::warn!("rig controller: dropped malformed frame: {e}"),
+                }
+            }
+            out
+        });
+    })
+}
+
+/// Accepts the socket's clients until `stop`, in its own thread.
+fn accept_clients(
+    listener: UnixListener,
+    clients: Arc<Mutex<Vec<UnixStream>>>,
+    stop: Arc<AtomicBool>,
+) -> JoinHandle<()> {
+    thread::spawn(move || {
+        while !stop.load(Ordering::Relaxed) {
+            match listener.accept() {
+                Ok((stream, _)) => {
+                    // A client that reads nothing for 2 s is dropped (a frame half-written
+                    // cannot be resumed); a recorder that is merely slow is not.
+                    let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
+                    clients
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .push(stream);
+                }
+                Err(_) => thread::sleep(Duration::from_millis(10)),
+            }
+        }
+    })
 }

@@ -53,7 +53,10 @@
 //!    3–6 run, and tags seen on a whole board then fix its order or refuse another board.
 //!
 //! The result types are in `detection`; `grid` holds the measures of a corner grid the
-//! steps share (spacing, roughness, planar fit). [`detect_board`] runs the steps for one image.
+//! steps share (spacing, roughness, planar fit). [`detect_board`] runs the steps for one image:
+//! the board from its tags (`board_from_tags`) where a tag of it is seen, else the search, the
+//! candidate with the best refinement (`best_candidate`), its canonical order and scores
+//! (`ordered_detection`) and the tags' say on that order (`order_by_board_tags`).
 
 mod detection;
 mod grid;
@@ -63,13 +66,15 @@ mod search;
 
 use glam::DVec2;
 use opencv::calib3d;
-use opencv::core::{Point2f, Size};
+use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 
 use crate::detect::board::BoardSpec;
 use crate::detect::chessboard::Detector;
 use crate::detect::scalar::ScalarImage;
+use crate::detect::tagboard::TagRejection;
 use crate::error::{CalibError, cv};
+use crate::tags::TagDetection;
 pub use detection::{BoardDetection, BoardOrder, DetectFailure, Refinement, rotate_180};
 use grid::{min_spacing, planar_fit_rms, roughness};
 pub use refine::SADDLE_MAX_SPACING_PX;
@@ -82,20 +87,10 @@ pub fn detect_board(
     board: &BoardSpec,
 ) -> Result<Result<BoardDetection, DetectFailure>, CalibError> {
     let (cols, rows) = (board.cols() as usize, board.rows() as usize);
-    let pattern = Size::new(cols as i32, rows as i32);
     // The stretched float image (for sub-pixel refinement) and its 8-bit quantisation (for
     // the detectors): `stretch_to_u8(img, 0.005, 0.995)` from one quantile pass.
     let stretched = stretched_f32(img)?;
-    let grey = {
-        let data = stretched
-            .data_typed::<f32>()
-            .map_err(cv("float image data"))?;
-        let bytes = data
-            .iter()
-            .map(|v| v.clamp(0.0, 255.0).round() as u8)
-            .collect();
-        image::GrayImage::from_raw(img.width_px, img.height_px, bytes).unwrap_or_default()
-    };
+    let grey = quantised(img, &stretched)?;
     // A board with tags: the tags are decoded first. Where any of the board's tags is seen,
     // the board grows from them (`tagboard`): ChArUco-like prints slow OpenCV's chessboard
     // detectors 3–4× and make them miss boards, and the tags give the order and identity
@@ -109,107 +104,107 @@ pub fn detect_board(
     let float_img = crate::detect::tagboard::mask_tags(stretched, board, &tags)?;
     let mut from_tags = None;
     if tags.iter().any(|t| board.tag_corners_sq(t.id).is_some()) {
-        let sample = |p: DVec2| img.sample(p);
-        let size = (img.width_px, img.height_px);
-        match crate::detect::tagboard::partial_from_tags(&sample, size, &float_img, board, &tags)? {
-            Ok(found) => {
-                let mut refined = Refined {
-                    fit: found.planar_fit_px,
-                    pts: found.corners_px.clone(),
-                    refinement: Refinement::CornerSubPix,
-                    variants: vec![(Refinement::CornerSubPix, found.corners_px)],
-                };
-                // A whole board from tags also gets the saddle fit (on the masked image).
-                if found.corner_ids.len() == board.corner_count() {
-                    let (cols, rows) = (board.cols() as usize, board.rows() as usize);
-                    let start = refined.pts.clone();
-                    refined.add_saddle(&float_img, &start, &start, cols, rows)?;
-                }
-                return Ok(Ok(BoardDetection {
-                    corners_px: refined.pts,
-                    corner_ids: found.corner_ids,
-                    detector: "apriltag",
-                    inverted: false,
-                    sharpness_px: f64::NAN,
-                    contrast_z: f64::NAN,
-                    roughness_px: f64::NAN,
-                    planar_fit_px: refined.fit,
-                    refinement: refined.refinement,
-                    variants: refined.variants,
-                    order: BoardOrder::Tags,
-                }));
-            }
+        match board_from_tags(img, &float_img, board, &tags)? {
+            Ok(det) => return Ok(Ok(det)),
             Err(why) => from_tags = Some(why),
         }
     }
-    let search::Search {
-        candidates,
-        scale,
-        image: up,
-    } = search::search(&grey, cols, rows)?;
-    let s = scale;
-    let to_orig = |p: &Point2f| search::to_original(p, s);
-    let quiet = board
-        .has_tags()
-        .then_some(0.5 * (1.0 - board.apriltag_ratio));
-    struct Best<'a> {
-        refined: Refined,
-        cand: &'a search::Candidate,
-        /// The detector's corners (the saddle fit's second start).
-        raw: Vec<DVec2>,
-        /// The `cornerSubPix` corners (the saddle fit's first start).
-        subpix: Vec<DVec2>,
-    }
-    let mut best: Option<Best> = None;
-    for cand in &candidates {
-        let pts: Vec<DVec2> = cand.corners_up.iter().map(to_orig).collect();
-        if pts.len() != cols * rows
-            || pts.iter().any(|p| !p.is_finite())
-            || min_spacing(&pts, cols) < 2.0
-        {
-            continue;
+    let found = search::search(&grey, cols, rows)?;
+    let Some(best) = best_candidate(&found, &float_img, cols, rows)? else {
+        if !board.has_tags() {
+            return Ok(Err(DetectFailure::NotFound));
         }
-        let raw = pts.clone();
-        let refined = refine(&float_img, &pts, cols, scale.max(1.0))?;
-        // Refinement must not jump to another corner.
-        let max_move = refined
-            .iter()
-            .zip(&pts)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0, f64::max);
-        let mut variants: Vec<(Refinement, Vec<DVec2>)> = Vec::with_capacity(3);
-        // The SB detector's own corners are sub-pixel already; the classic detector's are not.
-        if cand.detector == Detector::SectorBased {
-            variants.push((Refinement::Detector, raw.clone()));
-        }
-        let subpix = if max_move < 0.25 * min_spacing(&pts, cols) {
-            refined
-        } else {
-            pts
+        return Ok(Err(DetectFailure::NoPartial(from_tags.unwrap_or_else(
+            || crate::detect::tagboard::no_board_tags(&tags),
+        ))));
+    };
+    let det = match ordered_detection(img, board, best, found.scale, &found.image)? {
+        Ok(det) => det,
+        Err(why) => return Ok(Err(why)),
+    };
+    order_by_board_tags(board, det, &tags)
+}
+
+/// The stretched float image quantised to 8 bits (the image the detectors search).
+fn quantised(img: &ScalarImage, stretched: &Mat) -> Result<image::GrayImage, CalibError> {
+    let data = stretched
+        .data_typed::<f32>()
+        .map_err(cv("float image data"))?;
+    let bytes = data
+        .iter()
+        .map(|v| v.clamp(0.0, 255.0).round() as u8)
+        .collect();
+    Ok(image::GrayImage::from_raw(img.width_px, img.height_px, bytes).unwrap_or_default())
+}
+
+/// The board grown from its decoded tags (whole or partial, `cornerSubPix` on the masked
+/// image; a whole board also gets the saddle fit), or why the tags give none.
+fn board_from_tags(
+    img: &ScalarImage,
+    float_img: &Mat,
+    board: &BoardSpec,
+    tags: &[TagDetection],
+) -> Result<Result<BoardDetection, TagRejection>, CalibError> {
+    let sample = |p: DVec2| img.sample(p);
+    let size = (img.width_px, img.height_px);
+    let found =
+        match crate::detect::tagboard::partial_from_tags(&sample, size, float_img, board, tags)? {
+            Ok(found) => found,
+            Err(why) => return Ok(Err(why)),
         };
-        variants.push((Refinement::CornerSubPix, subpix.clone()));
-        let mut pick: Option<(f64, usize)> = None;
-        for (i, (refinement, pts)) in variants.iter().enumerate() {
-            let fit = planar_fit_rms(pts, cols)?;
-            tracing::trace!(?refinement, planar_fit_px = fit, "refinement candidate");
-            if pick.is_none_or(|(f, _)| fit < f) {
-                pick = Some((fit, i));
-            }
-        }
-        if let Some((fit, i)) = pick
-            && best.as_ref().is_none_or(|b| fit < b.refined.fit)
+    let mut refined = Refined {
+        fit: found.planar_fit_px,
+        pts: found.corners_px.clone(),
+        refinement: Refinement::CornerSubPix,
+        variants: vec![(Refinement::CornerSubPix, found.corners_px)],
+    };
+    // A whole board from tags also gets the saddle fit (on the masked image).
+    if found.corner_ids.len() == board.corner_count() {
+        let (cols, rows) = (board.cols() as usize, board.rows() as usize);
+        let start = refined.pts.clone();
+        refined.add_saddle(float_img, &start, &start, cols, rows)?;
+    }
+    Ok(Ok(BoardDetection {
+        corners_px: refined.pts,
+        corner_ids: found.corner_ids,
+        detector: "apriltag",
+        inverted: false,
+        sharpness_px: f64::NAN,
+        contrast_z: f64::NAN,
+        roughness_px: f64::NAN,
+        planar_fit_px: refined.fit,
+        refinement: refined.refinement,
+        variants: refined.variants,
+        order: BoardOrder::Tags,
+    }))
+}
+
+/// The kept search candidate with its refinements.
+struct Best<'a> {
+    refined: Refined,
+    cand: &'a search::Candidate,
+    /// The detector's corners (the saddle fit's second start).
+    raw: Vec<DVec2>,
+    /// The `cornerSubPix` corners (the saddle fit's first start).
+    subpix: Vec<DVec2>,
+}
+
+/// The candidate whose best refinement has the smallest planar fit (the first on ties), with
+/// the saddle fit added; `None` when no candidate is usable.
+fn best_candidate<'a>(
+    found: &'a search::Search,
+    float_img: &Mat,
+    cols: usize,
+    rows: usize,
+) -> Result<Option<Best<'a>>, CalibError> {
+    let mut best: Option<Best> = None;
+    for cand in &found.candidates {
+        if let Some(b) = refine_candidate(cand, found.scale, float_img, cols, rows)?
+            && best
+                .as_ref()
+                .is_none_or(|kept| b.refined.fit < kept.refined.fit)
         {
-            best = Some(Best {
-                refined: Refined {
-                    fit,
-                    pts: variants[i].1.clone(),
-                    refinement: variants[i].0,
-                    variants,
-                },
-                cand,
-                raw,
-                subpix,
-            });
+            best = Some(b);
         }
     }
     // The saddle fit (the dearest refinement) runs once, on the kept candidate: when both
@@ -217,9 +212,87 @@ pub fn detect_board(
     // amounts and the fit converges to the same corners from either.
     if let Some(b) = best.as_mut() {
         b.refined
-            .add_saddle(&float_img, &b.subpix, &b.raw, cols, rows)?;
+            .add_saddle(float_img, &b.subpix, &b.raw, cols, rows)?;
     }
-    let Some(Best {
+    Ok(best)
+}
+
+/// A candidate's refinements (the SB detector's own corners, `cornerSubPix`) and the one with
+/// the smallest planar fit; `None` for a candidate with the wrong corner count, non-finite
+/// corners or corners closer than 2 px.
+fn refine_candidate<'a>(
+    cand: &'a search::Candidate,
+    scale: f64,
+    float_img: &Mat,
+    cols: usize,
+    rows: usize,
+) -> Result<Option<Best<'a>>, CalibError> {
+    let pts: Vec<DVec2> = cand
+        .corners_up
+        .iter()
+        .map(|p| search::to_original(p, scale))
+        .collect();
+    if pts.len() != cols * rows
+        || pts.iter().any(|p| !p.is_finite())
+        || min_spacing(&pts, cols) < 2.0
+    {
+        return Ok(None);
+    }
+    let raw = pts.clone();
+    let refined = refine(float_img, &pts, cols, scale.max(1.0))?;
+    // Refinement must not jump to another corner.
+    let max_move = refined
+        .iter()
+        .zip(&pts)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0, f64::max);
+    let mut variants: Vec<(Refinement, Vec<DVec2>)> = Vec::with_capacity(3);
+    // The SB detector's own corners are sub-pixel already; the classic detector's are not.
+    if cand.detector == Detector::SectorBased {
+        variants.push((Refinement::Detector, raw.clone()));
+    }
+    let subpix = if max_move < 0.25 * min_spacing(&pts, cols) {
+        refined
+    } else {
+        pts
+    };
+    variants.push((Refinement::CornerSubPix, subpix.clone()));
+    let mut pick: Option<(f64, usize)> = None;
+    for (i, (refinement, pts)) in variants.iter().enumerate() {
+        let fit = planar_fit_rms(pts, cols)?;
+        tracing::trace!(?refinement, planar_fit_px = fit, "refinement candidate");
+        if pick.is_none_or(|(f, _)| fit < f) {
+            pick = Some((fit, i));
+        }
+    }
+    Ok(pick.map(|(fit, i)| Best {
+        refined: Refined {
+            fit,
+            pts: variants[i].1.clone(),
+            refinement: variants[i].0,
+            variants,
+        },
+        cand,
+        raw,
+        subpix,
+    }))
+}
+
+/// The kept candidate as a detection in canonical order, scored (sharpness on the search
+/// image `up`, upscaled by `scale`; contrast), or why it is ambiguous.
+fn ordered_detection(
+    img: &ScalarImage,
+    board: &BoardSpec,
+    best: Best<'_>,
+    scale: f64,
+    up: &Mat,
+) -> Result<Result<BoardDetection, DetectFailure>, CalibError> {
+    let (cols, rows) = (board.cols() as usize, board.rows() as usize);
+    let pattern = Size::new(cols as i32, rows as i32);
+    let quiet = board
+        .has_tags()
+        .then_some(0.5 * (1.0 - board.apriltag_ratio));
+    let Best {
         refined:
             Refined {
                 fit: planar_fit_px,
@@ -229,15 +302,7 @@ pub fn detect_board(
             },
         cand,
         ..
-    }) = best
-    else {
-        if !board.has_tags() {
-            return Ok(Err(DetectFailure::NotFound));
-        }
-        return Ok(Err(DetectFailure::NoPartial(from_tags.unwrap_or_else(
-            || crate::detect::tagboard::no_board_tags(&tags),
-        ))));
-    };
+    } = best;
     let rough = roughness(&pts, cols, rows);
     if min_spacing(&pts, cols) < 2.0 {
         return Ok(Err(DetectFailure::Ambiguous(
@@ -250,11 +315,12 @@ pub fn detect_board(
             Err(why) => return Ok(Err(why)),
         };
     // Sharpness on the 8-bit original-resolution-mapped corners (upscaled image, then rescaled).
+    let s = scale;
     let up_corners = refine::upscaled_points(&pts, s);
-    let sharp = calib3d::estimate_chessboard_sharpness_def(&up, pattern, &up_corners)
+    let sharp = calib3d::estimate_chessboard_sharpness_def(up, pattern, &up_corners)
         .map(|v| v[0] / s)
         .unwrap_or(f64::NAN);
-    let mut det = BoardDetection {
+    Ok(Ok(BoardDetection {
         corner_ids: (0..pts.len()).collect(),
         corners_px: pts,
         detector: match cand.detector {
@@ -269,14 +335,19 @@ pub fn detect_board(
         refinement,
         variants,
         order,
-    };
+    }))
+}
+
+/// On a board with tags, the tags seen fix the detection's order (turning it 180° where they
+/// say so) or reject it as another board's.
+fn order_by_board_tags(
+    board: &BoardSpec,
+    mut det: BoardDetection,
+    tags: &[TagDetection],
+) -> Result<Result<BoardDetection, DetectFailure>, CalibError> {
     if board.has_tags() {
-        match crate::detect::tagboard::order_by_tags(
-            board,
-            &det.corners_px,
-            &det.corner_ids,
-            &tags,
-        )? {
+        match crate::detect::tagboard::order_by_tags(board, &det.corners_px, &det.corner_ids, tags)?
+        {
             Err(why) => return Ok(Err(DetectFailure::Ambiguous(why.to_string()))),
             Ok(Some(turn)) => {
                 if turn {

@@ -9,7 +9,7 @@ use opencv::prelude::*;
 
 use super::detection::Refinement;
 use super::grid::{median_spacing, min_spacing, planar_fit_rms};
-use crate::detect::saddle::EdgeWidth;
+use crate::detect::saddle::{EdgeWidth, FloatImage, SaddleFit};
 use crate::detect::scalar::{ScalarImage, quantiles};
 use crate::error::{CalibError, cv};
 
@@ -128,89 +128,35 @@ fn saddle_refine(
     let values = float_img
         .data_typed::<f32>()
         .map_err(cv("float image data"))?;
-    let img = crate::detect::saddle::FloatImage {
+    let img = FloatImage {
         width_px,
         height_px,
         values,
     };
-    let mut out = pts.to_vec();
-    let at = |r: i64, c: i64| -> Option<DVec2> {
-        (r >= 0 && c >= 0 && (r as usize) < rows && (c as usize) < cols)
-            .then(|| raw[r as usize * cols + c as usize])
-    };
-    // Median length of the grid segments within three steps of the corner along (dr, dc):
-    // robust to one misplaced corner, including the corner itself.
-    let spacing = |r: i64, c: i64, dr: i64, dc: i64| -> f64 {
-        let mut d: Vec<f64> = (-3..3)
-            .filter_map(|k| {
-                Some(
-                    (at(r + (k + 1) * dr, c + (k + 1) * dc)? - at(r + k * dr, c + k * dc)?)
-                        .length(),
-                )
-            })
-            .collect();
-        d.sort_by(f64::total_cmp);
-        d.get(d.len().saturating_sub(1) / 2).copied().unwrap_or(0.0)
-    };
-    // Direction along (dr, dc) from neighbours only: the central difference, or at the border
-    // the next segment inwards.
-    let direction = |r: i64, c: i64, dr: i64, dc: i64| -> DVec2 {
-        match (at(r + dr, c + dc), at(r - dr, c - dc)) {
-            (Some(a), Some(b)) => a - b,
-            (Some(a), None) => at(r + 2 * dr, c + 2 * dc).map_or(DVec2::ZERO, |a2| a2 - a),
-            (None, Some(b)) => at(r - 2 * dr, c - 2 * dc).map_or(DVec2::ZERO, |b2| b - b2),
-            (None, None) => DVec2::ZERO,
-        }
-    };
-    struct Local {
-        step_row: DVec2,
-        step_col: DVec2,
-        predicted: Option<DVec2>,
-    }
-    let mut local = Vec::with_capacity(rows * cols);
-    for r in 0..rows as i64 {
-        for c in 0..cols as i64 {
-            // Where the neighbours put the corner: mean of the midpoints of opposite neighbours.
-            let mids: Vec<DVec2> = [(0, 1), (1, 0), (1, 1), (1, -1)]
-                .iter()
-                .filter_map(|&(dr, dc)| Some((at(r + dr, c + dc)? + at(r - dr, c - dc)?) * 0.5))
-                .collect();
-            // Border corners without opposite neighbours: extrapolate 2·p₁ − p₂ inwards.
-            let guesses: Vec<DVec2> = if mids.is_empty() {
-                [
-                    (0, 1),
-                    (1, 0),
-                    (0, -1),
-                    (-1, 0),
-                    (1, 1),
-                    (1, -1),
-                    (-1, 1),
-                    (-1, -1),
-                ]
-                .iter()
-                .filter_map(|&(dr, dc)| {
-                    Some(at(r + dr, c + dc)? * 2.0 - at(r + 2 * dr, c + 2 * dc)?)
-                })
-                .collect()
-            } else {
-                mids
-            };
-            let row_dir = direction(r, c, 0, 1).normalize_or_zero();
-            let col_dir = direction(r, c, 1, 0).normalize_or_zero();
-            local.push(Local {
-                step_row: row_dir * spacing(r, c, 0, 1),
-                step_col: col_dir * spacing(r, c, 1, 0),
-                predicted: (!guesses.is_empty())
-                    .then(|| guesses.iter().copied().sum::<DVec2>() / guesses.len() as f64),
-            });
-        }
-    }
+    let local = RawGrid { raw, cols, rows }.local_geometry();
     let fit = |i: usize, start: DVec2, width: EdgeWidth| {
         let l = &local[i];
         crate::detect::saddle::fit_saddle(img, start, l.step_row, l.step_col, width)
     };
-    // The image's edge width: median over (at most 12, spread over the board) corners of a
-    // short free-width fit.
+    let width = EdgeWidth::Fixed(image_edge_width(pts, &fit));
+    let mut out = pts.to_vec();
+    for i in 0..pts.len() {
+        if let Some(f) = fit(i, pts[i], width)
+            .or_else(|| fit(i, raw[i], width))
+            .or_else(|| local[i].predicted.and_then(|p| fit(i, p, width)))
+        {
+            out[i] = f.corner_px;
+        }
+    }
+    Ok(out)
+}
+
+/// The image's edge width for the fixed-width fits: the median over (at most 12, spread over
+/// the board) corners of a short free-width fit (`fit(index, start, width)`), else 0.5 px.
+fn image_edge_width(
+    pts: &[DVec2],
+    fit: &dyn Fn(usize, DVec2, EdgeWidth) -> Option<SaddleFit>,
+) -> f64 {
     let stride = pts.len().div_ceil(12).max(1);
     let mut widths: Vec<f64> = (0..pts.len())
         .step_by(stride)
@@ -227,16 +173,103 @@ fn saddle_refine(
         .map(|f| f.edge_width_px)
         .collect();
     widths.sort_by(f64::total_cmp);
-    let width = EdgeWidth::Fixed(widths.get(widths.len() / 2).copied().unwrap_or(0.5));
-    for i in 0..pts.len() {
-        if let Some(f) = fit(i, pts[i], width)
-            .or_else(|| fit(i, raw[i], width))
-            .or_else(|| local[i].predicted.and_then(|p| fit(i, p, width)))
-        {
-            out[i] = f.corner_px;
+    widths.get(widths.len() / 2).copied().unwrap_or(0.5)
+}
+
+/// A corner's grid geometry from its neighbours: the steps to the next corner along the row
+/// and the column (the saddle fit's window), and where the neighbours put the corner.
+struct Local {
+    step_row: DVec2,
+    step_col: DVec2,
+    predicted: Option<DVec2>,
+}
+
+/// The detector's unrefined corners as a `rows × cols` grid (row-major).
+struct RawGrid<'a> {
+    raw: &'a [DVec2],
+    cols: usize,
+    rows: usize,
+}
+
+impl RawGrid<'_> {
+    /// The corner at row `r`, column `c`; `None` outside the grid.
+    fn at(&self, r: i64, c: i64) -> Option<DVec2> {
+        (r >= 0 && c >= 0 && (r as usize) < self.rows && (c as usize) < self.cols)
+            .then(|| self.raw[r as usize * self.cols + c as usize])
+    }
+
+    /// Median length of the grid segments within three steps of the corner along (dr, dc):
+    /// robust to one misplaced corner, including the corner itself.
+    fn spacing(&self, r: i64, c: i64, dr: i64, dc: i64) -> f64 {
+        let mut d: Vec<f64> = (-3..3)
+            .filter_map(|k| {
+                Some(
+                    (self.at(r + (k + 1) * dr, c + (k + 1) * dc)?
+                        - self.at(r + k * dr, c + k * dc)?)
+                    .length(),
+                )
+            })
+            .collect();
+        d.sort_by(f64::total_cmp);
+        d.get(d.len().saturating_sub(1) / 2).copied().unwrap_or(0.0)
+    }
+
+    /// Direction along (dr, dc) from neighbours only: the central difference, or at the border
+    /// the next segment inwards.
+    fn direction(&self, r: i64, c: i64, dr: i64, dc: i64) -> DVec2 {
+        let at = |r, c| self.at(r, c);
+        match (at(r + dr, c + dc), at(r - dr, c - dc)) {
+            (Some(a), Some(b)) => a - b,
+            (Some(a), None) => at(r + 2 * dr, c + 2 * dc).map_or(DVec2::ZERO, |a2| a2 - a),
+            (None, Some(b)) => at(r - 2 * dr, c - 2 * dc).map_or(DVec2::ZERO, |b2| b - b2),
+            (None, None) => DVec2::ZERO,
         }
     }
-    Ok(out)
+
+    /// Where the neighbours put the corner: the mean of the midpoints of opposite neighbours,
+    /// or for border corners without them, of the extrapolations 2·p₁ − p₂ inwards.
+    fn predicted(&self, r: i64, c: i64) -> Option<DVec2> {
+        let at = |r, c| self.at(r, c);
+        let mids: Vec<DVec2> = [(0, 1), (1, 0), (1, 1), (1, -1)]
+            .iter()
+            .filter_map(|&(dr, dc)| Some((at(r + dr, c + dc)? + at(r - dr, c - dc)?) * 0.5))
+            .collect();
+        let guesses: Vec<DVec2> = if mids.is_empty() {
+            [
+                (0, 1),
+                (1, 0),
+                (0, -1),
+                (-1, 0),
+                (1, 1),
+                (1, -1),
+                (-1, 1),
+                (-1, -1),
+            ]
+            .iter()
+            .filter_map(|&(dr, dc)| Some(at(r + dr, c + dc)? * 2.0 - at(r + 2 * dr, c + 2 * dc)?))
+            .collect()
+        } else {
+            mids
+        };
+        (!guesses.is_empty()).then(|| guesses.iter().copied().sum::<DVec2>() / guesses.len() as f64)
+    }
+
+    /// Every corner's [`Local`] geometry, row-major.
+    fn local_geometry(&self) -> Vec<Local> {
+        let mut local = Vec::with_capacity(self.rows * self.cols);
+        for r in 0..self.rows as i64 {
+            for c in 0..self.cols as i64 {
+                let row_dir = self.direction(r, c, 0, 1).normalize_or_zero();
+                let col_dir = self.direction(r, c, 1, 0).normalize_or_zero();
+                local.push(Local {
+                    step_row: row_dir * self.spacing(r, c, 0, 1),
+                    step_col: col_dir * self.spacing(r, c, 1, 0),
+                    predicted: self.predicted(r, c),
+                });
+            }
+        }
+        local
+    }
 }
 
 /// The sub-pixel refinements of one board and the one kept (the smallest planar fit).
