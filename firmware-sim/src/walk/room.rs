@@ -7,7 +7,7 @@ use s3tir_calib::Rigid3;
 
 use super::fiducials::{PrintedTag, TagInk, room_tags, tag_albedo};
 use super::{ROOM_HALF_M, ROOM_HEIGHT_M};
-use crate::scene::objects::{Nearest, axis_plane};
+use crate::scene::objects::{Nearest, axis_plane, lattice_hash};
 use crate::scene::{self, SceneLayout, SurfaceHit};
 
 /// Temperature of the room's walls, kelvin.
@@ -15,16 +15,7 @@ pub const ROOM_WALL_K: f64 = 290.0;
 
 /// 3-D value noise in [0, 1] (smooth, trilinear between hashed lattice values).
 fn value_noise(p: DVec3, seed: u64) -> f64 {
-    let hash = |x: i64, y: i64, z: i64| -> f64 {
-        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-            ^ (z as u64).wrapping_mul(0x1656_67B1_9E37_79F9)
-            ^ seed;
-        h ^= h >> 33;
-        h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
-        h ^= h >> 33;
-        (h >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let hash = |x: i64, y: i64, z: i64| lattice_hash(x, y, z, seed);
     let f = p.floor();
     let (x0, y0, z0) = (f.x as i64, f.y as i64, f.z as i64);
     let t = p - f;

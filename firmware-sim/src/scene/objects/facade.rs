@@ -8,7 +8,7 @@
 //! - **Brick in running bond**: bricks [`BRICK_W`] × [`BRICK_H`] (215 × 65 mm, a metric brick
 //!   face) in [`JOINT`] = 10 mm mortar joints, every second course shifted by half a brick.
 //!   Bricks at [`FACADE_BASE_K`] = 278 K, each warmer or colder by up to ±0.4 K (a
-//!   deterministic hash of its course and column: bricks differ in density and moisture), ε
+//!   deterministic hash of its course and column, the simulator's `lattice_hash`: bricks differ in density and moisture), ε
 //!   [`BRICK_EMISSIVITY`] = 0.93; joints are thermal bridges, [`MORTAR_BRIDGE_K`] = 1.2 K
 //!   warmer, ε [`MORTAR_EMISSIVITY`] = 0.90. A joint is ~3.7 px wide at 640 px: texture that
 //!   a Gaussian of a few pixels averages away and a banded primitive can represent.
@@ -30,7 +30,8 @@
 use glam::DVec3;
 
 use super::{
-    SceneObject, SurfaceHit, WALL_BASE_K, WALL_X, WALL_Y, WALL_Z, axis_plane, face, wall_temp_k,
+    SceneObject, SurfaceHit, WALL_BASE_K, WALL_X, WALL_Y, WALL_Z, axis_plane, face, lattice_hash,
+    wall_temp_k,
 };
 
 /// Brick face width and height, metres (a metric brick's 215 × 65 mm face).
@@ -65,15 +66,6 @@ const CHAR_H: f64 = 0.014;
 const LINE_PITCH: f64 = 0.025;
 const LINES: i64 = 3;
 const CHARS_PER_LINE: i64 = 30;
-
-/// A deterministic hash of two integers to [0, 1) (splitmix64's finaliser).
-fn unit_hash(a: i64, b: i64) -> f64 {
-    let mut z = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (b as u64).rotate_left(29);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64
-}
 
 /// What the facade is at `(x, z)`: temperature, emissivity, RGB albedo and the object.
 pub fn facade_material(x: f64, z: f64) -> (f64, f64, [f64; 3], SceneObject) {
@@ -112,7 +104,7 @@ pub fn facade_material(x: f64, z: f64) -> (f64, f64, [f64; 3], SceneObject) {
             SceneObject::Mortar,
         );
     }
-    let h = unit_hash(course as i64, column as i64);
+    let h = lattice_hash(course as i64, column as i64, 0, 0);
     let shade = 0.85 + 0.3 * h;
     (
         FACADE_BASE_K + BRICK_SPREAD_K * (2.0 * h - 1.0) + band,
@@ -132,7 +124,7 @@ fn on_label_character(x: f64, z: f64) -> bool {
     let in_line = LABEL_Z_TOP - z - line * LINE_PITCH;
     let in_cell = x - LABEL_X0 - cell * CHAR_PITCH;
     // About two characters in three are printed (the rest are spaces).
-    in_line < CHAR_H && in_cell < CHAR_W && unit_hash(100 + line as i64, cell as i64) < 0.65
+    in_line < CHAR_H && in_cell < CHAR_W && lattice_hash(line as i64, cell as i64, 1, 0) < 0.65
 }
 
 /// The facade along the ray `o + t d`, if it meets it inside the wall's extent.

@@ -130,6 +130,19 @@ fn radiator_temp_k(y: f64) -> f64 {
     318.0 + 4.0 * (2.0 * std::f64::consts::PI * y / 0.06).cos()
 }
 
+/// A deterministic value in [0, 1) for the lattice point `(x, y, z)` and `seed`: the
+/// simulator's one integer hash (the room's value noise, the facade's bricks and labels).
+pub(crate) fn lattice_hash(x: i64, y: i64, z: i64, seed: u64) -> f64 {
+    let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (z as u64).wrapping_mul(0x1656_67B1_9E37_79F9)
+        ^ seed;
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
+    h ^= h >> 33;
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
 /// `n` turned to face a ray of direction `d`.
 pub(crate) fn face(n: DVec3, d: DVec3) -> DVec3 {
     if n.dot(d) > 0.0 { -n } else { n }
