@@ -47,7 +47,7 @@ demo: build
 	@echo "        scale and checks COLMAP's model against the tags' own poses"
 	$(BIN)/s3tir-capture export $(DEMO_DIR)/walk.mcap --dataset $(DEMO_DIR)/walk-dataset \
 	  --tags $(DEMO_DIR)/walk-truth/tags.toml --no-tag-poses
-	@echo "== 5/8 Train S3-TIR on the posed thermal views ($(DEMO_ITERS) iterations, CPU backend; short"
+	@echo "== 5/8 Train S3-TIR on the posed thermal views ($(DEMO_ITERS) iterations on the backend --backend auto picks; short"
 	@echo "        warm-up and a raised beta learning rate so shape and bands act within a demo's budget)"
 	$(BIN)/s3tir-train $(DEMO_DIR)/walk-dataset --out $(DEMO_DIR)/walk-run --iters $(DEMO_ITERS) \
 	  --warmup 100 --budget 3000 --beta-lr 0.05 --eval-every-s 5

@@ -25,7 +25,9 @@ enum Command {
     Board(cli::board::BoardArgs),
     /// Write a small thermal scene dataset for the trainer (--layout objects: heated pipe, box
     /// with an emissivity edge, radiator panel, ground plane, seen from an orbit; --layout wall:
-    /// a wall with an emissivity edge and an in-wall heating pipe): COLMAP text model in
+    /// a wall with an emissivity edge and an in-wall heating pipe; --layout facade: a brick
+    /// facade with warm mortar joints, a surface-mounted pipe and a warm cabinet with foil
+    /// labels, texture finer than the primitives, meant for 640×512): COLMAP text model in
     /// DIR/sparse/0/, 16-bit TLinear PNGs in DIR/images/, RGB in DIR/rgb/, ground-truth depth
     /// and temperature in DIR/depth/ and DIR/temperature/, and the visible surface with its
     /// apparent temperature in DIR/truth/surface.ply (for scoring meshes).

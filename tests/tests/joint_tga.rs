@@ -133,6 +133,9 @@ fn joint_rgb_thermal_beats_thermal_only_at_the_rgb_resolution_and_on_depth() {
             "1e9",
             "--checkpoint-every-s",
             "1e9",
+            // The bounds below were measured on the CPU reference.
+            "--backend",
+            "cpu",
         ]),
         "s3tir-train ablation",
     );

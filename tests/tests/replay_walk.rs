@@ -124,7 +124,16 @@ fn the_committed_walk_replays_into_the_same_dataset_and_trains() {
             .arg(&tags)
             .arg("--out")
             .arg(&run_dir)
-            .args(["--iters", "200", "--warmup", "100", "--budget", "1000"])
+            .args([
+                "--iters",
+                "200",
+                "--warmup",
+                "100",
+                "--budget",
+                "1000",
+                "--backend",
+                "cpu",
+            ])
             .args(["--beta-lr", "0.05", "--seed", "1"])
             .args(["--eval-every-s", "1e9", "--checkpoint-every-s", "1e9"])
             .env("S3TIR_COLMAP", "/nonexistent/colmap"),

@@ -73,6 +73,9 @@ fn train(data: &Path, run: &Path, response: &str, iters: &str) -> (Value, Value)
             "1e9",
             "--response",
             response,
+            // The figures below were measured on the CPU reference.
+            "--backend",
+            "cpu",
         ]),
         "s3tir-train",
     );

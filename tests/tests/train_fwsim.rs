@@ -105,6 +105,9 @@ fn train(data: &Path, run_dir: &Path, mode: &str) -> Value {
         run_dir.to_str().unwrap(),
         "--mode",
         mode,
+        // The figures below were measured on the CPU reference.
+        "--backend",
+        "cpu",
         "--iters",
         ITERS,
         "--warmup",

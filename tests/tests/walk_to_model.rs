@@ -194,7 +194,16 @@ fn train_psnr(dataset: &Path, run_dir: &Path) -> f64 {
             .arg(dataset)
             .arg("--out")
             .arg(run_dir)
-            .args(["--iters", "300", "--warmup", "100", "--budget", "1000"])
+            .args([
+                "--iters",
+                "300",
+                "--warmup",
+                "100",
+                "--budget",
+                "1000",
+                "--backend",
+                "cpu",
+            ])
             .args(["--beta-lr", "0.05", "--seed", "1"])
             .args(["--eval-every-s", "1e9", "--checkpoint-every-s", "1e9"]),
         "s3tir-train",

@@ -13,6 +13,8 @@
 //   clamped to [2, BETA_MAX] and mapped back to beta_raw as primitive.rs beta_raw_from_beta.
 //   In f32 the excess beta - 2 (down to 4.5e-5 at beta_raw = -10) is carried separately from the
 //   2, so it keeps its relative precision;
+// - a band amplitude then takes the proximal L1 step soft_threshold(x, band_shrink / (sqrt(v) + eps))
+//   when band_shrink > 0 (train/adam.rs soft_threshold);
 // - log-scales are clamped from below to min_log_scale after the update;
 // - nothing at all when a view's key total exceeds the key buffers' capacity (its render was
 //   incomplete: the host grows the buffers and repeats the step).
@@ -67,6 +69,9 @@ layout(push_constant) uniform Push {
     float tz;
     float ndc_sx;
     float ndc_sy;
+    // The band amplitudes' proximal L1 shrink before its division by sqrt(v) + eps
+    // (train/adam.rs AdamState::band_shrink; 0: none).
+    float band_shrink;
 } pc;
 
 // beta_raw at or below this is the frozen Gaussian sentinel (0.5 * BETA_RAW_FROZEN).
@@ -199,6 +204,11 @@ void main() {
                 hold(k);
             } else {
                 update(k, pc.step_band_amp);
+                if (pc.band_shrink > 0.0) {
+                    float x = params[k];
+                    float t = pc.band_shrink / (sqrt(m2[k]) + pc.eps);
+                    params[k] = abs(x) <= t ? 0.0 : x - sign(x) * t;
+                }
             }
         }
         if (pc.step_band_freq != 0.0) {

@@ -6,6 +6,7 @@ mod cli;
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
 
+use cli::ablation::AblationArgs;
 use cli::bench::BenchArgs;
 use cli::compare::CompareArgs;
 use cli::devices::DevicesArgs;
@@ -69,15 +70,19 @@ enum Command {
     /// Evaluate a run on its held-out views: PSNR, SSIM, LPIPS (when its weights are installed)
     /// and (radiometric data) kelvin MAE/RMSE, per view and mean.
     Eval(EvalArgs),
-    /// The TGA-GS ablation on a dataset with truth (`s3tir-firmware-sim scene --rgb-scale K`):
-    /// four runs with the training options given — thermal-only, joint, joint without the
-    /// thermal gradient alignment loss, joint without RGB pre-training — into
-    /// RUN_DIR/<variant>/, each scored against DATA/truth (thermal at the input resolution and
-    /// super-resolved at K× against bicubic upsampling and fused with the recorded image, RGB,
-    /// depth) and, when the scene has a truth surface, meshed and the mesh scored (Chamfer,
-    /// F-score, vertex kelvin); the table in RUN_DIR/ablation.md and ablation.json. Either
-    /// backend (`--backend`).
-    Ablation(Box<TrainArgs>),
+    /// An ablation by one command: several runs with the training options given, one part of
+    /// the method taken away in each, into RUN_DIR/<variant>/, and the table in
+    /// RUN_DIR/ablation.md and ablation.json. `--study tga` (default): the TGA-GS ablation on
+    /// a dataset with truth (`s3tir-firmware-sim scene --rgb-scale K`) — thermal-only, joint,
+    /// joint without the thermal gradient alignment loss, joint without RGB pre-training — each
+    /// scored against DATA/truth (thermal at the input resolution and super-resolved at K×
+    /// against bicubic upsampling and fused with the recorded image, RGB, depth) and, when the
+    /// scene has a truth surface, meshed and the mesh scored (Chamfer, F-score, vertex kelvin).
+    /// `--study spectral`: the S³-TIR paper's Table 2 on any thermal dataset — the full
+    /// method, β fixed at 2, no spectral modulation (f = 0), no consistency term, no sparsity
+    /// term, and 3DGS — scored on the held-out views (PSNR, SSIM, LPIPS, kelvin error); give
+    /// `--time-budget` to compare at equal wall time.
+    Ablation(Box<AblationArgs>),
     /// A surface mesh with a temperature per vertex: the run's training views rendered
     /// (expected depth, kelvin, colour), fused into a sparse truncated signed-distance volume
     /// and extracted by surface nets, trimmed to where the views saw it. Writes OUT (binary

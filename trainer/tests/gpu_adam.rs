@@ -3,7 +3,8 @@
 //! statistics) on lavapipe: randomised parameters, moments and gradients of two views, with
 //! every rule the host applies — frozen β and dropped band slots held (moments zeroed, values
 //! untouched), a group with learning rate 0 left alone (moments too), β on the 64 clamp, β at
-//! the Gaussian init (−10), non-finite gradients counted as 0, log-scales clamped from below.
+//! the Gaussian init (−10), non-finite gradients counted as 0, log-scales clamped from below,
+//! band amplitudes' proximal L1 step (some set to exactly zero, others moved on).
 //! Tolerances: 2 ulps-ish (1e-6 relative) for every value but β, which the host maps through
 //! f64 and the kernel through f32 (compared in β units, 1e-5 absolute).
 //! Does NOT prove the training loop's use of it (`gpu_train.rs` does, step by step).
@@ -111,7 +112,12 @@ fn adam_kernel_takes_the_host_optimiser_step() {
         band_phase: 0.0, // a frozen group: values and moments untouched
         sh: 0.0,
     };
-    let hp = AdamParams::default();
+    // The band amplitudes' proximal L1 step: λ such that some live amplitudes end exactly at
+    // zero and others move on (asserted below, so both branches are compared).
+    let hp = AdamParams {
+        band_l1: 50.0,
+        ..AdamParams::default()
+    };
 
     // Host reference (as Trainer::step): statistics, Adam, log-scale clamp.
     let mut g_sum = g_j.clone();
@@ -149,6 +155,7 @@ fn adam_kernel_takes_the_host_optimiser_step() {
         sizes: adam.step_sizes(&lrs, &hp),
         hp,
         min_log_scale,
+        band_shrink: adam.band_shrink(&lrs, &hp),
     };
     // A step gated by a key total over the lists' room changes nothing: it runs first, and
     // the real step after it must still match the host's single step.
@@ -203,6 +210,18 @@ fn adam_kernel_takes_the_host_optimiser_step() {
             }
         }
     }
+    // The proximal step took both branches: live amplitudes set to exactly zero, and others
+    // moved on (the kernel matched the host on both, above).
+    let live_amps: Vec<f32> = (0..N)
+        .flat_map(|i| (0..p.live_bands(i)).map(move |j| M * i + j))
+        .map(|k| p_d.band_amp[k])
+        .collect();
+    let zeroed = live_amps.iter().filter(|&&a| a == 0.0).count();
+    assert!(
+        zeroed > 10 && zeroed + 10 < live_amps.len(),
+        "the L1 step should zero some of the {} live amplitudes and keep others: {zeroed} zeroed",
+        live_amps.len()
+    );
     // The held rules, exactly.
     assert_eq!(
         p_d.band_phase, p.band_phase,

@@ -15,6 +15,18 @@ fn train() -> Command {
     cmd
 }
 
+/// The built-in synthetic scene, 6 views of 24×18, in `dir/scene`.
+fn small_scene(dir: &std::path::Path) -> std::path::PathBuf {
+    let data = dir.join("scene");
+    let st = train()
+        .args(["synth", data.to_str().unwrap(), "--views", "6"])
+        .args(["--width", "24", "--height", "18"])
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "synth failed");
+    data
+}
+
 #[test]
 fn devices_lists_lavapipe_with_limits_subgroups_and_atomics() {
     let out = train().arg("devices").output().unwrap();
@@ -131,22 +143,8 @@ fn bench_json_reports_both_backends_both_modes_and_kernels() {
 #[test]
 fn resume_keeps_the_runs_backend_unless_told_otherwise() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("scene");
+    let data = small_scene(tmp.path());
     let run = tmp.path().join("run");
-    let st = train()
-        .args([
-            "synth",
-            data.to_str().unwrap(),
-            "--views",
-            "6",
-            "--width",
-            "24",
-            "--height",
-            "18",
-        ])
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "synth failed");
     let common = |iters: &str| {
         let mut c = train();
         c.arg(&data).arg("--out").arg(&run).args([
@@ -187,6 +185,57 @@ fn resume_keeps_the_runs_backend_unless_told_otherwise() {
         "an explicit --backend switches and says so: {text}\n{}",
         String::from_utf8_lossy(&switched.stderr)
     );
+}
+
+/// A new run without `--backend` takes `auto`: lavapipe passes the trainer's checks here, so
+/// the run trains on Vulkan, says why, and config.json keeps "vulkan" (so `--resume` stays on
+/// it); with no Vulkan driver at all the run falls back to the CPU and names the reason.
+#[test]
+fn backend_auto_takes_vulkan_when_it_passes_and_the_cpu_otherwise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = small_scene(tmp.path());
+    let run = |name: &str, no_driver: bool| {
+        let dir = tmp.path().join(name);
+        let mut c = train();
+        c.arg(&data).arg("--out").arg(&dir).args([
+            "--warmup",
+            "2",
+            "--budget",
+            "60",
+            "--eval-every-s",
+            "1000",
+            "--iters",
+            "3",
+        ]);
+        if no_driver {
+            c.env("VK_ICD_FILENAMES", "/nonexistent/s3tir-no-driver.json")
+                .env("VK_DRIVER_FILES", "/nonexistent/s3tir-no-driver.json");
+        }
+        let out = c.output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{name}: {text}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let cfg: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("config.json")).unwrap())
+                .unwrap();
+        (text, cfg["backend"].as_str().unwrap_or_default().to_owned())
+    };
+    let (text, backend) = run("auto", false);
+    assert!(
+        text.contains("training on the vulkan backend (--backend auto: llvmpipe")
+            && text.contains("passes the trainer's checks"),
+        "auto with lavapipe: {text}"
+    );
+    assert_eq!(backend, "vulkan", "config.json keeps the backend auto took");
+    let (text, backend) = run("no-driver", true);
+    assert!(
+        text.contains("training on the cpu backend (--backend auto: no Vulkan device"),
+        "auto without a driver falls back to the CPU and says why: {text}"
+    );
+    assert_eq!(backend, "cpu");
 }
 
 /// `eval --backend vulkan` renders the held-out views on the GPU: the same views and figures

@@ -494,6 +494,7 @@ fn vulkan_backend_takes_colour_on_the_host_path_and_refuses_it_on_device_paths()
         sizes: TrainConfig::new("unused".into()).lr,
         hp: AdamParams::default(),
         min_log_scale: -10.0,
+        band_shrink: 0.0,
     };
     refused(
         vk.resident_step(&coloured, &resident)

@@ -27,7 +27,7 @@ fn train(data: &Path, run: &Path, weights: Option<&Path>) -> String {
     let mut cmd = bin();
     cmd.args([data.to_str().unwrap(), "--out", run.to_str().unwrap()])
         .args(["--iters", "30", "--warmup", "10", "--budget", "200"])
-        .args(["--eval-every-s", "0.2", "--seed", "3"]);
+        .args(["--eval-every-s", "0.2", "--seed", "3", "--backend", "cpu"]);
     if let Some(w) = weights {
         cmd.env("S3TIR_LPIPS_WEIGHTS", w);
     }

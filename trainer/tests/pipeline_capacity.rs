@@ -6,7 +6,9 @@
 //! slots never grow back (the per-primitive `band_count` mask: Adam leaves those slots at zero
 //! whatever gradient they get, and the mask survives checkpoints and the PLY), and that
 //! primitives with β ≈ 2 and no live band are snapped to β = 2 and frozen on the cheap Gaussian
-//! path (3dgs mode: all of them from the start). Does NOT measure step time savings (timing
+//! path (3dgs mode: all of them from the start); that the band grant keeps bands only on the
+//! primitives with the largest band gradients within the budget, and leaves them out entirely
+//! when no gradient exceeds λ. Does NOT measure step time savings (timing
 //! asserts are not allowed in tests; `capacity.json` and `benches/cpu_render.rs` carry them).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -17,7 +19,7 @@ use s3tir_trainer::dataset::{Dataset, LoadOptions};
 use s3tir_trainer::primitive::{BETA_RAW_FROZEN, PrimitiveInit, Primitives, is_beta_frozen};
 use s3tir_trainer::train::params::{compact_bands, gather};
 use s3tir_trainer::train::{
-    AdamParams, AdamState, CpuBackend, GroupLrs, Mode, TrainConfig, Trainer,
+    AdamParams, AdamState, BandRoundKind, CpuBackend, GroupLrs, Mode, TrainConfig, Trainer,
 };
 
 fn scene(dir: &std::path::Path) {
@@ -421,5 +423,90 @@ fn gaussian_mode_runs_every_primitive_on_the_frozen_gaussian_path() {
         cap["cpu_step_ms_with_shortcuts"].as_f64().is_some()
             && cap["cpu_step_ms_general_path"].as_f64().is_some(),
         "capacity.json reports the CPU step time with and without shortcuts: {cap}"
+    );
+}
+
+/// One run of the quick scene in s3tir mode with a capacity check every 10 iterations and the
+/// given grant settings; returns the trainer after the run.
+fn granted_run(dir: &std::path::Path, band_l1: f64, band_budget: f64) -> Trainer<CpuBackend> {
+    let data_dir = dir.join("scene");
+    if !data_dir.exists() {
+        scene(&data_dir);
+    }
+    let mut cfg = quick(&data_dir, Mode::S3tir);
+    cfg.capacity.every = 10;
+    cfg.capacity.band_l1 = band_l1;
+    cfg.capacity.band_budget = band_budget;
+    // Density control would add band holders after the grant (children inherit bands): the
+    // grant's own effect is what is measured here.
+    cfg.densify.every = 0;
+    let data = Dataset::load(&data_dir, &LoadOptions::default()).unwrap();
+    let run = dir.join(format!("run-{band_l1}-{band_budget}"));
+    let mut t = Trainer::new(cfg, data, CpuBackend::default(), &run).unwrap();
+    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    t
+}
+
+#[test]
+fn bands_are_granted_to_the_largest_band_gradients_within_the_budget() {
+    let tmp = tempfile::tempdir().unwrap();
+    // No budget: every primitive with a measured band gradient keeps its bands (the mechanism
+    // off, as before the grant existed).
+    let all = granted_run(tmp.path(), 0.0, 1.0);
+    let round = all.capacity_report().band_rounds[0].clone();
+    assert_eq!(round.kind, BandRoundKind::Grant, "{round:?}");
+    assert!(
+        round.holders_after == round.over_threshold && round.holders_after > 0,
+        "no budget, threshold 0: every primitive with a band gradient keeps its bands \
+         ({round:?})"
+    );
+    // A quarter: at most a quarter of the primitives keep bands, and they are the ones with the
+    // largest band gradients (the unit test of `band_grant` checks the order).
+    let quarter = granted_run(tmp.path(), 0.0, 0.25);
+    let cap = quarter.capacity_report();
+    let round = &cap.band_rounds[0];
+    let n = quarter.prims.len();
+    assert_eq!(round.budget, n / 4, "{round:?}");
+    assert!(
+        round.holders_after <= n / 4 && round.holders_after > 0,
+        "a quarter of {n} primitives may keep bands: {round:?}"
+    );
+    assert!(
+        cap.band_holders <= n / 4,
+        "holders at the end {} over the budget {}",
+        cap.band_holders,
+        n / 4
+    );
+    let refused = (0..n).filter(|&i| quarter.prims.live_bands(i) == 0).count();
+    assert!(
+        refused >= n - n / 4,
+        "refused primitives must lose every band slot: {refused} of {n} have none"
+    );
+    let saved: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.path().join("run-0-0.25/capacity.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        saved["band_rounds"][0]["kind"], "grant",
+        "capacity.json: {saved}"
+    );
+}
+
+#[test]
+fn a_scene_whose_band_gradients_stay_under_lambda_trains_without_bands() {
+    let tmp = tempfile::tempdir().unwrap();
+    // λ far above any gradient this scene gives: the guard leaves the bands out entirely.
+    let t = granted_run(tmp.path(), 1e6, 1.0);
+    let cap = t.capacity_report();
+    assert_eq!(
+        t.iteration, 40,
+        "training goes on after the bands are left out"
+    );
+    assert_eq!(t.prims.bands, 0, "band storage compacted to M = 0");
+    assert_eq!(cap.band_rounds[0].holders_after, 0, "{:?}", cap.band_rounds);
+    assert!(
+        cap.notes.iter().any(|n| n.contains("bands left out")),
+        "the run says why: {:?}",
+        cap.notes
     );
 }

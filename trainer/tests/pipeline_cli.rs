@@ -50,6 +50,10 @@ fn train_args(data: &Path, run: &Path) -> Vec<String> {
         "0.5",
         "--seed",
         "4",
+        // The CPU reference: these runs are a few steps on 24×18 images, and the figures
+        // asserted below were measured on it (`--backend auto` would take lavapipe).
+        "--backend",
+        "cpu",
     ]
     .iter()
     .map(|s| (*s).to_owned())

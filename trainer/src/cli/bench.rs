@@ -43,6 +43,11 @@ pub struct BenchArgs {
     /// overrides --width, --height, --views, --primitives and --steps).
     #[arg(long)]
     real_size: bool,
+    /// The s3tir configurations with only this fraction of the primitives holding bands, spread
+    /// evenly, the others band-free: the state the band grant leaves (capacity.json's
+    /// `band_holders` over `primitives` of a run). 1: every primitive holds M bands.
+    #[arg(long, default_value_t = 1.0)]
+    band_holders: f64,
     /// Benchmark `mesh` instead of training: seconds per stage (render, fuse, extract) and
     /// peak memory of meshing 100 views of 640×512 with 30 000 primitives on the CPU backend
     /// (--width, --height, --views, --primitives change it).
@@ -88,6 +93,7 @@ fn bench_cmd(a: &BenchArgs) -> Result<()> {
         primitives,
         steps,
         warmup_steps: a.warmup_steps,
+        band_holders: a.band_holders,
         device: super::vulkan_options(a.device_index, a.no_float_atomics),
     };
     let r = bench::run(&opts, &mut |line| eprintln!("bench: {line}"))?;
@@ -96,8 +102,13 @@ fn bench_cmd(a: &BenchArgs) -> Result<()> {
         return Ok(());
     }
     println!(
-        "device {}; scene {}x{}, {} primitives, {} timed steps per configuration",
-        r.device, r.width, r.height, r.primitives, r.steps
+        "device {}; scene {}x{}, {} primitives ({:.0} % holding bands in s3tir mode), {} timed steps per configuration",
+        r.device,
+        r.width,
+        r.height,
+        r.primitives,
+        100.0 * r.band_holders,
+        r.steps
     );
     println!(
         "  CPU backend, s3tir mode     {:8.2} steps/s on {} threads, {:.2} on one ({:.2}x)",

@@ -39,8 +39,53 @@ pub mod train;
 pub mod train_args;
 pub mod train_summary;
 
+/// `--backend auto`'s Vulkan backend: the best device, opened with the trainer's checks
+/// (work-group sizes, storage-buffer room, every kernel built); `Err` says why there is none.
 #[cfg(feature = "vulkan")]
+pub fn open_auto(
+    device_index: Option<usize>,
+    no_float_atomics: bool,
+) -> std::result::Result<s3tir_trainer::gpu::backend::VulkanBackend, String> {
+    s3tir_trainer::gpu::backend::VulkanBackend::new(
+        &vulkan_options(device_index, no_float_atomics),
+        s3tir_trainer::render::RenderSettings::default(),
+    )
+    .map_err(|e| {
+        format!(
+            "no Vulkan device passes the trainer's checks: {}",
+            s3tir_capture::Chain(&e)
+        )
+    })
+}
+
+/// What `--backend auto` takes on this machine and why (the Vulkan backend is opened to check,
+/// then closed).
+#[cfg(feature = "vulkan")]
+pub fn auto_backend(
+    device_index: Option<usize>,
+    no_float_atomics: bool,
+) -> (s3tir_trainer::train::BackendKind, String) {
+    use s3tir_trainer::train::BackendKind;
+    match open_auto(device_index, no_float_atomics) {
+        Ok(b) => (
+            BackendKind::Vulkan,
+            format!("{} passes the trainer's checks", b.context().report().name),
+        ),
+        Err(why) => (BackendKind::Cpu, why),
+    }
+}
+
+/// Without the `vulkan` feature `--backend auto` is the CPU.
+#[cfg(not(feature = "vulkan"))]
+pub fn auto_backend(_: Option<usize>, _: bool) -> (s3tir_trainer::train::BackendKind, String) {
+    (
+        s3tir_trainer::train::BackendKind::Cpu,
+        "this s3tir-train was built without the `vulkan` feature".into(),
+    )
+}
+
 /// The Vulkan context options of `--device-index` and `--no-float-atomics`.
+#[cfg(feature = "vulkan")]
 pub fn vulkan_options(
     device_index: Option<usize>,
     no_float_atomics: bool,

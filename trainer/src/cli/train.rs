@@ -14,7 +14,7 @@ use s3tir_trainer::train::{
 #[cfg(feature = "session")]
 use super::session::pose_session;
 
-use super::train_args::{TrainArgs, new_config};
+use super::train_args::{BackendChoice, TrainArgs, new_config};
 use super::train_summary;
 
 /// Trains (or with `--resume` continues) the run `a` describes; a recorded session
@@ -45,7 +45,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         // The run's own backend unless --backend says otherwise (a flag default used to
         // switch a resumed Vulkan run to the CPU).
-        if let Some(b) = a.backend
+        if let Some(b) = a.backend.and_then(BackendChoice::kind)
             && b != cfg.backend
         {
             say!(
@@ -74,6 +74,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
             ""
         }
     );
+    // `auto` for a new run unless --backend names one, and on --resume only when asked for.
+    let auto = match a.backend {
+        Some(choice) => choice == BackendChoice::Auto,
+        None => !a.resume,
+    };
+    if auto {
+        return train_auto(cfg, dataset, &out, &a);
+    }
     say!(a.json, "training on the {} backend", cfg.backend);
     match cfg.backend {
         BackendKind::Vulkan => train_vulkan(
@@ -107,6 +115,33 @@ fn train_vulkan(
     )
     .context("opening the Vulkan backend (see `s3tir-train devices`)")?;
     run_training(cfg, dataset, backend, out, resume, json)
+}
+
+/// `--backend auto` ([`super::open_auto`]): the best Vulkan device when one opens and passes
+/// the trainer's checks, else the CPU; says which and why, and the run's config.json keeps the
+/// backend it got.
+fn train_auto(mut cfg: TrainConfig, dataset: Dataset, out: &Path, a: &TrainArgs) -> Result<()> {
+    #[cfg(feature = "vulkan")]
+    let why = match super::open_auto(a.device_index, a.no_float_atomics) {
+        Ok(backend) => {
+            cfg.backend = BackendKind::Vulkan;
+            say!(
+                a.json,
+                "training on the vulkan backend (--backend auto: {} passes the trainer's checks)",
+                backend.context().report().name
+            );
+            return run_training(cfg, dataset, backend, out, a.resume, a.json);
+        }
+        Err(why) => why,
+    };
+    #[cfg(not(feature = "vulkan"))]
+    let why = super::auto_backend(a.device_index, a.no_float_atomics).1;
+    cfg.backend = BackendKind::Cpu;
+    say!(
+        a.json,
+        "training on the cpu backend (--backend auto: {why})"
+    );
+    run_training(cfg, dataset, CpuBackend::default(), out, a.resume, a.json)
 }
 
 #[cfg(not(feature = "vulkan"))]

@@ -48,9 +48,11 @@ pub struct TrainArgs {
     /// real facade as long as the warm-up, so off by default).
     #[arg(long, default_value_t = TrainConfig::defaults().band_ramp)]
     pub band_ramp: u64,
-    /// Compute backend [default: cpu; on --resume: the run's own].
+    /// Compute backend: `auto` (the best Vulkan device that passes the trainer's checks, else
+    /// the CPU; the choice and its reason are printed and stored in config.json), `vulkan` or
+    /// `cpu` [default: auto; on --resume: the run's own].
     #[arg(long, value_enum)]
-    pub backend: Option<BackendKind>,
+    pub backend: Option<BackendChoice>,
     /// Vulkan device (position in `s3tir-train devices`) [default: the best discrete or
     /// integrated GPU, else the CPU driver].
     #[arg(long)]
@@ -155,6 +157,16 @@ pub struct TrainArgs {
     /// are over the threshold, up to the budget).
     #[arg(long, default_value_t = TrainConfig::defaults().densify.grow_frac)]
     pub densify_grow_frac: f64,
+    /// Bands only where they pay: λ of the band amplitudes' proximal L1 step (an amplitude
+    /// whose mean gradient stays below λ goes to exactly zero and is dropped), and the
+    /// threshold of the band grant one pass over the training views after the warm-up (a primitive
+    /// keeps its bands when one has an RMS gradient above λ). 0: no L1 step, no threshold.
+    #[arg(long, default_value_t = TrainConfig::defaults().capacity.band_l1)]
+    pub band_l1: f64,
+    /// At most this fraction of the primitives keep bands at the grant, highest band gradient
+    /// first (1: no budget). The others return to the Gaussian path.
+    #[arg(long, default_value_t = TrainConfig::defaults().capacity.band_budget)]
+    pub band_budget: f64,
     /// Per-view radiometric response learned with the scene, applied to each training view's
     /// render: `affine` (gain and offset: 8-bit images tone-mapped per frame by automatic gain
     /// control), `offset` (16-bit radiometric frames drifting between flat-field corrections),
@@ -335,6 +347,8 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     cfg.densify.prune_opacity = a.prune_opacity;
     cfg.densify.relocate_frac = a.relocate_frac;
     cfg.densify.grow_frac = a.densify_grow_frac;
+    cfg.capacity.band_l1 = a.band_l1;
+    cfg.capacity.band_budget = a.band_budget;
     cfg.response.kind = a.response;
     cfg.response.prior = a.response_prior;
     cfg.response.lr_offset = a.response_lr;
@@ -354,8 +368,43 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     cfg.lr.beta = a.beta_lr;
     cfg.consist_every = a.consist_every;
     cfg.consist_partner = a.consist_partner;
-    cfg.backend = a.backend.unwrap_or(TrainConfig::defaults().backend);
+    // `auto` is resolved when the backend opens (`train::run`); until then the CPU.
+    cfg.backend = a
+        .backend
+        .and_then(BackendChoice::kind)
+        .unwrap_or(BackendKind::Cpu);
     Ok(cfg)
+}
+
+/// `--backend`: a backend, or `auto` to take the best that works on this machine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum BackendChoice {
+    /// The best Vulkan device that passes the trainer's checks, else the CPU.
+    #[default]
+    Auto,
+    Vulkan,
+    Cpu,
+}
+
+impl BackendChoice {
+    /// The backend named (`None`: `auto`, decided when it opens).
+    pub fn kind(self) -> Option<BackendKind> {
+        match self {
+            BackendChoice::Auto => None,
+            BackendChoice::Vulkan => Some(BackendKind::Vulkan),
+            BackendChoice::Cpu => Some(BackendKind::Cpu),
+        }
+    }
+}
+
+impl std::fmt::Display for BackendChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            BackendChoice::Auto => "auto",
+            BackendChoice::Vulkan => "vulkan",
+            BackendChoice::Cpu => "cpu",
+        })
+    }
 }
 
 #[cfg(test)]
@@ -364,7 +413,7 @@ mod tests {
     use clap::{Args, Command};
     use s3tir_trainer::train::TrainConfig;
 
-    use super::{TrainArgs, parse_duration};
+    use super::{BackendChoice, TrainArgs, parse_duration};
 
     #[test]
     fn durations_read_as_seconds() {
@@ -398,7 +447,7 @@ mod tests {
         let d = TrainConfig::defaults();
         for (id, default) in [
             ("iters", d.iters.to_string()),
-            ("backend", d.backend.to_string()),
+            ("backend", BackendChoice::default().to_string()),
         ] {
             assert!(
                 help(id).contains(&format!("[default: {default};")),

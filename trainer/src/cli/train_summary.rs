@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use s3tir_trainer::train::{Backend, CapacityReport, Trainer, files};
+use s3tir_trainer::train::{Backend, BandRoundKind, CapacityReport, Trainer, files};
 
 /// A run stopped by Ctrl-C after writing its checkpoint.
 pub fn interrupted<B: Backend>(trainer: &Trainer<B>, out: &Path, iteration: u64, json: bool) {
@@ -93,6 +93,30 @@ fn say_left_out<B: Backend>(trainer: &Trainer<B>, cap: &CapacityReport, json: bo
         cap.gaussian_path_primitives,
         cap.response.as_ref().map_or("none", |r| r.kind.as_str())
     );
+    if let Some(g) = cap
+        .band_rounds
+        .iter()
+        .find(|r| r.kind == BandRoundKind::Grant)
+    {
+        let dropped: usize = cap.band_rounds.iter().map(|r| r.bands_dropped).sum();
+        say!(
+            json,
+            "bands: granted to {} of {} primitives at iteration {} ({} over λ = {}, budget {}; band RMS gradient median {:.2e}, 90th percentile {:.2e}); {} band slots dropped since; {} primitives hold bands at the end",
+            g.holders_after,
+            g.holders_before,
+            g.iteration,
+            g.over_threshold,
+            trainer.cfg.capacity.band_l1,
+            g.budget,
+            g.rms_gradient_median,
+            g.rms_gradient_p90,
+            dropped,
+            cap.band_holders
+        );
+    }
+    for note in &cap.notes {
+        say!(json, "note: {note}");
+    }
     if let Some(r) = &cap.response {
         say!(json, "view response: {}", r.describe());
     }

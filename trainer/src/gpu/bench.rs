@@ -31,6 +31,9 @@ pub struct BenchOptions {
     pub steps: usize,
     /// Untimed steps before timing (pipeline compilation, buffer growth).
     pub warmup_steps: usize,
+    /// Configurations with bands: the fraction of the primitives that hold them, spread evenly
+    /// over the set (the others band-free, as the band grant leaves them); 1: every primitive.
+    pub band_holders: f64,
     pub device: ContextOptions,
 }
 
@@ -43,6 +46,7 @@ impl Default for BenchOptions {
             primitives: 2_000,
             steps: 20,
             warmup_steps: 3,
+            band_holders: 1.0,
             device: ContextOptions::default(),
         }
     }
@@ -72,6 +76,8 @@ pub struct BenchReport {
     pub height: usize,
     pub primitives: usize,
     pub steps: usize,
+    /// Primitives holding bands in the configurations with bands (1: all).
+    pub band_holders: f64,
     /// CPU backend, s3tir mode, on every core (rayon's pool: `cpu_threads`).
     pub cpu_steps_per_s: f64,
     /// Threads of the CPU backend's pool.
@@ -232,6 +238,15 @@ fn make_joint(data: &mut Dataset) {
     }
 }
 
+/// `n` flags, `fraction` of them true, spread evenly (flag `i` is true when `⌊(i+1)·fraction⌋`
+/// exceeds `⌊i·fraction⌋`).
+fn evenly_spread(n: usize, fraction: f64) -> Vec<bool> {
+    let f = fraction.clamp(0.0, 1.0);
+    (0..n)
+        .map(|i| ((i + 1) as f64 * f).floor() > (i as f64 * f).floor())
+        .collect()
+}
+
 /// CPU time consumed so far by every thread of this process, in seconds.
 fn process_cpu_s() -> f64 {
     use nix::time::{ClockId, clock_gettime};
@@ -283,6 +298,10 @@ impl<B: Backend> Timed<B> {
             cfg.joint.pair_steps = scene == Scene::Joint;
         }
         let mut trainer = Trainer::new(cfg, data, backend, run_dir).map_err(train)?;
+        if trainer.prims.bands > 0 && opts.band_holders < 1.0 {
+            let keep = evenly_spread(trainer.prims.len(), opts.band_holders);
+            trainer.keep_bands_on(&keep);
+        }
         for _ in 0..opts.warmup_steps {
             trainer.step().map_err(train)?;
         }
@@ -649,6 +668,7 @@ fn report(opts: &BenchOptions, t: &Timings, p: Profiles) -> BenchReport {
         height: opts.height,
         primitives: opts.primitives,
         steps: opts.steps,
+        band_holders: opts.band_holders,
         cpu_steps_per_s: t.cpu.steps_per_s,
         cpu_threads: rayon::current_num_threads(),
         cpu_one_thread_steps_per_s: t.cpu_one_thread.steps_per_s,

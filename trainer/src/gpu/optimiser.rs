@@ -62,6 +62,9 @@ pub struct AdamStep {
     pub hp: AdamParams,
     /// Lower bound of every log-scale after the update.
     pub min_log_scale: f32,
+    /// The band amplitudes' proximal shrink before its division by `√v + ε`
+    /// ([`AdamState::band_shrink`]; 0: none).
+    pub band_shrink: f64,
 }
 
 /// Parameters, moments and statistics on the GPU, and the kernel that steps them.
@@ -430,6 +433,7 @@ impl GpuOptimiser {
             tz,
             cam_i.width as f64 / (2.0 * cam_i.fx_px),
             cam_i.height as f64 / (2.0 * cam_i.fy_px),
+            adam.band_shrink,
         ];
         for f in floats {
             push.extend_from_slice(&(f as f32).to_le_bytes());

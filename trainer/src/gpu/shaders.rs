@@ -9,7 +9,7 @@ use super::error::GpuError;
 /// clamp constants, 12 for the densification statistic's camera (within Vulkan's guaranteed
 /// 128 bytes). Declared with the kernel table, which every kernel's module reads (the
 /// optimiser fills them), so the table imports no kernel module.
-pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 4 + 12);
+pub(crate) const ADAM_PUSH_BYTES: u32 = 4 * (4 + 9 + 4 + 12 + 1);
 
 include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
 

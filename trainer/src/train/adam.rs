@@ -20,6 +20,15 @@
 //! mapped `g_β = g_raw / (dβ/dbeta_raw)`, Adam steps β, β is clamped to [2, 64] and mapped back
 //! with [`beta_raw_from_beta`].
 //!
+//! # Band amplitudes: a proximal L1 step
+//! With `band_l1` λ > 0 every band amplitude takes, after its Adam update, the proximal step
+//! of λ·|ω| in Adam's own metric: `ω ← sign(ω)·max(|ω| − t, 0)` with `t = lr·λ/(√v̂ + ε)`
+//! (in the efficient form `t = lr·λ·√(1−β₂ᵗ)/(√v + ε)`, [`AdamState::band_shrink`]). An
+//! amplitude whose mean gradient stays under λ reaches exactly zero and stays there, so the
+//! capacity check drops it (its band does not pay for itself); one whose gradient exceeds λ
+//! trains as before, pulled λ towards zero. A plain L1 gradient would instead leave every
+//! amplitude oscillating around zero at about one step's size, above any drop threshold.
+//!
 //! Two kinds of values are never updated (their moments are held at 0): a `beta_raw` frozen on the
 //! Gaussian path ([`is_beta_frozen`]), and every parameter of a dropped band slot (slot `j ≥
 //! band_count[i]`), so dropped bands cannot grow back whatever gradient a backend reports for
@@ -39,6 +48,9 @@ pub struct AdamParams {
     pub beta1: f64,
     pub beta2: f64,
     pub eps: f64,
+    /// λ of the proximal L1 step on band amplitudes (0: none; see the module docs).
+    #[serde(default)]
+    pub band_l1: f64,
 }
 
 impl Default for AdamParams {
@@ -48,8 +60,16 @@ impl Default for AdamParams {
             beta1: 0.9,
             beta2: 0.999,
             eps: 1e-15,
+            band_l1: 0.0,
         }
     }
+}
+
+/// The proximal step of `t·|x|`: `x` moved `t` towards zero, exactly zero within `t` of it.
+/// `adam.comp` computes the same in the same order.
+#[inline]
+pub fn soft_threshold(x: f32, t: f32) -> f32 {
+    if x.abs() <= t { 0.0 } else { x - t.copysign(x) }
 }
 
 /// Kingma & Ba's bias-corrected step size of the `t`-th update (1-based) at learning rate
@@ -116,6 +136,17 @@ impl AdamState {
         })
     }
 
+    /// The next step's proximal shrink of the band amplitudes before its division by
+    /// `√v + ε`: `lr·λ·√(1−β₂ᵗ)` with `t` the amplitudes' steps including that one (0 without
+    /// `band_l1` or with the amplitudes frozen; see the module docs).
+    pub fn band_shrink(&self, lrs: &GroupLrs, hp: &AdamParams) -> f64 {
+        if hp.band_l1 <= 0.0 || lrs.band_amp == 0.0 {
+            return 0.0;
+        }
+        let t = (self.group_steps.band_amp + 1) as f64;
+        lrs.band_amp * hp.band_l1 * (1.0 - hp.beta2.powf(t)).sqrt()
+    }
+
     /// Counts a step taken with `lrs`: the run's, and each group's whose rate is non-zero.
     pub fn advance(&mut self, lrs: &GroupLrs) {
         self.step += 1;
@@ -133,6 +164,7 @@ impl AdamState {
         hp: &AdamParams,
     ) {
         let sizes = self.step_sizes(lrs, hp);
+        let shrink = self.band_shrink(lrs, hp) as f32;
         self.advance(lrs);
         let hp32 = [hp.beta1 as f32, hp.beta2 as f32, hp.eps as f32];
         let bands = params.bands;
@@ -178,6 +210,9 @@ impl AdamState {
                     p[i] = beta_raw_from_beta(beta.clamp(2.0, BETA_MAX)) as f32;
                 } else {
                     p[i] -= delta;
+                    if name == Group::BandAmp && shrink > 0.0 {
+                        p[i] = soft_threshold(p[i], shrink / (v[i].sqrt() + hp32[2]));
+                    }
                 }
             }
         }
@@ -272,5 +307,46 @@ mod tests {
         let late = 0.01 * (1.0 - 0.999f64.powi(1000)).sqrt();
         assert!((s.means - late).abs() < 1e-12, "means: {}", s.means);
         assert_eq!(s.sh, 0.0, "a frozen group has no step");
+    }
+
+    #[test]
+    fn the_l1_step_zeroes_amplitudes_whose_gradient_is_below_lambda() {
+        // Two amplitudes from 0.05 under constant gradients, one below λ and one above: the
+        // proximal step takes the first to exactly zero and holds it there (Adam alone would
+        // carry it on past zero), while the second moves on.
+        let lambda = 0.1;
+        let lrs = GroupLrs {
+            band_amp: 2.5e-3,
+            ..GroupLrs::default()
+        };
+        let run = |band_l1: f64| {
+            let hp = AdamParams {
+                band_l1,
+                ..AdamParams::default()
+            };
+            let mut p = one_primitive();
+            p.band_amp = vec![0.05, 0.05];
+            let mut grads = p.zeros_like();
+            grads.band_amp = vec![(0.5 * lambda) as f32, (2.0 * lambda) as f32];
+            let mut adam = AdamState::new(&p);
+            for _ in 0..60 {
+                adam.step(&mut p, &grads, &lrs, &hp);
+            }
+            p.band_amp
+        };
+        let with = run(lambda);
+        assert_eq!(
+            with[0], 0.0,
+            "a gradient below λ must end at exactly zero: {with:?}"
+        );
+        assert!(
+            with[1] < -0.01,
+            "a gradient above λ must move on past zero: {with:?}"
+        );
+        let without = run(0.0);
+        assert!(
+            without[0] < -0.05 && without[1] < -0.05,
+            "without the L1 step both move on: {without:?}"
+        );
     }
 }

@@ -83,6 +83,8 @@ pub struct ResidentStep<'a> {
     pub hp: AdamParams,
     /// Lower bound of every log-scale after the update.
     pub min_log_scale: f32,
+    /// The band amplitudes' proximal shrink ([`AdamState::band_shrink`]; 0: none).
+    pub band_shrink: f64,
 }
 
 /// The optimiser state the training loop keeps: parameters, Adam moments and the

@@ -1,12 +1,13 @@
-//! Capacity adaptation (dropping negligible bands, snapping Gaussian-like primitives to the
-//! cheap path) and its report.
+//! Capacity adaptation's report (what the run left out and what it saved) and its Gaussian
+//! path (snapping Gaussian-like primitives to the cheap path); the bands' part is `bands`.
 
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::bands::BandRound;
 use super::density::DensifyRound;
-use super::{Backend, TrainError, Trainer, params};
+use super::{Backend, TrainError, Trainer};
 use crate::primitive::{BETA_RAW_FROZEN, beta_of_raw, is_beta_frozen};
 use crate::render::GBuffers;
 
@@ -71,48 +72,6 @@ impl<B: Backend> Trainer<B> {
         );
     }
 
-    /// Drops negligible bands per primitive and compacts the band storage.
-    pub(super) fn drop_bands(&mut self) {
-        // The kept G-buffers show the primitives before this change.
-        self.kept = None;
-        let m = self.prims.bands;
-        let thr = self.cfg.capacity.band_amp_threshold as f32;
-        let mut keep: Vec<Vec<usize>> = Vec::with_capacity(self.prims.len());
-        let mut dropped = 0;
-        for i in 0..self.prims.len() {
-            let mut live: Vec<usize> = (0..self.prims.live_bands(i))
-                .filter(|&j| self.prims.band_amp[m * i + j].abs() >= thr)
-                .collect();
-            live.sort_by(|&a, &b| {
-                self.prims.band_amp[m * i + b]
-                    .abs()
-                    .total_cmp(&self.prims.band_amp[m * i + a].abs())
-            });
-            dropped += self.prims.live_bands(i) - live.len();
-            keep.push(live);
-        }
-        let new_m = keep.iter().map(Vec::len).max().unwrap_or(0);
-        let before = self.state.step_ms_sum / self.state.step_count.max(1) as f64;
-        self.prims = params::compact_bands(&self.prims, &keep, new_m);
-        self.adam.m = params::compact_bands(&self.adam.m, &keep, new_m);
-        self.adam.v = params::compact_bands(&self.adam.v, &keep, new_m);
-        let cap = &mut self.state.capacity;
-        cap.bands_dropped_total = dropped;
-        if new_m < m {
-            cap.step_ms_before_compaction = Some(before);
-            cap.step_ms_after_compaction = None;
-            self.state.step_ms_sum = 0.0;
-            self.state.step_count = 0;
-            tracing::info!(
-                iteration = self.iteration,
-                from = m,
-                to = new_m,
-                "band storage compacted"
-            );
-        }
-        cap.bands_now = new_m;
-    }
-
     /// The capacity report as of now.
     pub fn capacity_report(&self) -> CapacityReport {
         let mut cap = self.state.capacity.clone();
@@ -132,6 +91,9 @@ impl<B: Backend> Trainer<B> {
             .filter(|&i| {
                 is_beta_frozen(f64::from(self.prims.beta_raw[i])) && self.prims.live_bands(i) == 0
             })
+            .count();
+        cap.band_holders = (0..self.prims.len())
+            .filter(|&i| self.prims.live_bands(i) > 0)
             .count();
         cap.band_slots_dropped = (0..self.prims.len())
             .map(|i| m - self.prims.live_bands(i))
@@ -229,5 +191,11 @@ pub struct CapacityReport {
     /// The thermal gradient alignment loss's weight after the RGB pre-training (0: off).
     #[serde(default)]
     pub thermal_align: f64,
+    /// Primitives holding at least one live band (filled by [`Trainer::capacity_report`]).
+    #[serde(default)]
+    pub band_holders: usize,
+    /// The band grant and every check that dropped bands, in order.
+    #[serde(default)]
+    pub band_rounds: Vec<BandRound>,
     pub notes: Vec<String>,
 }

@@ -238,16 +238,46 @@ impl Default for Densify {
     }
 }
 
+/// Default λ of the band amplitudes' L1 step (see [`Capacity::band_l1`]), by measurement at
+/// equal time (3 minutes, Vulkan on lavapipe, one seed; held-out PSNR / LPIPS at the end):
+/// on the simulated facade at 640×512 (`s3tir-firmware-sim scene --layout facade`, 40 views)
+/// all bands kept 25.93 dB / 0.427, λ = 5e-5 26.11 / 0.434 (297 of 2 100 primitives keep
+/// bands), λ = 2e-4 26.60 / 0.442 (17 keep them), 3dgs mode 26.54 / 0.447; on thermal-facade
+/// (real, 320×240) all bands 16.91 / 0.623, λ = 5e-5 and 2e-4 both 17.31 (no band left:
+/// the run ends band-free) / 0.635 and 0.626, 3dgs mode 17.40 / 0.615. λ = 5e-5 keeps the
+/// bands on the textured scene and none on the real facade.
+pub const BAND_L1: f64 = 5e-5;
+/// Default share of primitives that may keep bands (see [`Capacity::band_budget`]).
+pub const BAND_BUDGET: f64 = 0.5;
+
 /// Capacity adaptation: bands whose amplitude stays below `band_amp_threshold` (normalised
-/// intensity units) are dropped, checked every `every` iterations after the warm-up.
+/// intensity units) are dropped, checked every `every` iterations after the warm-up; one pass
+/// over the training views after it the bands are granted (kept) only where they pay
+/// (`band_l1`, `band_budget`; see `train::capacity`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Capacity {
     pub band_amp_threshold: f64,
     pub every: u64,
+    /// λ of the band amplitudes' proximal L1 step (`train::adam`), in gradient units of the
+    /// loss: an amplitude whose mean gradient stays below it goes to exactly zero and is
+    /// dropped. Also the grant's threshold: a primitive keeps its bands at the grant only
+    /// when a band's RMS gradient exceeds it. 0: no L1 step, every primitive may be granted.
+    #[serde(default)]
+    pub band_l1: f64,
+    /// Fraction of the primitives that may keep bands at the grant (the highest RMS band
+    /// gradients first); 1: no budget.
+    #[serde(default = "Capacity::default_band_budget")]
+    pub band_budget: f64,
     /// β below this (and no bands) counts as "Gaussian path".
     pub gaussian_beta_max: f64,
     /// Minimum camera-overlap fraction for a consistency pair.
     pub min_pair_overlap: f64,
+}
+
+impl Capacity {
+    fn default_band_budget() -> f64 {
+        1.0
+    }
 }
 
 impl Default for Capacity {
@@ -255,6 +285,8 @@ impl Default for Capacity {
         Self {
             band_amp_threshold: 1e-3,
             every: 1000,
+            band_l1: BAND_L1,
+            band_budget: BAND_BUDGET,
             gaussian_beta_max: 2.05,
             min_pair_overlap: 0.5,
         }

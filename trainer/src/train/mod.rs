@@ -33,7 +33,14 @@
 //!   rays, cut at the scene-centre depth, that land inside the other image, ≥
 //!   `capacity.min_pair_overlap`); views without a partner skip the term, and with no pair at all
 //!   it is never computed;
-//! - every `capacity.every` iterations after the warm-up, bands with `|ω_j| <
+//! - bands only where they pay (`bands`): one pass over the training views after the
+//!   warm-up, a primitive keeps its bands only when one of them has a root-mean-square
+//!   amplitude gradient above `capacity.band_l1` (the residual under it has energy at a
+//!   frequency the Gaussian cannot fit), the largest first, at most `capacity.band_budget` of
+//!   the primitives; when none qualifies the bands are left out of the run (M = 0, said in the
+//!   report's notes). Adam's proximal L1 step on the amplitudes ([`adam`]) takes the ones
+//!   that stop paying to exactly zero;
+//! - every `capacity.every` iterations after the grant, bands with `|ω_j| <
 //!   band_amp_threshold` are dropped per primitive (zeroed), each primitive's live bands are
 //!   moved to its first slots and the rest marked dropped (`band_count`, saved in checkpoints
 //!   and the PLY): the renderer skips dropped slots and Adam never updates them, so they cannot
@@ -55,6 +62,7 @@
 
 pub mod adam;
 pub mod backend;
+mod bands;
 mod capacity;
 pub mod config;
 mod density;
@@ -82,6 +90,7 @@ pub use backend::{
     Backend, CpuBackend, DeviceStep, DeviceStepResult, OptimiserState, Partner, ResidentStep,
     ResidentStepResult, RunShape,
 };
+pub use bands::{BandRound, BandRoundKind, band_grant};
 pub use capacity::CapacityReport;
 pub use config::{
     BackendKind, Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN,

@@ -216,6 +216,7 @@ const ADAM: AdamParams = AdamParams {
     beta1: 0.9,
     beta2: 0.999,
     eps: 1e-12,
+    band_l1: 0.0,
 };
 
 impl ResponseModel {

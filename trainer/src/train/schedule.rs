@@ -27,9 +27,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::init::draw_band;
-use super::{Backend, ConsistPartner, GroupLrs, PairChoice, TrainConfig, Trainer};
+use super::{AdamParams, Backend, ConsistPartner, GroupLrs, PairChoice, TrainConfig, Trainer};
 use crate::loss::LossWeights;
 use crate::primitive::{BETA_RAW_GAUSSIAN, is_beta_frozen};
+
+/// The fewest band-amplitude steps the band grant ranks by (see [`Trainer::grant_due`]).
+pub(super) const GRANT_MIN_STEPS: u64 = 20;
 
 impl TrainConfig {
     /// Training seconds at which this schedule's warm-up ends, for readers of a finished run
@@ -98,6 +101,16 @@ impl<B: Backend> Trainer<B> {
             && self.iteration.is_multiple_of(d.every)
     }
 
+    /// The band grant runs after this step: once, when the band amplitudes have trained for
+    /// one pass over the training views (at least [`GRANT_MIN_STEPS`] steps), so that Adam's
+    /// second moment of every amplitude has averaged its gradient over the views (see
+    /// `bands`).
+    pub(super) fn grant_due(&self) -> bool {
+        self.prims.bands > 0
+            && !self.bands_granted()
+            && self.adam.group_steps.band_amp >= (self.data.train.len() as u64).max(GRANT_MIN_STEPS)
+    }
+
     /// Capacity adaptation runs after this step, in modes with bands or learnable β: every
     /// `capacity.every` iterations counted from the warm-up's end, or with a time budget each
     /// time the schedule passes another `capacity.every` of the nominal run (so a short
@@ -116,6 +129,14 @@ impl<B: Backend> Trainer<B> {
                 since / c.every > self.state.capacity_checks
             }
             None => self.iteration > w && (self.iteration - w).is_multiple_of(c.every),
+        }
+    }
+
+    /// Adam's hyper-parameters for the primitives, with the run's band L1 λ.
+    pub(super) fn adam_params(&self) -> AdamParams {
+        AdamParams {
+            band_l1: self.cfg.capacity.band_l1,
+            ..AdamParams::default()
         }
     }
 

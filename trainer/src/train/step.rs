@@ -157,10 +157,11 @@ impl<B: Backend> Trainer<B> {
             thermal_step(&self.data, vi, pair, weights, &cam_i, response),
             self.resident && !self.host_losses_only(),
         ) {
-            let hp = AdamParams::default();
+            let hp = self.adam_params();
             let step = ResidentStep {
                 losses,
                 sizes: self.adam.step_sizes(&lrs, &hp),
+                band_shrink: self.adam.band_shrink(&lrs, &hp),
                 hp,
                 min_log_scale: self.min_log_scale,
             };
@@ -188,10 +189,16 @@ impl<B: Backend> Trainer<B> {
             self.sync_host()?;
             self.densify(&mut rng);
         }
+        if self.grant_due() {
+            self.sync_host()?;
+            self.grant_bands();
+            self.drop_bands();
+        }
         if self.capacity_due() {
             self.state.capacity_checks += 1;
             self.sync_host()?;
-            if self.prims.bands > 0 {
+            // Before the grant the amplitudes are still being measured.
+            if self.prims.bands > 0 && self.bands_granted() {
                 self.drop_bands();
             }
             if self.cfg.mode.learns_beta() {
@@ -308,8 +315,8 @@ impl<B: Backend> Trainer<B> {
 
         self.accumulate_densify_stats(&cam_i, &grads.means);
 
-        self.adam
-            .step(&mut self.prims, &grads, lrs, &AdamParams::default());
+        let hp = self.adam_params();
+        self.adam.step(&mut self.prims, &grads, lrs, &hp);
         for s in &mut self.prims.log_scales {
             *s = s.max(self.min_log_scale);
         }

@@ -143,6 +143,7 @@ impl VulkanBackend {
             sizes: step.sizes,
             hp: step.hp,
             min_log_scale: step.min_log_scale,
+            band_shrink: step.band_shrink,
         };
         let gate = match sizing {
             KeySizing::Exact => None,

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{Dataset, LoadOptions, Modality};
 use crate::mesh::run::{MeshOptions, TRUTH_SURFACE, mesh_views};
 use crate::mesh::score::{MeshScore, score as score_mesh};
-use crate::train::{Backend, Event, Outcome, TrainConfig, TrainError, Trainer};
+use crate::train::{Backend, Event, TrainConfig, TrainError};
 use crate::truth::{TruthScore, score};
 
 /// One configuration of the ablation.
@@ -108,18 +108,11 @@ pub fn run_ablation<B: Backend>(
         None
     };
     for v in Variant::ALL {
-        let cfg = v.config(base);
-        let data = Dataset::load(&cfg.data, &cfg.load)?;
         let dir = out.join(v.slug());
         let start = Instant::now();
-        let mut t = Trainer::new(cfg, data, backend()?, &dir)?;
-        let outcome = t.run(stop, &mut |e| on_event(v, e))?;
-        if let Outcome::Interrupted { iteration } = outcome {
-            return Err(TrainError::Run {
-                run_dir: dir,
-                reason: format!("interrupted at iteration {iteration}: the table is incomplete"),
-            });
-        }
+        let t = super::train_variant(v.config(base), dir.clone(), backend()?, stop, &mut |e| {
+            on_event(v, e)
+        })?;
         tracing::info!(
             variant = v.slug(),
             seconds = start.elapsed().as_secs_f64(),
