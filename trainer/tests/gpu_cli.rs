@@ -27,6 +27,23 @@ fn small_scene(dir: &std::path::Path) -> std::path::PathBuf {
     data
 }
 
+/// A short training run of `data` into `run` (2 warm-up iterations, 60 primitives, no
+/// evaluation before the end).
+fn short_run(data: &std::path::Path, run: &std::path::Path, iters: &str) -> Command {
+    let mut c = train();
+    c.arg(data).arg("--out").arg(run).args([
+        "--warmup",
+        "2",
+        "--budget",
+        "60",
+        "--eval-every-s",
+        "1000",
+        "--iters",
+        iters,
+    ]);
+    c
+}
+
 #[test]
 fn devices_lists_lavapipe_with_limits_subgroups_and_atomics() {
     let out = train().arg("devices").output().unwrap();
@@ -145,20 +162,7 @@ fn resume_keeps_the_runs_backend_unless_told_otherwise() {
     let tmp = tempfile::tempdir().unwrap();
     let data = small_scene(tmp.path());
     let run = tmp.path().join("run");
-    let common = |iters: &str| {
-        let mut c = train();
-        c.arg(&data).arg("--out").arg(&run).args([
-            "--warmup",
-            "2",
-            "--budget",
-            "60",
-            "--eval-every-s",
-            "1000",
-            "--iters",
-            iters,
-        ]);
-        c
-    };
+    let common = |iters: &str| short_run(&data, &run, iters);
     let first = common("3").args(["--backend", "vulkan"]).output().unwrap();
     let text = String::from_utf8_lossy(&first.stdout);
     assert!(
@@ -196,17 +200,7 @@ fn backend_auto_takes_vulkan_when_it_passes_and_the_cpu_otherwise() {
     let data = small_scene(tmp.path());
     let run = |name: &str, no_driver: bool| {
         let dir = tmp.path().join(name);
-        let mut c = train();
-        c.arg(&data).arg("--out").arg(&dir).args([
-            "--warmup",
-            "2",
-            "--budget",
-            "60",
-            "--eval-every-s",
-            "1000",
-            "--iters",
-            "3",
-        ]);
+        let mut c = short_run(&data, &dir, "3");
         if no_driver {
             c.env("VK_ICD_FILENAMES", "/nonexistent/s3tir-no-driver.json")
                 .env("VK_DRIVER_FILES", "/nonexistent/s3tir-no-driver.json");
