@@ -363,6 +363,19 @@ fn the_consistency_weight_is_recorded_and_a_bad_one_refused() {
         "the error should name the flag: {err}"
     );
     assert!(!bad.exists(), "nothing should be written for a refused run");
+    for (flag, value) in [("--band-l1", "-1"), ("--band-budget", "1.5")] {
+        let out = bin()
+            .args(train_args(&data, &bad))
+            .args(["--iters", "5", &format!("{flag}={value}")])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(flag),
+            "{flag} {value} must be refused, naming the flag: {err}"
+        );
+        assert!(!bad.exists(), "nothing should be written for a refused run");
+    }
 }
 
 #[test]

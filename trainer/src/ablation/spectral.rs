@@ -142,8 +142,9 @@ pub fn spectral_markdown(rows: &[SpectralRow]) -> String {
         "| run | PSNR | SSIM | LPIPS | kelvin MAE | PSNR aligned | steps | seconds | primitives | band holders |\n\
          |---|---|---|---|---|---|---|---|---|---|\n",
     );
-    let opt = |x: Option<f64>, digits: usize| {
-        x.map_or_else(|| "—".to_owned(), |v| format!("{v:.digits$}"))
+    // "—" where the run has no such figure (no LPIPS weights, non-radiometric data).
+    let opt = |x: Option<f64>, digits: usize, unit: &str| {
+        x.map_or_else(|| "—".to_owned(), |v| format!("{v:.digits$}{unit}"))
     };
     for r in rows {
         let e = &r.eval;
@@ -152,11 +153,9 @@ pub fn spectral_markdown(rows: &[SpectralRow]) -> String {
             r.variant.label(),
             e.psnr,
             e.ssim,
-            opt(e.lpips, 3),
-            e.kelvin_mae
-                .map_or_else(|| "—".to_owned(), |k| format!("{k:.3} K")),
-            e.psnr_aligned
-                .map_or_else(|| "—".to_owned(), |p| format!("{p:.2} dB")),
+            opt(e.lpips, 3, ""),
+            opt(e.kelvin_mae, 3, " K"),
+            opt(e.psnr_aligned, 2, " dB"),
             r.iterations,
             r.train_seconds,
             r.primitives,

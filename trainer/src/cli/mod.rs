@@ -40,22 +40,26 @@ pub mod train_args;
 pub mod train_summary;
 
 /// `--backend auto`'s Vulkan backend: the best device, opened with the trainer's checks
-/// (work-group sizes, storage-buffer room, every kernel built); `Err` says why there is none.
+/// (work-group sizes, storage-buffer room, every kernel built), and why it was taken; `Err`
+/// says why there is none.
 #[cfg(feature = "vulkan")]
 pub fn open_auto(
     device_index: Option<usize>,
     no_float_atomics: bool,
-) -> std::result::Result<s3tir_trainer::gpu::backend::VulkanBackend, String> {
-    s3tir_trainer::gpu::backend::VulkanBackend::new(
+) -> std::result::Result<(s3tir_trainer::gpu::backend::VulkanBackend, String), String> {
+    match s3tir_trainer::gpu::backend::VulkanBackend::new(
         &vulkan_options(device_index, no_float_atomics),
         s3tir_trainer::render::RenderSettings::default(),
-    )
-    .map_err(|e| {
-        format!(
+    ) {
+        Ok(b) => {
+            let why = format!("{} passes the trainer's checks", b.context().report().name);
+            Ok((b, why))
+        }
+        Err(e) => Err(format!(
             "no Vulkan device passes the trainer's checks: {}",
             s3tir_capture::Chain(&e)
-        )
-    })
+        )),
+    }
 }
 
 /// What `--backend auto` takes on this machine and why (the Vulkan backend is opened to check,
@@ -67,10 +71,7 @@ pub fn auto_backend(
 ) -> (s3tir_trainer::train::BackendKind, String) {
     use s3tir_trainer::train::BackendKind;
     match open_auto(device_index, no_float_atomics) {
-        Ok(b) => (
-            BackendKind::Vulkan,
-            format!("{} passes the trainer's checks", b.context().report().name),
-        ),
+        Ok((_, why)) => (BackendKind::Vulkan, why),
         Err(why) => (BackendKind::Cpu, why),
     }
 }

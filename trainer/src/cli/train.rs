@@ -123,12 +123,11 @@ fn train_vulkan(
 fn train_auto(mut cfg: TrainConfig, dataset: Dataset, out: &Path, a: &TrainArgs) -> Result<()> {
     #[cfg(feature = "vulkan")]
     let why = match super::open_auto(a.device_index, a.no_float_atomics) {
-        Ok(backend) => {
+        Ok((backend, why)) => {
             cfg.backend = BackendKind::Vulkan;
             say!(
                 a.json,
-                "training on the vulkan backend (--backend auto: {} passes the trainer's checks)",
-                backend.context().report().name
+                "training on the vulkan backend (--backend auto: {why})"
             );
             return run_training(cfg, dataset, backend, out, a.resume, a.json);
         }

@@ -319,10 +319,17 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
         ("--thermal-weight", a.thermal_weight),
         ("--rgb-weight", a.rgb_weight),
         ("--consist-weight", a.consist_weight),
+        ("--band-l1", a.band_l1),
     ] {
         if !(w >= 0.0 && w.is_finite()) {
             bail!("{flag} must be a finite weight ≥ 0, got {w}");
         }
+    }
+    if !(0.0..=1.0).contains(&a.band_budget) {
+        bail!(
+            "--band-budget must be a fraction of the primitives in [0, 1], got {}",
+            a.band_budget
+        );
     }
     cfg.sh_degree = a.sh_degree;
     cfg.joint = Joint {
@@ -399,11 +406,7 @@ impl BackendChoice {
 
 impl std::fmt::Display for BackendChoice {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            BackendChoice::Auto => "auto",
-            BackendChoice::Vulkan => "vulkan",
-            BackendChoice::Cpu => "cpu",
-        })
+        f.write_str(self.kind().map_or("auto", BackendKind::as_str))
     }
 }
 

@@ -253,7 +253,7 @@ pub const BAND_BUDGET: f64 = 0.5;
 /// Capacity adaptation: bands whose amplitude stays below `band_amp_threshold` (normalised
 /// intensity units) are dropped, checked every `every` iterations after the warm-up; one pass
 /// over the training views after it the bands are granted (kept) only where they pay
-/// (`band_l1`, `band_budget`; see `train::capacity`).
+/// (`band_l1`, `band_budget`; see `train::bands`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Capacity {
     pub band_amp_threshold: f64,
@@ -262,6 +262,7 @@ pub struct Capacity {
     /// loss: an amplitude whose mean gradient stays below it goes to exactly zero and is
     /// dropped. Also the grant's threshold: a primitive keeps its bands at the grant only
     /// when a band's RMS gradient exceeds it. 0: no L1 step, every primitive may be granted.
+    /// A run whose config.json predates it resumes as it was trained: 0 (and budget 1).
     #[serde(default)]
     pub band_l1: f64,
     /// Fraction of the primitives that may keep bands at the grant (the highest RMS band
@@ -275,6 +276,7 @@ pub struct Capacity {
 }
 
 impl Capacity {
+    /// A config.json without `band_budget` predates the grant: no budget (see `band_l1`).
     fn default_band_budget() -> f64 {
         1.0
     }
