@@ -16,6 +16,7 @@ packages=(
   socat                          # pseudo-terminals for serial tests
   systemd                        # systemd-analyze: the capture unit file is verified in a test
   colmap                         # structure from motion of recorded walks (s3tir-calib poses; CPU SIFT)
+  chromium                       # headless: the run report's test opens it as a user's browser does
 )
 
 missing=()

@@ -16,6 +16,8 @@
 //! - [`metrics`]: PSNR, SSIM, LPIPS and kelvin errors of held-out views.
 //! - [`lpips`]: the LPIPS perceptual error (AlexNet, v0.1) on the CPU, from installed weights.
 //! - [`report`]: metrics logs and plots of a run.
+//! - [`look`]: what a person looks at — palette images with their range, figures with colour
+//!   bars in kelvin and °C, the run report (`report.html`).
 //! - [`compare`]: runs compared — repeated runs of a configuration as one mean-and-range curve,
 //!   and where one configuration leads another after the warm-up.
 //! - [`truth`]: a run scored against a simulated joint scene's truth.
@@ -45,6 +47,7 @@ pub mod sh;
 pub mod checkpoint;
 pub mod compare;
 pub mod dataset;
+pub mod look;
 pub mod lpips;
 pub mod metrics;
 pub mod ply;

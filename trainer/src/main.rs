@@ -12,6 +12,8 @@ use cli::compare::CompareArgs;
 use cli::devices::DevicesArgs;
 use cli::eval::EvalArgs;
 use cli::mesh::MeshArgs;
+use cli::render::RenderArgs;
+use cli::report::ReportArgs;
 use cli::synth::SynthArgs;
 use cli::train_args::TrainArgs;
 
@@ -31,6 +33,11 @@ use cli::train_args::TrainArgs;
 /// (`--rgb-loss auto`), the thermal gradient alignment loss (`--thermal-align`), the thermal
 /// head rendered at the RGB resolution into `renders_sr/`. `ablation` measures the variants on
 /// a simulated joint scene (`s3tir-firmware-sim scene --rgb-scale 4 --low-light`).
+///
+/// Every run ends with `RUN/report.html`: the held-out views recorded | rendered | error in
+/// palettes with colour bars in kelvin and °C, the figures, error against time (`report RUN`
+/// writes it again); `render RUN --path orbit --out DIR` flies around the model (frames and a
+/// video).
 ///
 /// `mesh RUN --out mesh.ply` fuses a run's rendered depth and temperature into a surface mesh
 /// with a float `kelvin` per vertex (binary PLY) and an ironbow-coloured copy.
@@ -94,6 +101,17 @@ enum Command {
     /// groups of repeated runs (several seeds of one configuration: their mean, the range
     /// shaded), with a table of where the first leads each other after the warm-up.
     Compare(CompareArgs),
+    /// Write a run's report again: RUN/report.html (one self-contained page, readable on a
+    /// phone) and report.md — the run's settings and figures, each held-out view recorded |
+    /// rendered | error in the ironbow and diverging palettes with colour bars in kelvin and °C,
+    /// error against time, G-buffers, density and band rounds, the per-view response.
+    /// Training writes it at the end of every run.
+    Report(ReportArgs),
+    /// Render a run along a camera path — the held-out views, an orbit around the scene, a
+    /// spiral across the training cameras, or a JSON file of eye/target pairs — as palette
+    /// frames with a colour bar in kelvin and °C, and a video (MP4 through ffmpeg when it is
+    /// installed, otherwise an animated GIF), on either backend.
+    Render(RenderArgs),
     /// Write the built-in analytic test scene (a wall with a sharp emissivity step and a heated
     /// pipe) as a COLMAP dataset with 16-bit centikelvin images.
     Synth(SynthArgs),
@@ -122,6 +140,8 @@ fn run() -> Result<()> {
         (Some(Command::Ablation(a)), _) => cli::ablation::run(*a),
         (Some(Command::Mesh(a)), _) => cli::mesh::run(&a),
         (Some(Command::Compare(a)), _) => cli::compare::run(&a),
+        (Some(Command::Report(a)), _) => cli::report::run(&a),
+        (Some(Command::Render(a)), _) => cli::render::run(&a),
         (Some(Command::Synth(a)), _) => cli::synth::run(&a),
         (None, _) => {
             bail!("nothing to do: give DATA --out RUN_DIR, or a subcommand (see --help)")

@@ -12,8 +12,10 @@ use plotters::series::DashedLineSeries;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use s3tir_calib::model::palette::Colormap;
 use s3tir_calib::report::plot::PngCanvas;
 
+use crate::look::image::{Scale, write_palette_png};
 use crate::primitive::BETA_MAX;
 
 #[derive(Debug, Error)]
@@ -32,6 +34,8 @@ pub enum ReportError {
         #[source]
         source: image::ImageError,
     },
+    #[error(transparent)]
+    Palette(Box<crate::look::image::ImageError>),
     #[error("plot {path}")]
     Plot {
         path: PathBuf,
@@ -455,32 +459,6 @@ pub fn plot_curves(path: &Path, curves: &[Curve]) -> Result<(), ReportError> {
     })
 }
 
-/// Writes a scalar plane as an 8-bit grey PNG mapping `[lo, hi]` to `[0, 255]`.
-pub fn write_plane_png(
-    path: &Path,
-    plane: &[f32],
-    width: usize,
-    height: usize,
-    lo: f64,
-    hi: f64,
-) -> Result<(), ReportError> {
-    let span = if hi > lo { hi - lo } else { 1.0 };
-    let bytes: Vec<u8> = plane
-        .iter()
-        .map(|&v| (((f64::from(v) - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
-        .collect();
-    let img = image::GrayImage::from_raw(width as u32, height as u32, bytes).ok_or_else(|| {
-        ReportError::Format {
-            path: path.to_path_buf(),
-            reason: format!("plane has {} values, not {width}×{height}", plane.len()),
-        }
-    })?;
-    img.save(path).map_err(|source| ReportError::Image {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
 /// Writes a planar RGB render (`3·w·h` values in [0, 1], as datasets hold RGB) as an 8-bit
 /// PNG.
 pub fn write_rgb_png(
@@ -631,12 +609,14 @@ pub fn read_npy_f32(path: &Path) -> Result<(usize, usize, Vec<f32>), ReportError
     Ok((width, height, values))
 }
 
-/// Writes the G-buffers of one view as grey PNGs `PREFIX_{psi_low,psi_high,psi_beta,depth}.png`:
-/// Ψ_low and Ψ_high over [0, max], Ψ_β over [2, max(3, max β)] (normalised by accumulated
-/// alpha, so a pixel covered by primitives of β = 2 is black), depth (expected, `depth/alpha`)
-/// over its range; and the exact values as f32 `.npy` arrays `PREFIX_{name}.npy` for the same
-/// four planes (same normalisation; 0 where alpha ≤ 10⁻³) plus `PREFIX_alpha.npy` (accumulated
-/// alpha). Returns the files written.
+/// Writes the G-buffers of one view as palette PNGs `PREFIX_{psi_low,psi_high,psi_beta,depth}.png`
+/// with their range in the file ([`crate::look::image`]): Ψ_low in ironbow over [0, max],
+/// Ψ_high (signed) in the diverging palette over ±max |Ψ_high|, Ψ_β in inferno over
+/// [2, max(3, max β)] (normalised by accumulated alpha, so a pixel covered by primitives of
+/// β = 2 is the coldest colour), depth (expected, `depth/alpha`) in grey over its range; and
+/// the exact values as f32 `.npy` arrays `PREFIX_{name}.npy` for the same four planes (same
+/// normalisation; 0 where alpha ≤ 10⁻³) plus `PREFIX_alpha.npy` (accumulated alpha). Returns
+/// the files written.
 pub fn write_gbuffers(
     dir: &Path,
     prefix: &str,
@@ -659,30 +639,47 @@ pub fn write_gbuffers(
         .map(|(d, _)| f64::from(*d))
         .fold(f64::INFINITY, f64::min);
     let mut out = Vec::new();
-    let planes: [(&str, Vec<f32>, f64, f64); 4] = [
-        ("psi_low", gb.psi_low.clone(), 0.0, max(&gb.psi_low)),
-        ("psi_high", gb.psi_high.clone(), 0.0, max(&gb.psi_high)),
+    let high = f64::from(gb.psi_high.iter().fold(0.0f32, |m, v| m.max(v.abs())));
+    let planes: [(&str, Vec<f32>, Scale); 4] = [
+        (
+            "psi_low",
+            gb.psi_low.clone(),
+            Scale::new(Colormap::Ironbow, 0.0, max(&gb.psi_low), "normalised"),
+        ),
+        (
+            "psi_high",
+            gb.psi_high.clone(),
+            Scale::new(Colormap::Diverging, -high, high, "normalised"),
+        ),
         (
             "psi_beta",
             beta.clone(),
-            2.0,
-            max(&beta).clamp(3.0, BETA_MAX),
+            Scale::new(
+                Colormap::Inferno,
+                2.0,
+                max(&beta).clamp(3.0, BETA_MAX),
+                "beta",
+            ),
         ),
         (
             "depth",
             depth.clone(),
-            if dmin.is_finite() { dmin } else { 0.0 },
-            max(&depth),
+            Scale::new(
+                Colormap::Grey,
+                if dmin.is_finite() { dmin } else { 0.0 },
+                max(&depth),
+                "scene units",
+            ),
         ),
     ];
-    for (name, plane, lo, hi) in &planes {
+    for (name, plane, scale) in &planes {
         let p = dir.join(format!("{prefix}_{name}.png"));
-        write_plane_png(&p, plane, w, h, *lo, *hi)?;
+        write_palette_png(&p, plane, w, h, scale).map_err(|e| ReportError::Palette(Box::new(e)))?;
         out.push(p);
     }
     for (name, plane) in planes
         .iter()
-        .map(|(n, p, _, _)| (*n, p))
+        .map(|(n, p, _)| (*n, p))
         .chain([("alpha", &gb.alpha)])
     {
         let p = dir.join(format!("{prefix}_{name}.npy"));

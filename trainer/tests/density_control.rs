@@ -439,23 +439,34 @@ fn bands_are_off_during_the_warm_up_and_live_after_it() {
     let mut cfg = short(&data_dir, Mode::S3tir);
     cfg.densify.every = 0;
     let mut t = trainer(cfg, &tmp.path().join("run"));
-    let m = t.prims.bands;
+    let m = t.cfg.bands;
     assert_eq!(m, 4);
     while t.iteration < 30 {
         assert!(
-            t.prims.band_count.iter().all(|&c| c == 0),
-            "iteration {}: no live band during the warm-up (30)",
-            t.iteration
+            t.prims.bands == 0 && t.adam.m.bands == 0 && t.adam.v.bands == 0,
+            "iteration {}: no band storage during the warm-up (30): M = {}",
+            t.iteration,
+            t.prims.bands
         );
         assert!(
-            t.prims.band_freq.iter().all(|&f| f == 0.0),
-            "idle slots hold zeros"
+            t.prims.band_count.iter().all(|&c| c == 0) && t.prims.band_freq.is_empty(),
+            "no band slot, live or idle"
         );
         t.step().unwrap();
     }
     // The step at iteration 30 ends the warm-up.
     t.step().unwrap();
     assert_eq!(t.warmup_ended_at(), Some(30));
+    assert_eq!(
+        (t.prims.bands, t.adam.m.bands, t.adam.v.bands),
+        (m, m, m),
+        "the storage grows to M at the warm-up's end"
+    );
+    assert_eq!(
+        t.capacity_report().bands_initial,
+        m,
+        "the report's initial M is the run's"
+    );
     assert!(
         t.prims.band_count.iter().all(|&c| c as usize == m),
         "every slot live after the warm-up"

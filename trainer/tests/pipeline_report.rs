@@ -5,6 +5,7 @@
 //! replaced whole). Does NOT judge how the plots look.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use s3tir_calib::model::palette::Colormap;
 use s3tir_trainer::checkpoint::{self, CHECKPOINT_VERSION, Checkpoint};
 use s3tir_trainer::dataset::ThermalRange;
 use s3tir_trainer::dataset::ThermalUnits;
@@ -176,11 +177,24 @@ fn metrics_csv_round_trips_and_plots_are_written() {
     assert_eq!(exact[7], 10.0, "Ψ_β/alpha at (7, 0)");
     let (_, _, alpha) = report::read_npy_f32(&tmp.path().join("v_alpha.npy")).unwrap();
     assert!(alpha.iter().all(|&a| a == 1.0), "alpha plane {alpha:?}");
-    let beta = image::open(tmp.path().join("v_psi_beta.png"))
-        .unwrap()
-        .to_luma8();
-    assert_eq!(beta.get_pixel(0, 0)[0], 0, "β = 2 maps to black");
-    assert_eq!(beta.get_pixel(7, 0)[0], 255, "the largest β maps to white");
+    let png = tmp.path().join("v_psi_beta.png");
+    let scale = s3tir_trainer::look::image::read_scale(&png).unwrap();
+    assert_eq!(
+        (scale.palette, scale.lo, scale.hi, scale.unit.as_str()),
+        (Colormap::Inferno, 2.0, 10.0, "beta"),
+        "the β PNG says its palette and range"
+    );
+    let beta = image::open(&png).unwrap().to_rgb8();
+    assert_eq!(
+        beta.get_pixel(0, 0).0,
+        Colormap::Inferno.colour(0.0),
+        "β = 2 is the palette's first colour"
+    );
+    assert_eq!(
+        beta.get_pixel(7, 0).0,
+        Colormap::Inferno.colour(1.0),
+        "the largest β is its last"
+    );
 }
 
 #[test]

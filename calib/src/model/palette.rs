@@ -4,9 +4,11 @@
 //!
 //! Each palette is an approximation of the camera makers' palette: a few key colours
 //! interpolated linearly to 256 entries (ironbow: black → blue → magenta → orange → yellow →
-//! white; inferno: matplotlib's, 9 of its colours). A camera's own table differs slightly, so
-//! a pseudo-colour frame mapped back through one is never radiometric, only a monotone proxy of
-//! the scene's temperatures.
+//! white; inferno: matplotlib's, 9 of its colours; grey: white hot). A camera's own table
+//! differs slightly, so a pseudo-colour frame mapped back through one is never radiometric, only
+//! a monotone proxy of the scene's temperatures. One more palette is for signed differences,
+//! not temperatures: diverging (Moreland's cool-warm: blue below zero, light grey at zero, red
+//! above), what the trainer's run report draws errors with.
 
 use std::sync::OnceLock;
 
@@ -15,6 +17,10 @@ use std::sync::OnceLock;
 pub enum Colormap {
     Ironbow,
     Inferno,
+    /// Black (cold) to white (hot).
+    Grey,
+    /// Signed values: blue (negative) → light grey (0 at the middle entry) → red (positive).
+    Diverging,
 }
 
 /// Ironbow's key colours (position in [0, 1], RGB in 0..=255).
@@ -26,6 +32,18 @@ const IRONBOW: [(f32, [f32; 3]); 7] = [
     (0.75, [250.0, 160.0, 0.0]),
     (0.9, [255.0, 225.0, 60.0]),
     (1.0, [255.0, 255.0, 255.0]),
+];
+
+const GREY: [(f32, [f32; 3]); 2] = [(0.0, [0.0, 0.0, 0.0]), (1.0, [255.0, 255.0, 255.0])];
+
+/// Cool-warm's key colours (K. Moreland, "Diverging Color Maps for Scientific Visualization",
+/// 2009: its end points and middle, with one colour between each).
+const DIVERGING: [(f32, [f32; 3]); 5] = [
+    (0.0, [59.0, 76.0, 192.0]),
+    (0.25, [141.0, 176.0, 254.0]),
+    (0.5, [221.0, 221.0, 221.0]),
+    (0.75, [244.0, 154.0, 123.0]),
+    (1.0, [180.0, 4.0, 38.0]),
 ];
 
 /// Inferno's key colours (matplotlib's, every 32nd entry).
@@ -43,15 +61,45 @@ const INFERNO: [(f32, [f32; 3]); 9] = [
 
 impl Colormap {
     /// Every palette.
-    pub const ALL: [Colormap; 2] = [Colormap::Ironbow, Colormap::Inferno];
+    pub const ALL: [Colormap; 4] = [
+        Colormap::Ironbow,
+        Colormap::Inferno,
+        Colormap::Grey,
+        Colormap::Diverging,
+    ];
+
+    /// The palette's name as the command line and image metadata spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Colormap::Ironbow => "ironbow",
+            Colormap::Inferno => "inferno",
+            Colormap::Grey => "grey",
+            Colormap::Diverging => "diverging",
+        }
+    }
+
+    /// The palette named `name` ([`Self::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == name)
+    }
+
+    /// Whether the palette orders values from dark to light (a temperature palette), rather
+    /// than from one side of zero to the other.
+    pub fn sequential(self) -> bool {
+        self != Colormap::Diverging
+    }
 
     /// The palette's 256 colours, channels in 0..=255 as f32 (unrounded).
     pub fn lut(self) -> &'static [[f32; 3]; 256] {
         static IRON: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
         static INF: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
+        static GRY: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
+        static DIV: OnceLock<[[f32; 3]; 256]> = OnceLock::new();
         match self {
             Colormap::Ironbow => IRON.get_or_init(|| interpolate(&IRONBOW)),
             Colormap::Inferno => INF.get_or_init(|| interpolate(&INFERNO)),
+            Colormap::Grey => GRY.get_or_init(|| interpolate(&GREY)),
+            Colormap::Diverging => DIV.get_or_init(|| interpolate(&DIVERGING)),
         }
     }
 
@@ -59,11 +107,15 @@ impl Colormap {
     pub fn lut_u8(self) -> &'static [[u8; 3]; 256] {
         static IRON: OnceLock<[[u8; 3]; 256]> = OnceLock::new();
         static INF: OnceLock<[[u8; 3]; 256]> = OnceLock::new();
+        static GRY: OnceLock<[[u8; 3]; 256]> = OnceLock::new();
+        static DIV: OnceLock<[[u8; 3]; 256]> = OnceLock::new();
         let round =
             |lut: &[[f32; 3]; 256]| lut.map(|c| c.map(|v| v.round().clamp(0.0, 255.0) as u8));
         match self {
             Colormap::Ironbow => IRON.get_or_init(|| round(self.lut())),
             Colormap::Inferno => INF.get_or_init(|| round(self.lut())),
+            Colormap::Grey => GRY.get_or_init(|| round(self.lut())),
+            Colormap::Diverging => DIV.get_or_init(|| round(self.lut())),
         }
     }
 
@@ -132,9 +184,23 @@ mod tests {
                 "{map:?}: entries {wrong:?} map back to another entry"
             );
             let sum = |c: [u8; 3]| c.iter().map(|&v| u32::from(v)).sum::<u32>();
-            assert!(
-                sum(map.colour(0.0)) < sum(map.colour(1.0)),
-                "{map:?}: 0 must be darker than 1"
+            if map.sequential() {
+                assert!(
+                    sum(map.colour(0.0)) < sum(map.colour(1.0)),
+                    "{map:?}: 0 must be darker than 1"
+                );
+            } else {
+                // The middle is the lightest: zero stands out from both signs.
+                let mid = sum(map.colour(0.5));
+                assert!(
+                    mid > sum(map.colour(0.0)) && mid > sum(map.colour(1.0)),
+                    "{map:?}: the middle must be lighter than both ends"
+                );
+            }
+            assert_eq!(
+                Colormap::from_name(map.name()),
+                Some(map),
+                "{map:?} by name"
             );
         }
         assert_eq!(

@@ -44,8 +44,10 @@ pub struct BenchArgs {
     #[arg(long)]
     real_size: bool,
     /// The s3tir configurations with only this fraction of the primitives holding bands, spread
-    /// evenly, the others band-free: the state the band grant leaves (capacity.json's
-    /// `band_holders` over `primitives` of a run). 1: every primitive holds M bands.
+    /// evenly, the others band-free and back on the Gaussian path: the state the band grant
+    /// and the next capacity check leave (capacity.json's `band_holders` over `primitives` of
+    /// a run). 1: every primitive holds M bands; 0: none, a scene like the real facade at its
+    /// end (no band, every β at 2: the spectral terms off, as in the run).
     #[arg(long, default_value_t = 1.0)]
     band_holders: f64,
     /// Benchmark `mesh` instead of training: seconds per stage (render, fuse, extract) and

@@ -12,6 +12,8 @@
 //! - [`bench`]: `bench`: training steps/s per backend, or the stages of meshing.
 //! - [`mesh`]: `mesh`: a run fused into a surface mesh with kelvin per vertex.
 //! - [`compare`]: `compare`: several runs' error-vs-time curves on one plot.
+//! - [`report`]: `report`: the run report (`report.html`) written again.
+//! - [`render`]: `render`: novel views along a path, palette frames and a video.
 //! - [`devices`]: `devices`: the Vulkan devices and what the trainer needs of them.
 //! - [`synth`]: `synth`: the built-in analytic test scene as a COLMAP dataset.
 
@@ -32,6 +34,8 @@ pub mod compare;
 pub mod devices;
 pub mod eval;
 pub mod mesh;
+pub mod render;
+pub mod report;
 #[cfg(feature = "session")]
 pub mod session;
 pub mod synth;

@@ -200,7 +200,13 @@ fn run_training<B: Backend>(
             std::process::exit(130);
         }
         Outcome::Finished => {
-            train_summary::finished(&trainer, out, wall, json);
+            // The outputs are on disk: a report that cannot be drawn is a warning, not a
+            // failed run.
+            let report =
+                super::report::write_report_after_training(out, &trainer.cfg, &trainer.data)
+                    .map_err(|e| eprintln!("warning: no run report: {e:#}"))
+                    .ok();
+            train_summary::finished(&trainer, out, wall, json, report.as_deref());
             Ok(())
         }
     }

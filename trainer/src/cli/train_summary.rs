@@ -30,7 +30,13 @@ pub fn interrupted<B: Backend>(trainer: &Trainer<B>, out: &Path, iteration: u64,
 }
 
 /// A finished run: its files, what it left out, and (`--json`) the summary object.
-pub fn finished<B: Backend>(trainer: &Trainer<B>, out: &Path, wall: Instant, json: bool) {
+pub fn finished<B: Backend>(
+    trainer: &Trainer<B>,
+    out: &Path,
+    wall: Instant,
+    json: bool,
+    report: Option<&Path>,
+) {
     let cap = trainer.capacity_report();
     say!(
         json,
@@ -43,6 +49,9 @@ pub fn finished<B: Backend>(trainer: &Trainer<B>, out: &Path, wall: Instant, jso
         say!(json, "  {}", p.display());
     }
     say_left_out(trainer, &cap, json);
+    if let Some(r) = report {
+        say!(json, "report: {} (open it in a browser)", r.display());
+    }
     if let Some(b) = trainer.cfg.time_budget_s {
         say!(
             json,
@@ -69,6 +78,7 @@ fn written_files(out: &Path) -> Vec<PathBuf> {
         files::RENDERS,
         files::RENDERS_SR,
         files::GBUFFERS,
+        files::REPORT_HTML,
     ]
     .iter()
     .map(|f| out.join(f))

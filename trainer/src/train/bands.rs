@@ -107,11 +107,16 @@ impl<B: Backend> Trainer<B> {
     }
 
     /// Leaves bands only on the primitives with `keep[i]` true and compacts the band storage,
-    /// as the band grant does (for benchmarks of the state it leaves; a run's own grant is
+    /// as the band grant does, then snaps the band-free primitives whose β is near 2 to the
+    /// Gaussian path as the next capacity check does (for benchmarks of the state they leave —
+    /// with no holder, a scene like the real facade at its end; a run's own grant is
     /// [`Self::grant_bands`]).
     pub fn keep_bands_on(&mut self, keep: &[bool]) {
         self.refuse_bands(keep);
         self.compact_bands(0.0);
+        if self.cfg.mode.learns_beta() {
+            self.freeze_gaussians();
+        }
     }
 
     /// Drops negligible bands per primitive and compacts the band storage.

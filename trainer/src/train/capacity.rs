@@ -40,7 +40,12 @@ impl<B: Backend> Trainer<B> {
             } else {
                 format!("{pairs} views have an overlap partner")
             },
-            bands_initial: self.prims.bands,
+            // The warm-up runs without band storage (`init`): the run's M is the config's.
+            bands_initial: if self.cfg.mode.has_bands() {
+                self.cfg.bands.max(self.prims.bands)
+            } else {
+                self.prims.bands
+            },
             bands_now: self.prims.bands,
             rgb_loss: self.rgb_loss_choice().map(|(_, why)| why),
             thermal_align: self.thermal_align_setting(),
@@ -70,6 +75,31 @@ impl<B: Backend> Trainer<B> {
             frozen,
             "β snapped to 2 (Gaussian path)"
         );
+    }
+
+    /// After a capacity check: the first time no primitive is left off the Gaussian path (no
+    /// band storage, every β frozen at 2) in a mode that had one, says so; from then on the
+    /// consistency and smoothness terms are off (`schedule::spectral_live`).
+    pub(super) fn note_gaussian_run(&mut self) {
+        let spectral_mode = self.cfg.mode.learns_beta() || self.cfg.mode.has_bands();
+        if !spectral_mode || self.spectral_live() || self.state.capacity.gaussian_from.is_some() {
+            return;
+        }
+        let at = GaussianFrom {
+            iteration: self.iteration,
+            seconds: self.train_seconds,
+        };
+        tracing::info!(
+            iteration = at.iteration,
+            "every primitive on the Gaussian path: consistency and smoothness terms off"
+        );
+        self.state.capacity.notes.push(format!(
+            "every primitive on the Gaussian path from iteration {} ({:.0} s): no band and no \
+             learnable β left, so the consistency and smoothness terms are off and the run goes on \
+             as 3dgs mode",
+            at.iteration, at.seconds
+        ));
+        self.state.capacity.gaussian_from = Some(at);
     }
 
     /// The capacity report as of now.
@@ -131,6 +161,13 @@ impl<B: Backend> Trainer<B> {
         };
         Ok(Some((time(&prep), time(&general))))
     }
+}
+
+/// The iteration (and training seconds) a run became Gaussian-only.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct GaussianFrom {
+    pub iteration: u64,
+    pub seconds: f64,
 }
 
 /// What capacity adaptation left out and what it saved.
@@ -197,5 +234,9 @@ pub struct CapacityReport {
     /// The band grant and every check that dropped bands, in order.
     #[serde(default)]
     pub band_rounds: Vec<BandRound>,
+    /// When every primitive reached the Gaussian path (no band, β frozen at 2) in a mode with
+    /// bands or learnable β; the spectral terms are off from then on (`None`: never).
+    #[serde(default)]
+    pub gaussian_from: Option<GaussianFrom>,
     pub notes: Vec<String>,
 }

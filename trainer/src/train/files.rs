@@ -17,3 +17,8 @@ pub const RENDERS_SR_FUSED: &str = "renders_sr_fused";
 pub const GBUFFERS: &str = "gbuffers";
 /// The RGB background colour (runs with RGB views).
 pub const BACKGROUND: &str = "rgb_background.json";
+/// The run report for people (self-contained HTML) and its Markdown twin ([`crate::look`]).
+pub const REPORT_HTML: &str = "report.html";
+pub const REPORT_MD: &str = "report.md";
+/// The report's figures (PNG), beside the page.
+pub const REPORT_DIR: &str = "report";

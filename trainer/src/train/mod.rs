@@ -91,7 +91,7 @@ pub use backend::{
     ResidentStepResult, RunShape,
 };
 pub use bands::{BandRound, BandRoundKind, band_grant};
-pub use capacity::CapacityReport;
+pub use capacity::{CapacityReport, GaussianFrom};
 pub use config::{
     BackendKind, Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN,
     Mode, RgbLoss, TrainConfig, Weights,
@@ -103,7 +103,8 @@ pub use events::{Event, Outcome};
 use init::choose_pairs;
 pub use joint::{Background, composite_background, composite_background_backward};
 pub use outputs::{
-    BackgroundFile, RunEval, evaluate_run, evaluate_run_with, load_config, read_background,
+    BackgroundFile, RunEval, evaluate_run, evaluate_run_with, load_config, output_stem,
+    read_background,
 };
 pub use response::{ResponseConfig, ResponseKind, ResponseModel, ResponseSummary};
 use step::{KeptView, PairChoice};
@@ -565,6 +566,54 @@ mod tests {
         v.as_object_mut().unwrap().remove("band_ramp").unwrap();
         let old: TrainConfig = serde_json::from_value(v).unwrap();
         assert_eq!(old.band_ramp, 0);
+    }
+
+    /// Once no primitive is off the Gaussian path (no band storage, every β frozen at 2) the
+    /// consistency and smoothness terms stop — they would only pull on the opacities — and the
+    /// capacity check says when; one learnable β (or one band) keeps them on.
+    #[test]
+    fn the_spectral_terms_stop_when_every_primitive_is_gaussian() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut t = trainer(tmp.path(), ConsistPartner::Render, 0.01);
+        t.step().unwrap();
+        assert!(t.prims.bands > 0 && t.after_warmup());
+        assert!(t.consist_active(), "bands live: the term is on");
+        assert!(t.loss_weights().lambda_smooth > 0.0, "β learnable: TV on");
+        // No band holder left (as the grant's guard leaves the facade).
+        t.keep_bands_on(&vec![false; t.prims.len()]);
+        assert_eq!(t.prims.bands, 0);
+        t.prims
+            .beta_raw
+            .fill(crate::primitive::BETA_RAW_FROZEN as f32);
+        // One primitive still learning β keeps both terms.
+        t.prims.beta_raw[0] = crate::primitive::BETA_RAW_GAUSSIAN as f32;
+        assert!(t.consist_active() && t.loss_weights().lambda_smooth > 0.0);
+        t.note_gaussian_run();
+        assert!(t.state.capacity.gaussian_from.is_none());
+        t.prims.beta_raw[0] = crate::primitive::BETA_RAW_FROZEN as f32;
+        assert!(
+            !t.consist_active(),
+            "every primitive Gaussian: no consistency"
+        );
+        assert_eq!(t.loss_weights().lambda_smooth, 0.0, "and no smoothness");
+        assert_eq!(t.schedule(3, &mut ChaCha8Rng::seed_from_u64(1)), (3, None));
+        t.note_gaussian_run();
+        let at = t.state.capacity.gaussian_from.expect("the check says when");
+        assert_eq!(at.iteration, t.iteration);
+        assert!(
+            t.state
+                .capacity
+                .notes
+                .iter()
+                .any(|n| n.contains("Gaussian path")),
+            "{:?}",
+            t.state.capacity.notes
+        );
+        // 3dgs mode never had the terms: nothing to say.
+        let mut g = trainer(tmp.path(), ConsistPartner::Render, 0.02);
+        g.cfg.mode = Mode::Gaussian;
+        g.note_gaussian_run();
+        assert!(g.state.capacity.gaussian_from.is_none());
     }
 
     /// With `previous`, a step on a random view is followed by a step on its overlap partner

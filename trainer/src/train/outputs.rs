@@ -1,5 +1,6 @@
-//! Evaluation rows, the run's outputs (PLY, renders, G-buffers, plots, eval and capacity
-//! JSON) and the evaluation of a finished run.
+//! Evaluation rows, the run's outputs (PLY, renders — 16-bit, each with its readable ironbow
+//! copy `{stem}_ironbow.png` —, G-buffers, plots, eval and capacity JSON) and the evaluation of
+//! a finished run.
 
 use std::path::{Path, PathBuf};
 
@@ -9,6 +10,7 @@ use super::joint::composite_background;
 use super::{Backend, TrainConfig, TrainError, Trainer, files, io_err};
 use crate::checkpoint;
 use crate::dataset::Dataset;
+use crate::look::image::DisplayUnits;
 use crate::metrics::{EvalSummary, rgb_metrics, view_metrics};
 use crate::primitive::beta_of_raw;
 use crate::report::{self, MetricsRow};
@@ -133,6 +135,9 @@ impl<B: Backend> Trainer<B> {
                     gb.height,
                 )?,
                 (None, Some(range)) => {
+                    let shown = DisplayUnits {
+                        range: Some(*range),
+                    };
                     report::write_thermal_png16(
                         &renders.join(format!("{stem}.png")),
                         &gb.thermal,
@@ -140,6 +145,15 @@ impl<B: Backend> Trainer<B> {
                         gb.height,
                         range,
                     )?;
+                    shown
+                        .write_ironbow_copy(
+                            &renders,
+                            &stem,
+                            &gb.thermal,
+                            (gb.width, gb.height),
+                            v.thermal.as_deref(),
+                        )
+                        .map_err(look_err)?;
                     if let Some(k) = sr {
                         let gk = self.backend.render(&self.prims, &v.camera.scaled(k))?;
                         report::write_thermal_png16(
@@ -149,6 +163,15 @@ impl<B: Backend> Trainer<B> {
                             gk.height,
                             range,
                         )?;
+                        shown
+                            .write_ironbow_copy(
+                                &renders_sr,
+                                &stem,
+                                &gk.thermal,
+                                (gk.width, gk.height),
+                                v.thermal.as_deref(),
+                            )
+                            .map_err(look_err)?;
                         if let Some(recorded) = &v.thermal {
                             let fused = crate::superres::back_project(
                                 &gk.thermal,
@@ -164,6 +187,15 @@ impl<B: Backend> Trainer<B> {
                                 gk.height,
                                 range,
                             )?;
+                            shown
+                                .write_ironbow_copy(
+                                    &renders_fused,
+                                    &stem,
+                                    &fused,
+                                    (gk.width, gk.height),
+                                    Some(recorded.as_slice()),
+                                )
+                                .map_err(look_err)?;
                         }
                     }
                 }
@@ -205,9 +237,14 @@ impl<B: Backend> Trainer<B> {
     }
 }
 
+/// A palette copy that could not be written (as the G-buffers' palette PNGs report it).
+fn look_err(e: crate::look::image::ImageError) -> TrainError {
+    TrainError::from(report::ReportError::Palette(Box::new(e)))
+}
+
 /// The file stem of a view's outputs: its image name without the extension, folders joined
 /// by `_` (a joint dataset's `thermal/0008.png` and `rgb/0008.png` must not collide).
-fn output_stem(name: &str, index: usize) -> String {
+pub fn output_stem(name: &str, index: usize) -> String {
     let p = Path::new(name);
     let stem = p.with_extension("");
     let s = stem

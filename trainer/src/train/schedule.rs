@@ -27,7 +27,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::init::draw_band;
-use super::{AdamParams, Backend, ConsistPartner, GroupLrs, PairChoice, TrainConfig, Trainer};
+use super::{
+    AdamParams, Backend, ConsistPartner, GroupLrs, PairChoice, TrainConfig, Trainer, params,
+};
 use crate::loss::LossWeights;
 use crate::primitive::{BETA_RAW_GAUSSIAN, is_beta_frozen};
 
@@ -180,7 +182,7 @@ impl<B: Backend> Trainer<B> {
             } else {
                 0.0
             },
-            lambda_smooth: if warm && self.cfg.smooth && self.cfg.mode.learns_beta() {
+            lambda_smooth: if warm && self.cfg.smooth && self.beta_live() {
                 self.cfg.weights.smooth
             } else {
                 0.0
@@ -188,10 +190,30 @@ impl<B: Backend> Trainer<B> {
         }
     }
 
+    /// Some primitive's β is still learnable (a mode that learns β, and not every primitive
+    /// snapped to the Gaussian path). Frozen β is a sentinel only the host writes, so the host's
+    /// copy answers even while the parameters live on the device.
+    pub(super) fn beta_live(&self) -> bool {
+        self.cfg.mode.learns_beta()
+            && self
+                .prims
+                .beta_raw
+                .iter()
+                .any(|&r| !is_beta_frozen(f64::from(r)))
+    }
+
+    /// Some primitive is off the Gaussian path (band storage, or a learnable β). Once none is,
+    /// Ψ_high = 0 and Ψ_β = 2·alpha: the consistency and smoothness terms, whose job is the
+    /// frequency maps, would only pull on the opacities (a blur 3dgs mode does not have), so
+    /// they stop and the run goes on as a Gaussian one — the guard's "3dgs pace" (issue 42).
+    pub(super) fn spectral_live(&self) -> bool {
+        self.prims.bands > 0 || self.beta_live()
+    }
+
     pub(super) fn consist_active(&self) -> bool {
         self.cfg.consist
             && self.after_warmup()
-            && (self.cfg.mode.learns_beta() || self.prims.bands > 0)
+            && self.spectral_live()
             && self.cfg.consist_every > 0
             && self.iteration.is_multiple_of(self.cfg.consist_every)
     }
@@ -227,12 +249,19 @@ impl<B: Backend> Trainer<B> {
         }
     }
 
-    /// End of the warm-up: every band slot goes live with amplitude 0 and a frequency and phase
-    /// drawn as at initialisation, from the primitive's mean scale now (primitives have grown,
+    /// End of the warm-up: the band storage grows to `m` slots per primitive (the warm-up ran
+    /// without it), and every slot goes live with amplitude 0 and a frequency and phase drawn
+    /// as at initialisation, from the primitive's mean scale now (primitives have grown,
     /// shrunk and split since); the outputs do not change, and from now on the bands train.
-    pub(super) fn release_warmup_bands(&mut self) {
+    pub(super) fn release_warmup_bands(&mut self, m: usize) {
         // The kept G-buffers show the primitives before this change.
         self.kept = None;
+        if self.prims.bands < m {
+            let none = vec![Vec::new(); self.prims.len()];
+            for p in [&mut self.prims, &mut self.adam.m, &mut self.adam.v] {
+                *p = params::compact_bands(p, &none, m);
+            }
+        }
         let m = self.prims.bands;
         let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed ^ 0xba4d_5eed ^ self.iteration);
         for i in 0..self.prims.len() {

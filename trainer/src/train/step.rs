@@ -119,16 +119,26 @@ impl<B: Backend> Trainer<B> {
         let drawn = self.draw_view(&mut rng);
         if self.state.warmup_ended_at.is_none() && self.after_warmup() {
             self.state.warmup_ended_at = Some(self.iteration);
-            if self.cfg.mode.learns_beta() || self.prims.bands > 0 {
+            // Only after a warm-up: with none, β and the bands were live from the start, and
+            // what is frozen or band-free now was made so on purpose (`keep_bands_on`).
+            let warm_up = self.cfg.warmup > 0;
+            let bands = if self.cfg.mode.has_bands() && warm_up {
+                self.cfg.bands
+            } else {
+                0
+            };
+            let beta = self.cfg.mode.learns_beta() && warm_up;
+            if beta || bands > 0 {
                 self.sync_host()?;
             }
-            if self.cfg.mode.learns_beta() {
+            if beta {
                 self.release_warmup_beta();
             }
             // Only when the warm-up switched them off (not with `warmup` 0, nor in a run
-            // checkpointed before band slots were switched off during the warm-up).
-            if self.prims.bands > 0 && self.prims.band_count.iter().all(|&c| c == 0) {
-                self.release_warmup_bands();
+            // checkpointed before band slots were switched off during the warm-up); a run
+            // checkpointed when the idle slots were still stored has them already.
+            if bands > 0 && self.prims.band_count.iter().all(|&c| c == 0) {
+                self.release_warmup_bands(bands);
             }
         }
         let weights = self.loss_weights();
@@ -204,6 +214,7 @@ impl<B: Backend> Trainer<B> {
             if self.cfg.mode.learns_beta() {
                 self.freeze_gaussians();
             }
+            self.note_gaussian_run();
         }
         Ok(loss)
     }
