@@ -44,6 +44,18 @@ fn finished_run(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, String) 
     (data, run, String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
+/// `s3tir-train render RUN ARGS --out OUT`, run to its end.
+fn render(run: &Path, out: &Path, args: &[&str]) -> std::process::Output {
+    bin()
+        .arg("render")
+        .arg(run)
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
 /// The held-out views' file stems, from eval.json.
 fn held_out_stems(run: &Path) -> Vec<String> {
     let eval: serde_json::Value =
@@ -276,19 +288,7 @@ fn render_along_the_held_out_views_reproduces_their_renders() {
     let tmp = tempfile::tempdir().unwrap();
     let (_, run, _) = finished_run(tmp.path());
     let out = tmp.path().join("views");
-    let o = bin()
-        .args([
-            "render",
-            run.to_str().unwrap(),
-            "--path",
-            "views",
-            "--no-video",
-            "--json",
-        ])
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = render(&run, &out, &["--path", "views", "--no-video", "--json"]);
     assert!(
         o.status.success(),
         "render: {}",
@@ -335,20 +335,11 @@ fn render_along_the_held_out_views_reproduces_their_renders() {
 
     // An orbit: frames and a video (MP4 with ffmpeg, GIF without).
     let orbit = tmp.path().join("orbit");
-    let o = bin()
-        .args([
-            "render",
-            run.to_str().unwrap(),
-            "--path",
-            "orbit",
-            "--frames",
-            "6",
-            "--json",
-        ])
-        .arg("--out")
-        .arg(&orbit)
-        .output()
-        .unwrap();
+    let o = render(
+        &run,
+        &orbit,
+        &["--path", "orbit", "--frames", "6", "--json"],
+    );
     assert!(
         o.status.success(),
         "orbit: {}",
@@ -367,17 +358,11 @@ fn render_along_the_held_out_views_reproduces_their_renders() {
     // A path file that is not one is named with the expected layout.
     let bad = tmp.path().join("path.json");
     std::fs::write(&bad, "{\"frames\": 3}").unwrap();
-    let o = bin()
-        .args([
-            "render",
-            run.to_str().unwrap(),
-            "--path",
-            bad.to_str().unwrap(),
-        ])
-        .arg("--out")
-        .arg(tmp.path().join("bad"))
-        .output()
-        .unwrap();
+    let o = render(
+        &run,
+        &tmp.path().join("bad"),
+        &["--path", bad.to_str().unwrap()],
+    );
     assert!(!o.status.success(), "a bad path file fails");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
