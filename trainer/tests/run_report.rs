@@ -44,6 +44,18 @@ fn finished_run(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, String) 
     (data, run, String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
+/// `s3tir-train report RUN`, which must succeed.
+fn report_again(run: &Path) -> std::process::Output {
+    let out = bin().arg("report").arg(run).output().unwrap();
+    assert!(
+        out.status.success(),
+        "report {}: {}",
+        run.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// `s3tir-train render RUN ARGS --out OUT`, run to its end.
 fn render(run: &Path, out: &Path, args: &[&str]) -> std::process::Output {
     bin()
@@ -141,15 +153,7 @@ fn a_finished_run_has_a_self_contained_report_with_every_held_out_view() {
 
     // Written again by `report`.
     std::fs::remove_file(&html_path).unwrap();
-    let out = bin()
-        .args(["report", run.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "report: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = report_again(&run);
     assert!(
         String::from_utf8_lossy(&out.stdout).contains("report.html") && html_path.is_file(),
         "`report RUN` writes the page again and prints its path"
@@ -157,15 +161,7 @@ fn a_finished_run_has_a_self_contained_report_with_every_held_out_view() {
 
     // Without the dataset: the page still comes, saying what it cannot show.
     std::fs::rename(&data, tmp.path().join("moved")).unwrap();
-    let out = bin()
-        .args(["report", run.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "report without the dataset: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = report_again(&run);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains("recorded frames not shown") && err.contains("scene"),

@@ -195,7 +195,8 @@ impl ThermalRange {
         self.radiometric()
             .then(|| (self.max_raw - self.min_raw) / 100.0)
     }
-    fn normalise(&self, raw: f64) -> f32 {
+    /// Normalised value of a raw value (the inverse of [`Self::raw`]).
+    pub fn normalise(&self, raw: f64) -> f32 {
         ((raw - self.min_raw) / (self.max_raw - self.min_raw)) as f32
     }
 }

@@ -172,13 +172,11 @@ impl DisplayUnits {
             "normalised"
         }
     }
-    /// A 16-bit render's word (the dataset's raw unit) as a normalised value.
-    pub fn normalise_raw(&self, raw: u16) -> f32 {
+    /// A 16-bit render's word (the dataset's raw unit) in the shown unit.
+    pub fn value_of_raw(&self, raw: u16) -> f32 {
         match &self.range {
-            Some(r) if r.max_raw > r.min_raw => {
-                ((f64::from(raw) - r.min_raw) / (r.max_raw - r.min_raw)) as f32
-            }
-            _ => f32::from(raw) / 65535.0,
+            Some(r) => self.value(r.normalise(f64::from(raw))),
+            None => f32::from(raw) / 65535.0,
         }
     }
 

@@ -147,7 +147,7 @@ pub fn write_report_for(
             let Some(recorded) = &v.thermal else {
                 continue;
             };
-            let rendered = match read_render(&render_path, &units) {
+            let (rw, rh, rendered) = match read_render(&render_path, &units) {
                 Ok(r) => r,
                 Err(e) => {
                     missing.push(format!("{}: render not shown ({e})", v.name));
@@ -155,19 +155,15 @@ pub fn write_report_for(
                 }
             };
             let (w, h) = (v.camera.width, v.camera.height);
-            if rendered.len() != w * h {
+            if (rw, rh) != (w, h) {
                 missing.push(format!(
-                    "{}: render is not {w}×{h} (from another dataset?)",
+                    "{}: render is {rw}×{rh}, the view {w}×{h} (from another dataset?)",
                     render_path.display()
                 ));
                 continue;
             }
             let rec: Vec<f32> = recorded.iter().map(|&x| units.value(x)).collect();
-            let err: Vec<f32> = rendered
-                .iter()
-                .zip(recorded)
-                .map(|(&r, &x)| r - units.value(x))
-                .collect();
+            let err: Vec<f32> = rendered.iter().zip(&rec).map(|(&r, &x)| r - x).collect();
             let scale = Scale::robust(Colormap::Ironbow, &rec, SCALE_Q, units.unit());
             let panels = [
                 panel("recorded", rec, w, h, scale.clone()),
@@ -290,19 +286,20 @@ fn write_text(path: &Path, text: &str) -> Result<(), LookError> {
     })
 }
 
-/// A 16-bit render in the shown unit.
-fn read_render(path: &Path, units: &DisplayUnits) -> Result<Vec<f32>, LookError> {
+/// A 16-bit render in the shown unit: (width, height, values).
+fn read_render(path: &Path, units: &DisplayUnits) -> Result<(usize, usize, Vec<f32>), LookError> {
     let img = ::image::open(path)
         .map_err(|e| LookError::Format {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?
         .into_luma16();
-    Ok(img
+    let values = img
         .as_raw()
         .iter()
-        .map(|&w| units.value(units.normalise_raw(w)))
-        .collect())
+        .map(|&w| units.value_of_raw(w))
+        .collect();
+    Ok((img.width() as usize, img.height() as usize, values))
 }
 
 fn settings_table(
@@ -501,12 +498,7 @@ fn sr_figure(
     if !sr_path.is_file() {
         return Ok(());
     }
-    let sr = read_render(&sr_path, units)?;
-    let img = ::image::open(&sr_path).map_err(|e| LookError::Format {
-        path: sr_path.clone(),
-        reason: e.to_string(),
-    })?;
-    let (sw, sh) = (img.width() as usize, img.height() as usize);
+    let (sw, sh, sr) = read_render(&sr_path, units)?;
     let rec: Vec<f32> = recorded.iter().map(|&x| units.value(x)).collect();
     let buf = ::image::ImageBuffer::<::image::Luma<f32>, Vec<f32>>::from_raw(
         w as u32,
@@ -535,7 +527,7 @@ fn sr_figure(
     if fused_path.is_file() {
         panels.push(panel(
             "fused with the recorded frame",
-            read_render(&fused_path, units)?,
+            read_render(&fused_path, units)?.2,
             sw,
             sh,
             scale,
