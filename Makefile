@@ -78,6 +78,8 @@ demo: build
 	@echo "   $(DEMO_DIR)/joint-run/report.html"
 	@echo "   $(DEMO_DIR)/calibration/report/report.html"
 	@echo "   and the fly-through: $(DEMO_DIR)/walk-run/flight/ (flight.mp4 or flight.gif, frames beside it)"
+	@echo "== the 3-D viewer (orbit the thermal mesh, read any point's temperature in K and degrees C):"
+	@echo "   $(BIN)/s3tir-train view $(DEMO_DIR)/walk-run    then open http://127.0.0.1:8765/ (Ctrl-C stops it)"
 
 lint:
 	$(CARGO) fmt --all --check
@@ -94,10 +96,10 @@ check-features:
 	./scripts/check-deps.sh
 
 # What this project's CI machine has (scripts/install-deps.sh installs spirv-tools, systemd,
-# chromium and the LPIPS weights with their reference pairs; the kernel gives /dev/full): a test
-# that would skip for lack of one of these fails instead (capture/src/skip.rs). No camera is
-# attached, so `camera` skips visibly.
-S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze,lpips,chromium
+# chromium, the LPIPS weights with their reference pairs and the viewer's three.js; the kernel
+# gives /dev/full): a test that would skip for lack of one of these fails instead
+# (capture/src/skip.rs). No camera is attached, so `camera` skips visibly.
+S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze,lpips,chromium,viewer-assets
 export S3TIR_REQUIRE
 
 test: deps lint check-features

@@ -41,3 +41,7 @@ fi
 # (scripts/install-lpips.py says what and where). Without them training still works and says
 # that it reports no LPIPS.
 python3 "$(dirname "$0")/install-lpips.py"
+
+# The 3-D viewer's renderer (three.js, MIT) from the npm registry, checksummed, into the same data
+# folder (scripts/install-viewer.py). Without it `s3tir-train view` says how to install it.
+python3 "$(dirname "$0")/install-viewer.py"

@@ -14,6 +14,8 @@
 //! - [`checkpoint`]: checkpoints — a JSON header with the arrays in a safetensors file.
 //! - [`ply`]: the primitives as a 3DGS-compatible PLY.
 //! - [`metrics`]: PSNR, SSIM, LPIPS and kelvin errors of held-out views.
+//! - [`installed`]: the data folder `scripts/install-deps.sh` installs into (LPIPS weights,
+//!   the viewer's renderer).
 //! - [`lpips`]: the LPIPS perceptual error (AlexNet, v0.1) on the CPU, from installed weights.
 //! - [`report`]: metrics logs and plots of a run.
 //! - [`look`]: what a person looks at — palette images with their range, figures with colour
@@ -47,6 +49,7 @@ pub mod sh;
 pub mod checkpoint;
 pub mod compare;
 pub mod dataset;
+pub mod installed;
 pub mod look;
 pub mod lpips;
 pub mod metrics;

@@ -16,6 +16,7 @@ use cli::render::RenderArgs;
 use cli::report::ReportArgs;
 use cli::synth::SynthArgs;
 use cli::train_args::TrainArgs;
+use cli::view::ViewArgs;
 
 /// S³-TIR thermal splatting: fit spatial-spectral primitives to posed thermal (and RGB) frames
 /// with a Vulkan compute trainer that runs on the rig, and render novel views.
@@ -112,6 +113,12 @@ enum Command {
     /// frames with a colour bar in kelvin and °C, and a video (MP4 through ffmpeg when it is
     /// installed, otherwise an animated GIF), on either backend.
     Render(RenderArgs),
+    /// Look at a run's thermal mesh in the browser: a local web viewer (http://127.0.0.1:8765/
+    /// by default; the page and three.js come from this machine, nothing from the internet) to
+    /// orbit the mesh, switch palette and range, and read the temperature of any surface point
+    /// in K and °C by hovering or clicking. Meshes the run first when it has no mesh. Serves the
+    /// run folder's files only, until Ctrl-C.
+    View(ViewArgs),
     /// Write the built-in analytic test scene (a wall with a sharp emissivity step and a heated
     /// pipe) as a COLMAP dataset with 16-bit centikelvin images.
     Synth(SynthArgs),
@@ -142,6 +149,7 @@ fn run() -> Result<()> {
         (Some(Command::Compare(a)), _) => cli::compare::run(&a),
         (Some(Command::Report(a)), _) => cli::report::run(&a),
         (Some(Command::Render(a)), _) => cli::render::run(&a),
+        (Some(Command::View(a)), _) => cli::view::run(&a),
         (Some(Command::Synth(a)), _) => cli::synth::run(&a),
         (None, _) => {
             bail!("nothing to do: give DATA --out RUN_DIR, or a subcommand (see --help)")

@@ -9,40 +9,13 @@
 //! their pixels).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod cli_run;
+
 use std::path::Path;
-use std::process::Command;
+
+use cli_run::{bin, finished_run};
 
 use s3tir_trainer::look::image::read_scale;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_s3tir-train"))
-}
-
-/// A small radiometric scene (9 views of 24×18, 2 held out) trained 30 iterations on the
-/// CPU reference (a few steps on tiny images: `--backend auto` would take lavapipe for no
-/// gain); returns (data, run, the run's stdout).
-fn finished_run(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, String) {
-    let data = dir.join("scene");
-    let st = bin()
-        .args(["synth", data.to_str().unwrap(), "--views", "9"])
-        .args(["--width", "24", "--height", "18"])
-        .status()
-        .unwrap();
-    assert!(st.success(), "synth failed");
-    let run = dir.join("run");
-    let out = bin()
-        .args([data.to_str().unwrap(), "--out", run.to_str().unwrap()])
-        .args(["--iters", "30", "--warmup", "10", "--budget", "120"])
-        .args(["--seed", "4", "--backend", "cpu"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "training failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (data, run, String::from_utf8_lossy(&out.stdout).into_owned())
-}
 
 /// `s3tir-train report RUN`, which must succeed.
 fn report_again(run: &Path) -> std::process::Output {
@@ -195,76 +168,37 @@ fn report_of_a_folder_that_is_not_a_run_names_the_file() {
 /// and holds the ironbow panels and colour bars.
 #[test]
 fn the_report_opens_in_headless_chromium_with_its_colour_bars() {
-    let Some(chromium) = ["chromium", "chromium-browser"].into_iter().find(|c| {
-        Command::new(c)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-    }) else {
-        s3tir_capture::skip::skip("chromium", "no chromium on PATH (scripts/install-deps.sh)");
+    let Some(chromium) = cli_run::chromium() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
     let (_, run, _) = finished_run(tmp.path());
     let shot = tmp.path().join("shot.png");
     let page = run.join("report.html").canonicalize().unwrap();
-    let out = Command::new(chromium)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--hide-scrollbars",
-        ])
-        .args([
-            "--enable-logging=stderr",
-            "--v=0",
-            "--window-size=1000,2600",
-        ])
-        .arg(format!(
-            "--user-data-dir={}",
-            tmp.path().join("profile").display()
-        ))
+    let out = cli_run::headless(chromium, &tmp.path().join("profile"), "1000,2600")
         .arg(format!("--screenshot={}", shot.display()))
         .arg(format!("file://{}", page.display()))
         .output()
         .unwrap();
-    let log = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success() && shot.is_file(),
-        "chromium failed: {log}"
+        "chromium failed: {}",
+        String::from_utf8_lossy(&out.stderr)
     );
-    let console: Vec<&str> = log.lines().filter(|l| l.contains("CONSOLE")).collect();
+    let console = cli_run::console_messages(&out.stderr);
     assert!(
         console.is_empty(),
         "the page logs to the console: {console:?}"
     );
     let img = image::open(&shot).unwrap().to_rgb8();
     let n = (img.width() * img.height()) as usize;
-    let inked = img
-        .pixels()
-        .filter(|p| p.0.iter().any(|&c| c < 200))
-        .count();
+    let inked = cli_run::inked_pixels(&img);
     assert!(
         inked * 50 > n,
         "the screenshot is nearly blank: {inked} of {n} pixels inked"
     );
     // Ironbow's saturated entries (the grey ends excluded): the panels and bars in the palette.
-    let lut = s3tir_calib::model::palette::Colormap::Ironbow.lut_u8();
-    let vivid: Vec<[u8; 3]> = lut
-        .iter()
-        .copied()
-        .filter(|c| c.iter().max().unwrap() - c.iter().min().unwrap() > 80)
-        .collect();
-    let ironbow = img
-        .pixels()
-        .filter(|p| {
-            vivid.iter().any(|c| {
-                c.iter()
-                    .zip(p.0)
-                    .all(|(&a, b)| (i32::from(a) - i32::from(b)).abs() <= 6)
-            })
-        })
-        .count();
+    let ironbow = cli_run::ironbow_pixels(&img);
     assert!(
         ironbow > 2000,
         "the screenshot shows ironbow panels and bars: {ironbow} pixels in the palette"

@@ -1,6 +1,7 @@
 //! `s3tir-train mesh`: a run fused into a surface mesh with a temperature per vertex.
 
-use std::path::PathBuf;
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
 
 #[cfg(not(feature = "vulkan"))]
 use anyhow::bail;
@@ -149,12 +150,37 @@ pub fn run(a: &MeshArgs) -> Result<()> {
         );
     }
     println!(
-        "wrote {} (kelvin{}) and {} (ironbow {:.2}–{:.2} K)",
+        "wrote {} (kelvin{}) and {} (ironbow {:.2}–{:.2} {})",
         s.out.display(),
         if s.colour { " and RGB" } else { "" },
         s.thermal_out.display(),
         s.kelvin_lo,
-        s.kelvin_hi
+        s.kelvin_hi,
+        if s.radiometric {
+            "K"
+        } else {
+            "normalised: the data is not radiometric"
+        }
     );
     Ok(())
+}
+
+/// `mesh RUN --out OUT --backend B` with every other option at its default (what `view` runs
+/// for a run that has no mesh yet), through the same clap definitions as the command line.
+pub fn mesh_with_defaults(run_dir: &Path, out: &Path, backend: BackendKind) -> Result<()> {
+    #[derive(clap::Parser)]
+    struct Defaults {
+        #[command(flatten)]
+        args: MeshArgs,
+    }
+    let args = <Defaults as clap::Parser>::try_parse_from([
+        OsStr::new("mesh"),
+        run_dir.as_os_str(),
+        OsStr::new("--out"),
+        out.as_os_str(),
+        OsStr::new("--backend"),
+        OsStr::new(backend.as_str()),
+    ])
+    .context("the mesh command's defaults")?;
+    run(&args.args)
 }

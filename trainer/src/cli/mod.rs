@@ -14,6 +14,7 @@
 //! - [`compare`]: `compare`: several runs' error-vs-time curves on one plot.
 //! - [`report`]: `report`: the run report (`report.html`) written again.
 //! - [`render`]: `render`: novel views along a path, palette frames and a video.
+//! - [`view`]: `view`: the local web viewer of the run's thermal mesh.
 //! - [`devices`]: `devices`: the Vulkan devices and what the trainer needs of them.
 //! - [`synth`]: `synth`: the built-in analytic test scene as a COLMAP dataset.
 
@@ -42,6 +43,7 @@ pub mod synth;
 pub mod train;
 pub mod train_args;
 pub mod train_summary;
+pub mod view;
 
 /// `--backend auto`'s Vulkan backend: the best device, opened with the trainer's checks
 /// (work-group sizes, storage-buffer room, every kernel built), and why it was taken; `Err`

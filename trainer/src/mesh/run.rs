@@ -114,11 +114,14 @@ pub struct MeshSummary {
     pub backend: String,
     #[serde(flatten)]
     pub stats: MeshStats,
-    /// Vertex temperature range of the colour map, kelvin.
+    /// Vertex temperature range of the colour map, kelvin (the normalised unit when not
+    /// `radiometric`).
     pub kelvin_lo: f32,
     pub kelvin_hi: f32,
     /// Whether the vertices carry the run's colour.
     pub colour: bool,
+    /// Whether the `kelvin` values are kelvin (else the run's normalised thermal value).
+    pub radiometric: bool,
     pub seconds: f64,
     /// Peak resident memory of the process (Linux `VmHWM`), bytes.
     pub peak_rss_bytes: Option<u64>,
@@ -536,7 +539,14 @@ pub fn mesh_run<B: Backend>(
         &thermal_out,
         &mesh,
         Some(&colours),
-        &format!("{units}; colours: ironbow from {lo:.2} K to {hi:.2} K"),
+        &format!(
+            "{units}; colours: ironbow from {lo:.2} to {hi:.2} {}",
+            if range.radiometric() {
+                "K"
+            } else {
+                "(normalised)"
+            }
+        ),
     )?;
     Ok(MeshSummary {
         run_dir: run_dir.to_path_buf(),
@@ -544,6 +554,7 @@ pub fn mesh_run<B: Backend>(
         thermal_out,
         backend: backend_name,
         colour: mesh.rgb.is_some(),
+        radiometric: range.radiometric(),
         stats,
         kelvin_lo: lo,
         kelvin_hi: hi,
