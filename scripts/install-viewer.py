@@ -17,12 +17,13 @@ Usage: install-viewer.py [--data-dir DIR] [--from-file three-0.187.0.tgz]
 """
 
 import argparse
-import hashlib
 import os
 import sys
 import tarfile
 import tempfile
 import urllib.request
+
+from install_common import default_data_dir, sha256, write_atomic
 
 VERSION = "0.187.0"
 TARBALL = f"three-{VERSION}.tgz"
@@ -43,19 +44,6 @@ FILES = {
 }
 
 
-def sha256(data):
-    return hashlib.sha256(data).hexdigest()
-
-
-def write_atomic(path, data):
-    tmp = path + ".partial"
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def file_ok(path, digest):
     if not os.path.exists(path):
         return False
@@ -65,8 +53,7 @@ def file_ok(path, digest):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    default = os.environ.get("S3TIR_DATA_HOME") or os.path.join(
-        os.environ.get("XDG_DATA_HOME") or os.path.expanduser("~/.local/share"), "s3tir")
+    default = default_data_dir()
     ap.add_argument("--data-dir", default=default, help=f"where to install (default {default})")
     ap.add_argument("--from-file", help=f"an already downloaded {TARBALL}")
     args = ap.parse_args()

@@ -175,22 +175,18 @@ fn the_report_opens_in_headless_chromium_with_its_colour_bars() {
     let (_, run, _) = finished_run(tmp.path());
     let shot = tmp.path().join("shot.png");
     let page = run.join("report.html").canonicalize().unwrap();
-    let out = cli_run::headless(chromium, &tmp.path().join("profile"), "1000,2600")
-        .arg(format!("--screenshot={}", shot.display()))
-        .arg(format!("file://{}", page.display()))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success() && shot.is_file(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let (console, img) = cli_run::screenshot(
+        chromium,
+        &tmp.path().join("profile"),
+        "1000,2600",
+        &[],
+        &format!("file://{}", page.display()),
+        &shot,
     );
-    let console = cli_run::console_messages(&out.stderr);
     assert!(
         console.is_empty(),
         "the page logs to the console: {console:?}"
     );
-    let img = image::open(&shot).unwrap().to_rgb8();
     let n = (img.width() * img.height()) as usize;
     let inked = cli_run::inked_pixels(&img);
     assert!(

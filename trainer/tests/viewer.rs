@@ -418,18 +418,18 @@ fn the_viewer_shows_the_mesh_in_chromium_and_reads_its_temperatures() {
 
     // As a person sees it: the surface and the colour bar in ironbow, nothing blank.
     let shot = tmp.path().join("viewer.png");
-    let out = cli_run::headless(chromium, &profile, "900,700")
-        .arg("--virtual-time-budget=30000")
-        .arg(format!("--screenshot={}", shot.display()))
-        .arg(&v.url)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success() && shot.is_file(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let (console, img) = cli_run::screenshot(
+        chromium,
+        &profile,
+        "900,700",
+        &["--virtual-time-budget=30000"],
+        &v.url,
+        &shot,
     );
-    let img = image::open(&shot).unwrap().to_rgb8();
+    assert!(
+        console.is_empty(),
+        "the page logs to the console: {console:?}"
+    );
     let ironbow = cli_run::ironbow_pixels(&img);
     assert!(
         ironbow > 3000,

@@ -69,6 +69,33 @@ pub fn headless(chromium: &str, profile: &Path, size: &str) -> Command {
     c
 }
 
+/// A screenshot of `url` (`extra`: more flags, e.g. a virtual time budget) into `shot`, which
+/// must succeed; returns the page's console messages and the image.
+pub fn screenshot(
+    chromium: &str,
+    profile: &Path,
+    size: &str,
+    extra: &[&str],
+    url: &str,
+    shot: &Path,
+) -> (Vec<String>, image::RgbImage) {
+    let out = headless(chromium, profile, size)
+        .args(extra)
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg(url)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success() && shot.is_file(),
+        "chromium failed on {url}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (
+        console_messages(&out.stderr),
+        image::open(shot).unwrap().to_rgb8(),
+    )
+}
+
 /// The page's console messages in Chromium's stderr.
 pub fn console_messages(stderr: &[u8]) -> Vec<String> {
     String::from_utf8_lossy(stderr)
