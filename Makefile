@@ -96,10 +96,10 @@ check-features:
 	./scripts/check-deps.sh
 
 # What this project's CI machine has (scripts/install-deps.sh installs spirv-tools, systemd,
-# chromium, the LPIPS weights with their reference pairs and the viewer's three.js; the kernel
-# gives /dev/full): a test that would skip for lack of one of these fails instead
+# chromium, ffmpeg, the LPIPS weights with their reference pairs and the viewer's three.js; the
+# kernel gives /dev/full): a test that would skip for lack of one of these fails instead
 # (capture/src/skip.rs). No camera is attached, so `camera` skips visibly.
-S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze,lpips,chromium,viewer-assets
+S3TIR_REQUIRE ?= spirv-val,dev-full,systemd-analyze,lpips,chromium,viewer-assets,ffmpeg
 export S3TIR_REQUIRE
 
 test: deps lint check-features

@@ -17,6 +17,7 @@ packages=(
   systemd                        # systemd-analyze: the capture unit file is verified in a test
   colmap                         # structure from motion of recorded walks (s3tir-calib poses; CPU SIFT)
   chromium                       # headless: the run report's test opens it as a user's browser does
+  ffmpeg                         # s3tir-train render's MP4 fly-throughs (ffprobe checks them in a test)
 )
 
 missing=()

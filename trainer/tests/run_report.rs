@@ -259,26 +259,79 @@ fn render_along_the_held_out_views_reproduces_their_renders() {
         );
     }
 
-    // An orbit: frames and a video (MP4 with ffmpeg, GIF without).
-    let orbit = tmp.path().join("orbit");
-    let o = render(
-        &run,
-        &orbit,
-        &["--path", "orbit", "--frames", "6", "--json"],
-    );
+    // An orbit: frames and a video, as an animated GIF (always) and as MP4 through ffmpeg.
+    let orbit = |format: &str| {
+        let o = render(
+            &run,
+            &tmp.path().join(format!("orbit-{format}")),
+            &[
+                "--path", "orbit", "--frames", "6", "--video", format, "--json",
+            ],
+        );
+        assert!(
+            o.status.success(),
+            "orbit, {format}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["frames"].as_array().unwrap().len(), 6);
+        let video = Path::new(v["video"].as_str().expect("a video")).to_path_buf();
+        assert!(
+            video.extension().is_some_and(|e| e == format)
+                && std::fs::metadata(&video).unwrap().len() > 1000,
+            "{} is written as {format} ({})",
+            video.display(),
+            v["video_how"]
+        );
+        video
+    };
+    let gif = orbit("gif");
+    let frames = ::image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+        std::fs::File::open(&gif).unwrap(),
+    ))
+    .map(|d| ::image::AnimationDecoder::into_frames(d).count())
+    .unwrap();
+    assert_eq!(frames, 6, "{} holds the orbit's 6 frames", gif.display());
+    if std::process::Command::new("ffprobe")
+        .arg("-version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
+        let mp4 = orbit("mp4");
+        let probe = std::process::Command::new("ffprobe")
+            .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+            .args([
+                "-show_entries",
+                "stream=codec_name,nb_read_frames",
+                "-of",
+                "csv=p=0",
+            ])
+            .arg(&mp4)
+            .output()
+            .unwrap();
+        let probe = String::from_utf8_lossy(&probe.stdout).trim().to_string();
+        assert_eq!(probe, "h264,6", "{} is H.264 with 6 frames", mp4.display());
+    } else {
+        s3tir_capture::skip::skip(
+            "ffmpeg",
+            "no ffmpeg/ffprobe on PATH: the MP4 branch is not run",
+        );
+    }
+    // Asked for MP4 where no ffmpeg runs: an error that says so, not a GIF in its place.
+    let o = bin()
+        .arg("render")
+        .arg(&run)
+        .args([
+            "--path", "orbit", "--frames", "2", "--video", "mp4", "--out",
+        ])
+        .arg(tmp.path().join("orbit-no-ffmpeg"))
+        .env("PATH", tmp.path().join("no-bin"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        o.status.success(),
-        "orbit: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["frames"].as_array().unwrap().len(), 6);
-    let video = Path::new(v["video"].as_str().expect("a video")).to_path_buf();
-    assert!(
-        std::fs::metadata(&video).unwrap().len() > 1000,
-        "{} is written ({})",
-        video.display(),
-        v["video_how"]
+        !o.status.success() && err.contains("flight.mp4") && err.contains("--video gif"),
+        "--video mp4 without ffmpeg fails naming the file and the way out: {err}"
     );
 
     // A path file that is not one is named with the expected layout.

@@ -8,7 +8,9 @@ use anyhow::bail;
 use anyhow::{Context, Result};
 use clap::Args;
 use s3tir_calib::model::palette::Colormap;
-use s3tir_trainer::look::flight::{FlightOptions, FlightWritten, PathKind, render_flight};
+use s3tir_trainer::look::flight::{
+    FlightOptions, FlightWritten, PathKind, VideoFormat, render_flight,
+};
 use s3tir_trainer::train::{BackendKind, CpuBackend};
 
 /// Options of `s3tir-train render`.
@@ -36,8 +38,12 @@ pub struct RenderArgs {
     /// Palette of the frames: ironbow, inferno or grey.
     #[arg(long, default_value = "ironbow", value_parser = parse_palette)]
     pub palette: Colormap,
+    /// The video: auto (H.264 MP4 through ffmpeg when it is installed, else an animated GIF),
+    /// mp4 (an error without ffmpeg) or gif.
+    #[arg(long, value_enum, default_value_t = VideoFormat::Auto)]
+    pub video: VideoFormat,
     /// Frames only, no video.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "video")]
     pub no_video: bool,
     /// Backend that renders the frames: cpu (the reference) or vulkan.
     #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
@@ -67,7 +73,7 @@ pub fn run(a: &RenderArgs) -> Result<()> {
         frames: a.frames,
         fps: a.fps,
         palette: a.palette,
-        video: !a.no_video,
+        video: (!a.no_video).then_some(a.video),
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(

@@ -60,8 +60,19 @@ pub struct FlightOptions {
     pub frames: usize,
     pub fps: f64,
     pub palette: Colormap,
-    /// Write the video (MP4 with ffmpeg, else GIF); frames only without.
-    pub video: bool,
+    /// The video to write; frames only with `None`.
+    pub video: Option<VideoFormat>,
+}
+
+/// The fly-through's video.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VideoFormat {
+    /// H.264 MP4 through ffmpeg when it runs, else an animated GIF.
+    Auto,
+    /// H.264 MP4 through ffmpeg; an error without a working ffmpeg.
+    Mp4,
+    /// An animated GIF (the `image` crate's encoder; no ffmpeg).
+    Gif,
 }
 
 /// What [`render_flight`] wrote.
@@ -150,10 +161,9 @@ pub fn render_flight<B: Backend>(
         frames.push(path);
         progress(k + 1, cams.len());
     }
-    let (video, video_how) = if opts.video {
-        write_video(out, &frames, opts.fps)?
-    } else {
-        (None, "not asked for (--no-video)".to_string())
+    let (video, video_how) = match opts.video {
+        Some(format) => write_video(out, &frames, opts.fps, format)?,
+        None => (None, "not asked for (--no-video)".to_string()),
     };
     Ok(FlightWritten {
         frames,
@@ -402,12 +412,19 @@ impl Rig {
     }
 }
 
-/// `flight.mp4` through ffmpeg when it runs, else `flight.gif`; returns the file and how.
+/// `flight.mp4` through ffmpeg or `flight.gif`, as `format` says (`Auto`: MP4 when ffmpeg runs,
+/// else GIF); returns the file and how.
 fn write_video(
     out: &Path,
     frames: &[PathBuf],
     fps: f64,
+    format: VideoFormat,
 ) -> Result<(Option<PathBuf>, String), LookError> {
+    if format == VideoFormat::Gif {
+        let gif = out.join("flight.gif");
+        write_gif(&gif, frames, fps)?;
+        return Ok((Some(gif), "animated GIF".into()));
+    }
     let mp4 = out.join("flight.mp4");
     let ffmpeg = Command::new("ffmpeg")
         .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
@@ -422,6 +439,21 @@ fn write_video(
     match ffmpeg {
         Ok(o) if o.status.success() && mp4.is_file() => {
             return Ok((Some(mp4), "ffmpeg (H.264 MP4)".into()));
+        }
+        Ok(o) if format == VideoFormat::Mp4 => {
+            return Err(LookError::Format {
+                path: mp4,
+                reason: format!(
+                    "ffmpeg failed: {}",
+                    String::from_utf8_lossy(&o.stderr).trim()
+                ),
+            });
+        }
+        Err(e) if format == VideoFormat::Mp4 => {
+            return Err(LookError::Format {
+                path: mp4,
+                reason: format!("ffmpeg does not run ({e}): install it, or --video gif"),
+            });
         }
         Ok(o) => tracing::warn!(
             stderr = %String::from_utf8_lossy(&o.stderr),
