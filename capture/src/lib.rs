@@ -8,6 +8,8 @@
 //! - [`device`]: V4L2-style pixel formats, device descriptions and the role guess
 //!   (thermal vs RGB) used by `s3tir-capture list`,
 //! - [`telemetry`]: Lepton telemetry rows (160×122 mode) decoding,
+//! - [`radiometric`]: radiometric files of other cameras (FLIR's FFF and radiometric JPEGs) to
+//!   raw words, the camera's calibration and kelvin,
 //! - [`error`]: the error type ([`CaptureError`]) and [`Chain`], how any error is printed (an
 //!   error's message is its own level, its cause comes from `source()`),
 //! - [`skip`]: how the workspace's tests skip what a machine lacks (and fail where it must not),
@@ -35,6 +37,7 @@
 pub mod device;
 pub mod error;
 pub mod frame;
+pub mod radiometric;
 pub mod skip;
 pub mod telemetry;
 pub mod wire;
