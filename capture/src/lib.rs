@@ -8,6 +8,8 @@
 //! - [`device`]: V4L2-style pixel formats, device descriptions and the role guess
 //!   (thermal vs RGB) used by `s3tir-capture list`,
 //! - [`telemetry`]: Lepton telemetry rows (160×122 mode) decoding,
+//! - [`image_meta`]: image files' metadata (EXIF, XMP: capture time, GPS, altitudes, gimbal
+//!   and flight angles), and [`jpeg_segments`], the one walker of a JPEG's segments,
 //! - [`radiometric`]: radiometric files of other cameras (FLIR's FFF and radiometric JPEGs) to
 //!   raw words, the camera's calibration and kelvin,
 //! - [`error`]: the error type ([`CaptureError`]) and [`Chain`], how any error is printed (an
@@ -37,6 +39,8 @@
 pub mod device;
 pub mod error;
 pub mod frame;
+pub mod image_meta;
+pub mod jpeg_segments;
 pub mod radiometric;
 pub mod skip;
 pub mod telemetry;

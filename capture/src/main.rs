@@ -9,8 +9,8 @@ use clap::{Parser, Subcommand};
 use cli::bench::BenchArgs;
 use cli::export::ExportArgs;
 use cli::info::InfoArgs;
+use cli::inspect::InspectArgs;
 use cli::list::ListArgs;
-use cli::radiometric::RadiometricArgs;
 use cli::record::RecordArgs;
 use cli::replay::ReplayArgs;
 
@@ -59,13 +59,15 @@ enum Command {
     /// MJPEG @ 30 Hz (synthetic buffers), as a ratio to real time, and what the writer's
     /// once-a-second fdatasync costs (the same load without syncs, run first, is the reference).
     Bench(BenchArgs),
-    /// Read FLIR radiometric files — `.fff` frames and radiometric JPEGs (FLIR hand-helds, DJI
-    /// Zenmuse XT/XT2, Duo Pro R) — and print the camera, its Planck calibration, the conditions
-    /// it stored and the temperatures under them (each condition overridable: --emissivity,
-    /// --distance-m, --reflected-c, --atmosphere-c, --humidity-percent, --window-c,
-    /// --window-transmission). `--out DIR`: each frame as a 16-bit PNG at 0.01 K per count, and
-    /// radiometric.json with every file's parameters as used.
-    Radiometric(RadiometricArgs),
+    /// Inspect thermal image files from other cameras: each file's metadata (camera, capture
+    /// time, GPS from EXIF and DJI's XMP, altitudes, gimbal and flight angles) and, for FLIR
+    /// `.fff` frames and radiometric JPEGs (FLIR hand-helds, DJI Zenmuse XT/XT2, Duo Pro R), the
+    /// camera's Planck calibration, the conditions it stored and the temperatures under them
+    /// (each condition overridable: --emissivity, --distance-m, --reflected-c, --atmosphere-c,
+    /// --humidity-percent, --window-c, --window-transmission). `--out DIR`: each radiometric
+    /// frame as a 16-bit PNG at 0.01 K per count, and inspect.json with every file's metadata
+    /// and parameters as used.
+    Inspect(InspectArgs),
 }
 
 /// Runs the command; an error is printed once, as one `error: …` line (the whole cause chain,
@@ -88,7 +90,7 @@ fn run() -> Result<()> {
         Some(Command::Replay(a)) => cli::replay::run(&a),
         Some(Command::Export(a)) => cli::export::run(&a),
         Some(Command::Bench(a)) => cli::bench::run(&a),
-        Some(Command::Radiometric(a)) => cli::radiometric::run(&a),
+        Some(Command::Inspect(a)) => cli::inspect::run(&a),
         None => cli::record::run(cli.record),
     }
 }

@@ -93,6 +93,20 @@ fn the_duo_pro_r_frame_reads_as_its_exiftool_dump() {
     ] {
         assert_as_printed(&d, tag, ours);
     }
+    // The GPS record, printed as ExifTool prints it: `53 deg 26' 56.06" N`.
+    let gps = f.gps.expect("the frame's GPS record is valid");
+    let dms = |deg: f64, pos: char, neg: char| {
+        let a = deg.abs();
+        let (d, m) = (a.trunc(), (a.fract() * 60.0).trunc());
+        let s = (a * 3600.0 - d * 3600.0 - m * 60.0).max(0.0);
+        format!(
+            "{d} deg {m}' {s:.2}\" {}",
+            if deg < 0.0 { neg } else { pos }
+        )
+    };
+    assert_eq!(dms(gps.latitude_deg, 'N', 'S'), d["GPS Latitude"]);
+    assert_eq!(dms(gps.longitude_deg, 'E', 'W'), d["GPS Longitude"]);
+    assert_as_printed(&d, "GPS Altitude", gps.altitude_m.unwrap());
     for (tag, ours) in [
         ("Camera Model", &f.camera.camera_model),
         ("Camera Part Number", &f.camera.camera_part_number),
@@ -393,10 +407,16 @@ fn crafted_files_are_named_errors() {
     let mut b = good.clone();
     b[0x80 + 2..0x80 + 6].copy_from_slice(&[0xff; 4]);
     assert!(err(&b).contains("pixels"), "{}", err(&b));
-    // not FFF at all; a file path named
+    // an FFF tag with no header behind it; not FFF at all; a file path named
     assert!(
-        err(b"hello, world, this is not a thermal image at all......................")
-            .contains("FFF header")
+        err(b"FFF\0short").contains("FFF header"),
+        "{}",
+        err(b"FFF\0short")
+    );
+    let text = err(b"hello, world, this is not a thermal image at all......................");
+    assert!(
+        text.contains("neither a FLIR FFF frame nor a radiometric JPEG"),
+        "{text}"
     );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("DJI_0001_R.JPG");

@@ -10,15 +10,15 @@
 //! - [`export`]: `export`: board-folder pairs, and `--dataset` through `s3tir-calib poses`.
 //! - [`bench`]: `bench`: the recorder's throughput and the cost of its syncs.
 //! - [`list`]: `list`: the V4L2 capture devices.
-//! - [`radiometric`]: `radiometric`: FLIR `.fff` frames and radiometric JPEGs read, converted
-//!   to kelvin, written as 16-bit centikelvin PNGs.
+//! - [`inspect`]: `inspect`: image files' metadata, and FLIR `.fff` frames and radiometric
+//!   JPEGs converted to kelvin, written as 16-bit centikelvin PNGs.
 
 pub mod bench;
 pub mod export;
 pub mod info;
+pub mod inspect;
 pub mod list;
 pub mod live;
-pub mod radiometric;
 pub mod record;
 pub mod replay;
 

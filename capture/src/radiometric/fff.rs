@@ -13,14 +13,18 @@
 //! - raw data (type 1): width at 2, height at 4 (u16), the image from byte 32 — raw u16 words,
 //!   or a 16-bit grey PNG whose words are byte-swapped (FLIR writes its native little-endian
 //!   words where PNG means big-endian);
-//! - camera info (type 0x20): the fields at the offsets in [`CameraInfo`]'s reader.
+//! - camera info (type 0x20): the fields at the offsets in [`CameraInfo`]'s reader;
+//! - GPS (type 0x2b): valid flag (u32), references at 8 and 10 (`N`/`S`, `E`/`W`), latitude and
+//!   longitude (f64, signed) at 0x10 and 0x18, altitude (f32, metres) at 0x20.
 
 use super::planck::{Conditions, PlanckCurve};
 use super::{MAX_PIXELS, RadiometricError};
+use crate::image_meta::GeoPosition;
 
 /// Record types read here.
 pub const RAW_DATA: u16 = 0x0001;
 pub const CAMERA_INFO: u16 = 0x0020;
+pub const GPS_INFO: u16 = 0x002b;
 /// The directory holds at most this many entries (a real file has a handful).
 const MAX_ENTRIES: usize = 4096;
 
@@ -147,6 +151,11 @@ impl<'a> Reader<'a> {
     }
 }
 
+/// Whether `bytes` start like an FFF container (a 3-letter upper-case tag and NUL).
+pub fn looks_like_fff(bytes: &[u8]) -> bool {
+    bytes.len() >= 4 && bytes[3] == 0 && bytes[..3].iter().all(u8::is_ascii_uppercase)
+}
+
 impl<'a> Fff<'a> {
     /// Parses the header and the record directory; every entry's data must lie in the file.
     pub fn parse(bytes: &'a [u8]) -> Result<Self, RadiometricError> {
@@ -156,7 +165,7 @@ impl<'a> Fff<'a> {
                 format!("{} bytes, a header is 64", bytes.len()),
             )
         })?;
-        if !(head[3] == 0 && head[..3].iter().all(u8::is_ascii_uppercase)) {
+        if !looks_like_fff(head) {
             return Err(RadiometricError::format(
                 "FFF header",
                 format!(
@@ -359,6 +368,72 @@ impl<'a> Fff<'a> {
             ));
         }
         Ok(info)
+    }
+}
+
+impl Fff<'_> {
+    /// The GPS record's position, when the file has one marked valid.
+    pub fn gps(&self) -> Result<Option<GeoPosition>, RadiometricError> {
+        if !self.records.iter().any(|r| r.kind == GPS_INFO) {
+            return Ok(None);
+        }
+        let r = self.record_any_order(GPS_INFO, "GPS record")?;
+        if r.u32(0)? == 0 {
+            return Ok(None);
+        }
+        let f64_at = |at: usize| -> Result<f64, RadiometricError> {
+            let b = r.take::<8>(at)?;
+            Ok(if r.big_endian {
+                f64::from_be_bytes(b)
+            } else {
+                f64::from_le_bytes(b)
+            })
+        };
+        // signed already in the files seen; a positive value with a S/W reference is negated
+        let signed = |v: f64, reference: u8, negative: u8| {
+            if reference == negative && v > 0.0 {
+                -v
+            } else {
+                v
+            }
+        };
+        let (lat, lon) = (f64_at(0x10)?, f64_at(0x18)?);
+        let refs = r.take::<4>(8)?;
+        let pos = GeoPosition {
+            latitude_deg: signed(lat, refs[0], b'S'),
+            longitude_deg: signed(lon, refs[2], b'W'),
+            altitude_m: Some(r.f32(0x20)?).filter(|a| a.is_finite()),
+        };
+        let plausible = pos.latitude_deg.abs() <= 90.0 && pos.longitude_deg.abs() <= 180.0;
+        Ok(plausible.then_some(pos))
+    }
+
+    /// The first record of type `kind`, its byte order told by its first u32 (records without
+    /// the u16 mark: GPS's first field is its valid flag, 0 or 1).
+    fn record_any_order(
+        &self,
+        kind: u16,
+        what: &'static str,
+    ) -> Result<Reader<'_>, RadiometricError> {
+        let rec = self
+            .records
+            .iter()
+            .find(|r| r.kind == kind)
+            .ok_or_else(|| RadiometricError::format(what, "the file has no such record"))?;
+        let bytes = &self.bytes[rec.offset..rec.offset + rec.len];
+        let le = Reader {
+            bytes,
+            big_endian: false,
+            what,
+        };
+        let big_endian = le.u32(0)? > 1
+            && Reader {
+                big_endian: true,
+                ..le
+            }
+            .u32(0)?
+                <= 1;
+        Ok(Reader { big_endian, ..le })
     }
 }
 

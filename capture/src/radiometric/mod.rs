@@ -67,6 +67,8 @@ impl RadiometricError {
 pub struct Radiometric {
     pub raw: RawThermal,
     pub camera: CameraInfo,
+    /// The FFF's own GPS record (FLIR's drone cores write one), when valid.
+    pub gps: Option<crate::image_meta::GeoPosition>,
 }
 
 impl Radiometric {
@@ -84,16 +86,49 @@ impl Radiometric {
 
     /// [`Radiometric::read`] of bytes in memory.
     pub fn decode(bytes: &[u8]) -> Result<Self, RadiometricError> {
+        Self::decode_if_radiometric(bytes)?.ok_or_else(|| {
+            RadiometricError::format(
+                "radiometric file",
+                if bytes.starts_with(&[0xff, 0xd8]) {
+                    "no FLIR segment: not a radiometric JPEG (an 8-bit picture has no temperatures)"
+                } else {
+                    "neither a FLIR FFF frame nor a radiometric JPEG"
+                },
+            )
+        })
+    }
+
+    /// The file's radiometric content, `None` for a file that has none (a JPEG without FLIR
+    /// segments, a file that is not FFF), an error for one that is damaged.
+    pub fn decode_if_radiometric(bytes: &[u8]) -> Result<Option<Self>, RadiometricError> {
         let fff_bytes;
         let fff = if bytes.starts_with(&[0xff, 0xd8]) {
-            fff_bytes = jpeg::fff_from_jpeg(bytes)?;
+            match jpeg::fff_from_jpeg(bytes)? {
+                Some(b) => fff_bytes = b,
+                None => return Ok(None),
+            }
             Fff::parse(&fff_bytes)?
-        } else {
+        } else if fff::looks_like_fff(bytes) {
             Fff::parse(bytes)?
+        } else {
+            return Ok(None);
         };
-        Ok(Self {
+        Ok(Some(Self {
             raw: fff.raw_thermal()?,
             camera: fff.camera_info()?,
+            gps: fff.gps()?,
+        }))
+    }
+
+    /// [`Radiometric::decode_if_radiometric`] of the file at `path`.
+    pub fn read_if_radiometric(path: &Path) -> Result<Option<Self>, RadiometricError> {
+        let bytes = std::fs::read(path).map_err(|source| RadiometricError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::decode_if_radiometric(&bytes).map_err(|e| RadiometricError::File {
+            path: path.to_path_buf(),
+            source: Box::new(e),
         })
     }
 

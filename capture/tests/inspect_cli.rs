@@ -1,7 +1,8 @@
-//! Proves `s3tir-capture radiometric` as a user runs it: the Duo Pro R frame's summary (camera,
+//! Proves `s3tir-capture inspect` as a user runs it: the Duo Pro R frame's summary (camera,
 //! calibration, temperatures), its 16-bit centikelvin PNG read back equal to the decoder's
-//! kelvin within half a count, radiometric.json naming the conditions used (an override shows
-//! there and moves the temperatures the right way), and a bad file or condition named.
+//! kelvin within half a count, inspect.json naming the conditions used (an override shows
+//! there and moves the temperatures the right way), a real DJI thermal JPEG's metadata and
+//! the absence of temperatures said, and a bad file or condition named.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::Path;
@@ -22,7 +23,7 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let o = capture()
-        .arg("radiometric")
+        .arg("inspect")
         .arg(frame())
         .arg("--out")
         .arg(&out)
@@ -35,7 +36,10 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(
-        text.contains("Duo Pro R") && text.contains("640×512") && text.contains("364058"),
+        text.contains("Duo Pro R")
+            && text.contains("640×512")
+            && text.contains("364058")
+            && text.contains("53.4489064°, -2.8150262°, 81.02 m (FLIR GPS record)"),
         "the summary names the camera, size and calibration: {text}"
     );
     // The PNG holds the decoder's kelvin at 0.01 K per count.
@@ -63,16 +67,18 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
     // emissivity more of the words are reflection, so the object is farther from the reflected
     // temperature (20 °C; this scene is colder than that).
     let o = capture()
-        .arg("radiometric")
+        .arg("inspect")
         .arg(frame())
         .args(["--emissivity", "0.80", "--json"])
         .output()
         .unwrap();
     assert!(o.status.success());
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let used = v[0]["conditions_used"]["emissivity"].as_f64().unwrap();
+    let used = v[0]["radiometric"]["conditions_used"]["emissivity"]
+        .as_f64()
+        .unwrap();
     assert!((used - 0.8).abs() < 1e-12, "conditions_used: {used}");
-    let median: f64 = v[0]["kelvin_median"].as_f64().unwrap();
+    let median: f64 = v[0]["radiometric"]["kelvin_median"].as_f64().unwrap();
     let mut own: Vec<f64> = kelvin.clone();
     own.sort_by(f64::total_cmp);
     let reflected = r.camera.conditions.reflected_k;
@@ -82,16 +88,20 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
         own[own.len() / 2]
     );
     let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("radiometric.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("inspect.json")).unwrap()).unwrap();
     assert!(
-        (json[0]["conditions_used"]["emissivity"].as_f64().unwrap() - 0.94).abs() < 1e-3,
-        "radiometric.json records the file's emissivity for the first run"
+        (json[0]["radiometric"]["conditions_used"]["emissivity"]
+            .as_f64()
+            .unwrap()
+            - 0.94)
+            .abs()
+            < 1e-3,
+        "inspect.json records the file's emissivity for the first run"
     );
 
     // Bad input: a condition out of range, a file that is not radiometric.
     let o = capture()
-        .arg("radiometric")
+        .arg("inspect")
         .arg(frame())
         .args(["--emissivity", "1.5"])
         .output()
@@ -102,11 +112,28 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
         "{err}"
     );
     let plain = tmp.path().join("photo.jpg");
-    std::fs::write(&plain, b"\xff\xd8\xff\xe0\x00\x04ab\xff\xd9").unwrap();
-    let o = capture().arg("radiometric").arg(&plain).output().unwrap();
+    std::fs::write(&plain, b"\xff\xd8\xff\xe0\x00\x04ab\xff\x00\xff\xd9").unwrap();
+    let o = capture().arg("inspect").arg(&plain).output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        !o.status.success() && err.contains("photo.jpg") && err.contains("not a radiometric JPEG"),
-        "{err}"
+        !o.status.success() && err.contains("photo.jpg"),
+        "a damaged JPEG is named: {err}"
+    );
+
+    // A real DJI thermal JPEG: its position and gimbal, and no temperatures (8-bit).
+    let dji = std::env::var_os("S3TIR_SHARED_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
+        .join("data/thermal-facade/images/DJI_0440.JPG");
+    let o = capture().arg("inspect").arg(&dji).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success()
+            && text.contains("DJI FC2403")
+            && text.contains("-36.8740753")
+            && text.contains("gimbal yaw 113.20")
+            && text.contains("no temperatures"),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
     );
 }

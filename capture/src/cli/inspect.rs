@@ -1,0 +1,288 @@
+//! `s3tir-capture inspect FILE…`: what a thermal image file from another camera holds — its
+//! metadata (camera, capture time, GPS, altitudes, gimbal and flight angles) and, for FLIR
+//! `.fff` frames and radiometric JPEGs, the camera's calibration, the conditions it stored and
+//! the temperatures under them or under the conditions given — and, with `--out`, each
+//! radiometric frame as s3tir's 16-bit centikelvin PNG with the parameters used beside them.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use s3tir_capture::image_meta::{GeoPosition, ImageMeta};
+use s3tir_capture::radiometric::fff::RawEncoding;
+use s3tir_capture::radiometric::{
+    CameraInfo, Conditions, Radiometric, centikelvin_words, write_png16,
+};
+use serde::Serialize;
+
+/// Options of `s3tir-capture inspect`.
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// Image files: FLIR `.fff` frames, radiometric JPEGs (FLIR hand-helds, DJI Zenmuse
+    /// XT/XT2, Duo Pro R), or any JPEG/TIFF/PNG for its metadata.
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
+    /// Write each radiometric file as FILE_STEM.png (16-bit, 0.01 K per count) and
+    /// inspect.json (every file's metadata, camera, calibration and the conditions used) into
+    /// this folder.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Object emissivity [default: the file's].
+    #[arg(long)]
+    emissivity: Option<f64>,
+    /// Object distance, metres [default: the file's].
+    #[arg(long = "distance-m")]
+    distance_m: Option<f64>,
+    /// Reflected apparent temperature, °C [default: the file's].
+    #[arg(long = "reflected-c")]
+    reflected_c: Option<f64>,
+    /// Air temperature, °C [default: the file's].
+    #[arg(long = "atmosphere-c")]
+    atmosphere_c: Option<f64>,
+    /// Relative humidity, per cent [default: the file's].
+    #[arg(long = "humidity-percent")]
+    humidity_percent: Option<f64>,
+    /// IR window temperature, °C [default: the file's].
+    #[arg(long = "window-c")]
+    window_c: Option<f64>,
+    /// IR window transmission (1: no window) [default: the file's].
+    #[arg(long = "window-transmission")]
+    window_transmission: Option<f64>,
+    /// Print one JSON array (one object per file) instead of lines.
+    #[arg(long)]
+    json: bool,
+}
+
+/// One file's summary.
+#[derive(Debug, Serialize)]
+struct FileSummary {
+    file: PathBuf,
+    metadata: ImageMeta,
+    /// `None`: the file holds no temperatures (an 8-bit picture, or not a FLIR file).
+    radiometric: Option<RadiometricSummary>,
+}
+
+#[derive(Debug, Serialize)]
+struct RadiometricSummary {
+    width: usize,
+    height: usize,
+    encoding: RawEncoding,
+    camera: CameraInfo,
+    /// The conditions the temperatures were computed under (the file's, overridden).
+    conditions_used: Conditions,
+    kelvin_min: f64,
+    kelvin_median: f64,
+    kelvin_max: f64,
+    /// Pixels without a temperature (a word below what the surroundings alone give).
+    invalid_pixels: usize,
+    /// The FFF's own GPS record.
+    gps: Option<GeoPosition>,
+    written: Option<PathBuf>,
+}
+
+impl InspectArgs {
+    /// The file's conditions with the command line's overrides, checked.
+    fn conditions(&self, file: &Conditions) -> Result<Conditions> {
+        let c = Conditions {
+            emissivity: self.emissivity.unwrap_or(file.emissivity),
+            object_distance_m: self.distance_m.unwrap_or(file.object_distance_m),
+            reflected_k: self.reflected_c.map_or(file.reflected_k, |c| c + 273.15),
+            atmosphere_k: self.atmosphere_c.map_or(file.atmosphere_k, |c| c + 273.15),
+            relative_humidity: self
+                .humidity_percent
+                .map_or(file.relative_humidity, |p| p / 100.0),
+            window_k: self.window_c.map_or(file.window_k, |c| c + 273.15),
+            window_transmission: self.window_transmission.unwrap_or(file.window_transmission),
+        };
+        let ok = c.emissivity > 0.0
+            && c.emissivity <= 1.0
+            && c.object_distance_m >= 0.0
+            && (0.0..=1.0).contains(&c.relative_humidity)
+            && c.window_transmission > 0.0
+            && c.window_transmission <= 1.0
+            && [c.reflected_k, c.atmosphere_k, c.window_k]
+                .iter()
+                .all(|k| k.is_finite() && *k > 0.0);
+        if !ok {
+            anyhow::bail!(
+                "conditions out of range: emissivity {} (0–1], distance {} m (≥ 0), humidity \
+                 {} (0–100 %), window transmission {} (0–1], temperatures above 0 K",
+                c.emissivity,
+                c.object_distance_m,
+                c.relative_humidity * 100.0,
+                c.window_transmission
+            );
+        }
+        Ok(c)
+    }
+
+    fn radiometric(&self, file: &std::path::Path, r: Radiometric) -> Result<RadiometricSummary> {
+        let conditions = self
+            .conditions(&r.camera.conditions)
+            .with_context(|| file.display().to_string())?;
+        let kelvin = r.kelvin(&conditions);
+        let mut finite: Vec<f64> = kelvin.iter().copied().filter(|k| k.is_finite()).collect();
+        finite.sort_by(f64::total_cmp);
+        let written = match &self.out {
+            Some(out) => {
+                let stem = file.file_stem().unwrap_or_default().to_string_lossy();
+                let path = out.join(format!("{stem}.png"));
+                let words = centikelvin_words(&kelvin);
+                write_png16(&path, r.raw.width, r.raw.height, &words)?;
+                Some(path)
+            }
+            None => None,
+        };
+        Ok(RadiometricSummary {
+            width: r.raw.width,
+            height: r.raw.height,
+            encoding: r.raw.encoding,
+            camera: r.camera,
+            conditions_used: conditions,
+            kelvin_min: finite.first().copied().unwrap_or(f64::NAN),
+            kelvin_median: finite.get(finite.len() / 2).copied().unwrap_or(f64::NAN),
+            kelvin_max: finite.last().copied().unwrap_or(f64::NAN),
+            invalid_pixels: kelvin.len() - finite.len(),
+            gps: r.gps,
+            written,
+        })
+    }
+}
+
+/// Runs `inspect`.
+pub fn run(a: &InspectArgs) -> Result<()> {
+    if let Some(out) = &a.out {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    }
+    let mut summaries = Vec::with_capacity(a.files.len());
+    for file in &a.files {
+        let metadata = ImageMeta::read(file)?;
+        let radiometric = match Radiometric::read_if_radiometric(file)? {
+            Some(r) => Some(a.radiometric(file, r)?),
+            None => None,
+        };
+        summaries.push(FileSummary {
+            file: file.clone(),
+            metadata,
+            radiometric,
+        });
+    }
+    if let Some(out) = &a.out {
+        let path = out.join("inspect.json");
+        let text = serde_json::to_string_pretty(&summaries)?;
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summaries)?);
+        return Ok(());
+    }
+    for s in &summaries {
+        println!("{}", s.file.display());
+        print_metadata(&s.metadata, s.radiometric.as_ref().and_then(|r| r.gps));
+        match &s.radiometric {
+            Some(r) => print_radiometric(r),
+            None => println!(
+                "  no temperatures: not a FLIR radiometric file (an 8-bit picture's grey levels \
+                 follow the camera's gain)"
+            ),
+        }
+    }
+    Ok(())
+}
+
+/// `fff_gps`: the radiometric file's own GPS record, shown where the metadata has no position.
+fn print_metadata(m: &ImageMeta, fff_gps: Option<GeoPosition>) {
+    let camera = [m.make.as_deref(), m.model.as_deref()]
+        .into_iter()
+        .flatten()
+        .collect::<Vec<_>>()
+        .join(" ");
+    if !camera.is_empty() || m.capture_time.is_some() {
+        println!(
+            "  {}{}",
+            if camera.is_empty() {
+                "camera unknown"
+            } else {
+                &camera
+            },
+            m.capture_time
+                .as_deref()
+                .map_or(String::new(), |t| format!(", taken {t}"))
+        );
+    }
+    let source = if m.gps_xmp.is_some() {
+        "DJI XMP"
+    } else if m.gps_exif.is_some() {
+        "EXIF"
+    } else {
+        "FLIR GPS record"
+    };
+    match m.position().or(fff_gps) {
+        Some(p) => println!(
+            "  GPS {:.7}°, {:.7}°{}{} ({source})",
+            p.latitude_deg,
+            p.longitude_deg,
+            p.altitude_m
+                .map_or(String::new(), |a| format!(", {a:.2} m")),
+            m.relative_altitude_m
+                .map_or(String::new(), |a| format!(", {a:.2} m above take-off")),
+        ),
+        None => println!("  no GPS position"),
+    }
+    if let Some(g) = m.gimbal {
+        println!(
+            "  gimbal yaw {:.2}°, pitch {:.2}°, roll {:.2}°",
+            g.yaw_deg, g.pitch_deg, g.roll_deg
+        );
+    }
+    if let Some(f) = m.focal_length_mm {
+        println!("  focal length {f} mm");
+    }
+}
+
+fn print_radiometric(s: &RadiometricSummary) {
+    let c = &s.conditions_used;
+    let p = &s.camera.planck;
+    println!(
+        "  {} ({}), {}×{} ({})",
+        s.camera.camera_model, s.camera.camera_serial_number, s.width, s.height, s.encoding
+    );
+    // the file stores single precision: shown as such
+    let f32s = |v: f64| v as f32;
+    println!(
+        "  Planck R1 {} R2 {} B {} F {} O {}",
+        f32s(p.r1),
+        f32s(p.r2),
+        f32s(p.b),
+        f32s(p.f),
+        p.o
+    );
+    println!(
+        "  emissivity {:.3}, distance {:.2} m, reflected {:.2} °C, air {:.2} °C at {:.0} %, \
+         window {:.2} °C × {:.2}",
+        c.emissivity,
+        c.object_distance_m,
+        c.reflected_k - 273.15,
+        c.atmosphere_k - 273.15,
+        c.relative_humidity * 100.0,
+        c.window_k - 273.15,
+        c.window_transmission
+    );
+    println!(
+        "  {:.2} K … {:.2} K … {:.2} K ({:.2} … {:.2} … {:.2} °C){}",
+        s.kelvin_min,
+        s.kelvin_median,
+        s.kelvin_max,
+        s.kelvin_min - 273.15,
+        s.kelvin_median - 273.15,
+        s.kelvin_max - 273.15,
+        if s.invalid_pixels > 0 {
+            format!(", {} pixels without a temperature", s.invalid_pixels)
+        } else {
+            String::new()
+        }
+    );
+    if let Some(w) = &s.written {
+        println!("  wrote {} (16-bit, 0.01 K per count)", w.display());
+    }
+}
