@@ -132,8 +132,54 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
             && text.contains("DJI FC2403")
             && text.contains("-36.8740753")
             && text.contains("gimbal yaw 113.20")
-            && text.contains("no temperatures"),
+            && text.contains("640×480 8-bit picture: no temperatures"),
         "{text}{}",
         String::from_utf8_lossy(&o.stderr)
+    );
+
+    // A 16-bit PNG in a stated unit: its temperatures, and written in centikelvin.
+    let mc = tmp.path().join("mc.png");
+    {
+        let file = std::fs::File::create(&mc).unwrap();
+        let mut enc = png::Encoder::new(file, 2, 1);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Sixteen);
+        let words: [u16; 2] = [20000, 36600]; // millicelsius: 20.0 °C, 36.6 °C
+        let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_be_bytes()).collect();
+        enc.write_header()
+            .unwrap()
+            .write_image_data(&bytes)
+            .unwrap();
+    }
+    let o = capture().arg("inspect").arg(&mc).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--units"),
+        "a unit is asked for: {err}"
+    );
+    let o = capture()
+        .arg("inspect")
+        .arg(&mc)
+        .args(["--units", "millicelsius", "--json", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let hi = v[0]["scaled"]["kelvin_max"].as_f64().unwrap();
+    assert!((hi - 309.75).abs() < 1e-9, "36.6 °C is 309.75 K: {hi}");
+    let written = std::fs::read(out.join("mc.png")).unwrap();
+    let mut reader = png::Decoder::new(std::io::Cursor::new(written))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    reader.next_frame(&mut buf).unwrap();
+    assert_eq!(
+        buf,
+        [29315u16, 30975]
+            .iter()
+            .flat_map(|w| w.to_be_bytes())
+            .collect::<Vec<u8>>(),
+        "written in centikelvin"
     );
 }

@@ -1,8 +1,10 @@
 //! `s3tir-capture inspect FILE…`: what a thermal image file from another camera holds — its
-//! metadata (camera, capture time, GPS, altitudes, gimbal and flight angles) and, for FLIR
-//! `.fff` frames and radiometric JPEGs, the camera's calibration, the conditions it stored and
-//! the temperatures under them or under the conditions given — and, with `--out`, each
-//! radiometric frame as s3tir's 16-bit centikelvin PNG with the parameters used beside them.
+//! metadata (camera, capture time, GPS, altitudes, gimbal and flight angles); for FLIR `.fff`
+//! frames and radiometric JPEGs, the camera's calibration, the conditions it stored and the
+//! temperatures under them or under the conditions given; for 16-bit or float grey PNG/TIFF,
+//! the temperatures in the stated `--units`; for 8-bit pictures, that they hold none — and, with
+//! `--out`, each frame with temperatures as s3tir's 16-bit centikelvin PNG with the parameters
+//! used beside them.
 
 use std::path::PathBuf;
 
@@ -11,7 +13,7 @@ use clap::Args;
 use s3tir_capture::image_meta::{GeoPosition, ImageMeta};
 use s3tir_capture::radiometric::fff::RawEncoding;
 use s3tir_capture::radiometric::{
-    CameraInfo, Conditions, Radiometric, centikelvin_words, write_png16,
+    CameraInfo, Conditions, Radiometric, ThermalFile, Units, centikelvin_words, write_png16,
 };
 use serde::Serialize;
 
@@ -48,6 +50,11 @@ pub struct InspectArgs {
     /// IR window transmission (1: no window) [default: the file's].
     #[arg(long = "window-transmission")]
     window_transmission: Option<f64>,
+    /// What the values of 16-bit or float grey PNG/TIFF files are (the files do not say):
+    /// kelvin, decikelvin, centikelvin, millikelvin, celsius, decicelsius, centicelsius,
+    /// millicelsius, or raw (counts, no temperature).
+    #[arg(long)]
+    units: Option<Units>,
     /// Print one JSON array (one object per file) instead of lines.
     #[arg(long)]
     json: bool,
@@ -58,8 +65,24 @@ pub struct InspectArgs {
 struct FileSummary {
     file: PathBuf,
     metadata: ImageMeta,
-    /// `None`: the file holds no temperatures (an 8-bit picture, or not a FLIR file).
+    /// A FLIR radiometric file's content.
     radiometric: Option<RadiometricSummary>,
+    /// A 16-bit or float grey image's temperatures in the stated `--units`.
+    scaled: Option<ScaledSummary>,
+    /// Neither: an 8-bit picture (no temperature), width × height.
+    picture8: Option<(usize, usize)>,
+}
+
+#[derive(Debug, Serialize)]
+struct ScaledSummary {
+    width: usize,
+    height: usize,
+    units: Units,
+    /// `None` for raw counts.
+    kelvin_min: Option<f64>,
+    kelvin_median: Option<f64>,
+    kelvin_max: Option<f64>,
+    written: Option<PathBuf>,
 }
 
 #[derive(Debug, Serialize)]
@@ -149,6 +172,42 @@ impl InspectArgs {
     }
 }
 
+impl InspectArgs {
+    fn scaled(&self, file: &std::path::Path, f: &ThermalFile) -> Result<ScaledSummary> {
+        let ThermalFile::Scaled {
+            width,
+            height,
+            units,
+            ..
+        } = *f
+        else {
+            anyhow::bail!("{}: not a scaled image", file.display());
+        };
+        let kelvin = f.kelvin();
+        let mut sorted = kelvin.clone().unwrap_or_default();
+        sorted.retain(|k| k.is_finite());
+        sorted.sort_by(f64::total_cmp);
+        let written = match (&self.out, &kelvin) {
+            (Some(out), Some(k)) => {
+                let stem = file.file_stem().unwrap_or_default().to_string_lossy();
+                let path = out.join(format!("{stem}.png"));
+                write_png16(&path, width, height, &centikelvin_words(k))?;
+                Some(path)
+            }
+            _ => None,
+        };
+        Ok(ScaledSummary {
+            width,
+            height,
+            units,
+            kelvin_min: sorted.first().copied(),
+            kelvin_median: sorted.get(sorted.len() / 2).copied(),
+            kelvin_max: sorted.last().copied(),
+            written,
+        })
+    }
+}
+
 /// Runs `inspect`.
 pub fn run(a: &InspectArgs) -> Result<()> {
     if let Some(out) = &a.out {
@@ -157,15 +216,19 @@ pub fn run(a: &InspectArgs) -> Result<()> {
     let mut summaries = Vec::with_capacity(a.files.len());
     for file in &a.files {
         let metadata = ImageMeta::read(file)?;
-        let radiometric = match Radiometric::read_if_radiometric(file)? {
-            Some(r) => Some(a.radiometric(file, r)?),
-            None => None,
-        };
-        summaries.push(FileSummary {
+        let mut summary = FileSummary {
             file: file.clone(),
             metadata,
-            radiometric,
-        });
+            radiometric: None,
+            scaled: None,
+            picture8: None,
+        };
+        match ThermalFile::read(file, a.units)? {
+            ThermalFile::Radiometric(r) => summary.radiometric = Some(a.radiometric(file, *r)?),
+            f @ ThermalFile::Scaled { .. } => summary.scaled = Some(a.scaled(file, &f)?),
+            ThermalFile::Picture8 { width, height } => summary.picture8 = Some((width, height)),
+        }
+        summaries.push(summary);
     }
     if let Some(out) = &a.out {
         let path = out.join("inspect.json");
@@ -179,12 +242,34 @@ pub fn run(a: &InspectArgs) -> Result<()> {
     for s in &summaries {
         println!("{}", s.file.display());
         print_metadata(&s.metadata, s.radiometric.as_ref().and_then(|r| r.gps));
-        match &s.radiometric {
-            Some(r) => print_radiometric(r),
-            None => println!(
-                "  no temperatures: not a FLIR radiometric file (an 8-bit picture's grey levels \
-                 follow the camera's gain)"
-            ),
+        if let Some(r) = &s.radiometric {
+            print_radiometric(r);
+        }
+        if let Some(sc) = &s.scaled {
+            println!(
+                "  {}×{} grey in {:?}{}",
+                sc.width,
+                sc.height,
+                sc.units,
+                match (sc.kelvin_min, sc.kelvin_median, sc.kelvin_max) {
+                    (Some(lo), Some(mid), Some(hi)) => format!(
+                        ": {lo:.2} K … {mid:.2} K … {hi:.2} K ({:.2} … {:.2} … {:.2} °C)",
+                        lo - 273.15,
+                        mid - 273.15,
+                        hi - 273.15
+                    ),
+                    _ => ": counts, no temperature".to_string(),
+                }
+            );
+            if let Some(w) = &sc.written {
+                println!("  wrote {} (16-bit, 0.01 K per count)", w.display());
+            }
+        }
+        if let Some((w, h)) = s.picture8 {
+            println!(
+                "  {w}×{h} 8-bit picture: no temperatures (its grey levels follow the camera's \
+                 gain)"
+            );
         }
     }
     Ok(())

@@ -7,6 +7,8 @@
 //!   (raw words or an embedded PNG, whose words FLIR stores byte-swapped) and the camera-info
 //!   record (Planck constants, atmosphere, conditions, camera and lens names).
 //! - [`jpeg`]: the FFF reassembled from a JPEG's `FLIR` APP1 segments.
+//! - [`file`]: any thermal image file by its content — a FLIR file, a 16-bit or float grey
+//!   PNG/TIFF in a unit the user states, or an 8-bit picture (no temperature).
 //! - [`planck`]: raw words to kelvin and back with FLIR's published model (Planck R1, R2, B, F,
 //!   O; emissivity, reflected apparent temperature, atmospheric temperature and humidity,
 //!   object distance, the atmospheric transmission constants, the IR window), each condition
@@ -21,12 +23,14 @@
 //! ports that read only JPEGs, pull in image decoders for everything, and panic on bad input.
 
 pub mod fff;
+pub mod file;
 pub mod jpeg;
 pub mod planck;
 
 use std::path::{Path, PathBuf};
 
 pub use fff::{CameraInfo, Fff, RawThermal};
+pub use file::{ThermalFile, Units};
 pub use planck::{Conditions, PlanckCurve, RawToKelvin};
 
 /// The largest raw image accepted (a 1280×1024 core has 1.3 M pixels).
