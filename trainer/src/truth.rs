@@ -1,8 +1,9 @@
 //! Scoring a run against a simulated scene's truth (`s3tir-firmware-sim scene --rgb-scale K`
 //! writes it under `DATA/truth/`, mirroring the image names): the thermal head at the input
 //! resolution and super-resolved at K× (the render alone, and fused with the recorded image:
-//! [`crate::superres`]) against bicubic upsampling of the recorded thermal image, the colour
-//! head, and the geometry (expected depth) against the true depth.
+//! [`crate::superres`]) against bicubic upsampling of the recorded thermal image and against
+//! the fusion's own control (back-projection started from bicubic: what the recorded image
+//! alone gives), the colour head, and the geometry (expected depth) against the true depth.
 //!
 //! Truth files (`DATA/truth/…/<image name>`): `apparent/` noise-free apparent temperature at
 //! the thermal camera (16-bit centikelvin), `apparent_sr/` the same at K× through the same
@@ -67,6 +68,11 @@ pub struct TruthScore {
     /// The K× render fused with the recorded held-out thermal image by back-projection
     /// ([`crate::superres`]): what `renders_sr_fused/` holds.
     pub fused_sr: ThermalScore,
+    /// The control of `fused_sr`: the same back-projection started from bicubic instead of the
+    /// render — what the recorded image alone gives through the fusion, so `fused_sr` against
+    /// it is the model's own contribution (`None` in scores written before it existed).
+    #[serde(default)]
+    pub bicubic_bp_sr: Option<ThermalScore>,
     /// The colour head on the held-out RGB views (`None`: the run has no colour).
     pub rgb_psnr: Option<f64>,
     pub rgb_ssim: Option<f64>,
@@ -213,6 +219,7 @@ pub fn score<B: Backend>(
         .ok_or_else(|| truth_err(&truth, "the dataset's thermal images are not centikelvin"))?;
     let has_colour = !prims.sh.is_empty();
     let (mut th, mut sr, mut bi, mut fu) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut bb = Vec::new();
     let (mut rgb_p, mut rgb_s) = (Vec::new(), Vec::new());
     let mut d_rgb = (0.0, 0, 0);
     let mut d_th = (0.0, 0, 0);
@@ -263,6 +270,8 @@ pub fn score<B: Backend>(
         bi.push(thermal_score(&up, &t_sr, w * k, h * k, &range));
         let fused = back_project(&gb_k.thermal, input, w, h, k);
         fu.push(thermal_score(&fused, &t_sr, w * k, h * k, &range));
+        let bicubic_bp = back_project(&up, input, w, h, k);
+        bb.push(thermal_score(&bicubic_bp, &t_sr, w * k, h * k, &range));
         // Geometry and colour at the RGB camera.
         let rc = rgb_view.camera;
         let gb_r = backend.render(prims, &rc)?;
@@ -291,6 +300,7 @@ pub fn score<B: Backend>(
         thermal_sr: mean_score(&sr),
         bicubic_sr: mean_score(&bi),
         fused_sr: mean_score(&fu),
+        bicubic_bp_sr: Some(mean_score(&bb)),
         rgb_psnr: mean(&rgb_p),
         rgb_ssim: mean(&rgb_s),
         depth_rgb: depth(d_rgb),

@@ -150,10 +150,11 @@ pub fn markdown(rows: &[AblationRow]) -> String {
     let k = rows.first().map_or(0, |r| r.score.scale);
     let mut s = format!(
         "| run | thermal PSNR / SSIM / MAE (input) | thermal PSNR / SSIM / MAE ({k}×) | \
-         bicubic {k}× PSNR / SSIM / MAE | fused {k}× PSNR / SSIM / MAE | LPIPS input / {k}× / bicubic / fused | \
+         bicubic {k}× PSNR / SSIM / MAE | bicubic {k}× back-projected PSNR / SSIM / MAE | \
+         fused {k}× PSNR / SSIM / MAE | LPIPS input / {k}× / bicubic / fused | \
          RGB PSNR / SSIM | depth MAE ({k}×, coverage) | \
          mesh Chamfer / F-score / vertex MAE | iterations | primitives |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n"
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n"
     );
     for r in rows {
         let t = &r.score;
@@ -182,8 +183,12 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             lp(t.bicubic_sr.lpips),
             lp(t.fused_sr.lpips)
         );
+        let bicubic_bp = t.bicubic_bp_sr.map_or_else(
+            || "—".to_owned(),
+            |b| format!("{:.2} dB / {:.3} / {:.3} K", b.psnr, b.ssim, b.kelvin_mae),
+        );
         s.push_str(&format!(
-            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {} | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
+            "| {} | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {:.2} dB / {:.3} / {:.3} K | {} | {:.2} dB / {:.3} / {:.3} K | {} | {} | {:.1} mm ({:.0} %) | {} | {} | {} |\n",
             r.variant.slug(),
             t.thermal.psnr,
             t.thermal.ssim,
@@ -194,6 +199,7 @@ pub fn markdown(rows: &[AblationRow]) -> String {
             t.bicubic_sr.psnr,
             t.bicubic_sr.ssim,
             t.bicubic_sr.kelvin_mae,
+            bicubic_bp,
             t.fused_sr.psnr,
             t.fused_sr.ssim,
             t.fused_sr.kelvin_mae,

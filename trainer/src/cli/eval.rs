@@ -170,6 +170,13 @@ fn truth_cmd(run_dir: &Path, json: bool) -> Result<()> {
         s.scale,
         t(&s.fused_sr)
     );
+    if let Some(bb) = &s.bicubic_bp_sr {
+        println!(
+            "thermal, bicubic {}× fused:      {}  (the control: the same back-projection from bicubic, no model)",
+            s.scale,
+            t(bb)
+        );
+    }
     if let (Some(p), Some(q)) = (s.rgb_psnr, s.rgb_ssim) {
         println!("RGB:                            PSNR {p:6.2} dB  SSIM {q:.4}");
     }
