@@ -70,7 +70,8 @@ def main():
                 data = r.read()
         except OSError as e:
             sys.exit(f"install-viewer: could not download {URL}: {e} "
-                     "(s3tir-train view needs it; everything else works without it)")
+                     "(s3tir-train view needs it; run this script again when the npm registry "
+                     "is reachable)")
     if sha256(data) != TARBALL_SHA256:
         sys.exit(f"install-viewer: {TARBALL} has SHA-256 {sha256(data)}, expected {TARBALL_SHA256}")
     os.makedirs(dest, exist_ok=True)

@@ -182,4 +182,34 @@ fn a_frame_is_summarised_and_written_as_centikelvin() {
             .collect::<Vec<u8>>(),
         "written in centikelvin"
     );
+
+    // --out never overwrites an input, nor writes two inputs to one name.
+    let o = capture()
+        .arg("inspect")
+        .arg(&mc)
+        .args(["--units", "millicelsius", "--out"])
+        .arg(tmp.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("overwrite the input"),
+        "{err}"
+    );
+    let other = tmp.path().join("sub");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(&mc, other.join("mc.png")).unwrap();
+    let o = capture()
+        .arg("inspect")
+        .arg(&mc)
+        .arg(other.join("mc.png"))
+        .args(["--units", "millicelsius", "--out"])
+        .arg(tmp.path().join("third"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("would both be written"),
+        "{err}"
+    );
 }

@@ -430,11 +430,17 @@ fn the_viewer_shows_the_mesh_in_chromium_and_reads_its_temperatures() {
         console.is_empty(),
         "the page logs to the console: {console:?}"
     );
-    let ironbow = cli_run::ironbow_pixels(&img);
+    // The surface alone (the colour bar's 150 px at the right left out), then the bar.
+    let (w, h) = img.dimensions();
+    let surface = image::imageops::crop_imm(&img, 0, 0, w - 170, h).to_image();
+    let on_surface = cli_run::ironbow_pixels(&surface);
     assert!(
-        ironbow > 3000,
-        "the screenshot shows the surface and its colour bar in ironbow: {ironbow} pixels"
+        on_surface > 5000,
+        "the screenshot shows the surface in ironbow: {on_surface} pixels left of the bar"
     );
+    let bar = image::imageops::crop_imm(&img, w - 170, 0, 170, h).to_image();
+    let on_bar = cli_run::ironbow_pixels(&bar);
+    assert!(on_bar > 2000, "the colour bar in ironbow: {on_bar} pixels");
     let err = v.stop();
     assert!(
         err.contains("has no mesh: meshing it first"),

@@ -148,8 +148,7 @@ impl InspectArgs {
         finite.sort_by(f64::total_cmp);
         let written = match &self.out {
             Some(out) => {
-                let stem = file.file_stem().unwrap_or_default().to_string_lossy();
-                let path = out.join(format!("{stem}.png"));
+                let path = output_path(out, file);
                 let words = centikelvin_words(&kelvin);
                 write_png16(&path, r.raw.width, r.raw.height, &words)?;
                 Some(path)
@@ -189,8 +188,7 @@ impl InspectArgs {
         sorted.sort_by(f64::total_cmp);
         let written = match (&self.out, &kelvin) {
             (Some(out), Some(k)) => {
-                let stem = file.file_stem().unwrap_or_default().to_string_lossy();
-                let path = out.join(format!("{stem}.png"));
+                let path = output_path(out, file);
                 write_png16(&path, width, height, &centikelvin_words(k))?;
                 Some(path)
             }
@@ -208,12 +206,43 @@ impl InspectArgs {
     }
 }
 
+/// Where `--out` writes `file`'s temperatures: `OUT/STEM.png`.
+fn output_path(out: &std::path::Path, file: &std::path::Path) -> PathBuf {
+    let stem = file.file_stem().unwrap_or_default().to_string_lossy();
+    out.join(format!("{stem}.png"))
+}
+
 /// Runs `inspect`.
 pub fn run(a: &InspectArgs) -> Result<()> {
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     }
     let mut summaries = Vec::with_capacity(a.files.len());
+    // Every output name, checked before anything is written: two inputs with one stem, or an
+    // output that is an input (`--out` the input folder), would lose data.
+    if let Some(out) = &a.out {
+        let mut planned = std::collections::HashMap::new();
+        for file in &a.files {
+            let target = output_path(out, file);
+            if let Some(other) = planned.insert(target.clone(), file) {
+                anyhow::bail!(
+                    "{} and {} would both be written as {}: inspect them into separate --out \
+                     folders",
+                    other.display(),
+                    file.display(),
+                    target.display()
+                );
+            }
+            if let (Ok(a), Ok(b)) = (target.canonicalize(), file.canonicalize())
+                && a == b
+            {
+                anyhow::bail!(
+                    "--out would overwrite the input {}: write into another folder",
+                    file.display()
+                );
+            }
+        }
+    }
     for file in &a.files {
         let metadata = ImageMeta::read(file)?;
         let mut summary = FileSummary {

@@ -84,7 +84,15 @@ pub fn properties(text: &str) -> Result<BTreeMap<String, String>, String> {
             Event::End(_) => {
                 open.pop();
             }
-            Event::Eof => break,
+            Event::Eof => {
+                if !open.is_empty() {
+                    return Err(format!(
+                        "the packet ends with {} element(s) still open (truncated)",
+                        open.len()
+                    ));
+                }
+                break;
+            }
             _ => {}
         }
     }
@@ -184,6 +192,11 @@ mod tests {
             e.contains("RelativeAltitude") && e.contains("twelve"),
             "{e}"
         );
-        assert!(properties("<x:xmpmeta><unclosed").is_err() || properties("<a></b>").is_err());
+        assert!(properties("<a></b>").is_err(), "mismatched tags");
+        let truncated = properties(&packet[..packet.find("</rdf:Description>").unwrap()]);
+        assert!(
+            truncated.as_ref().is_err_and(|e| e.contains("truncated")),
+            "a truncated packet: {truncated:?}"
+        );
     }
 }

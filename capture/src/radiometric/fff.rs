@@ -72,9 +72,10 @@ pub struct CameraInfo {
     pub field_of_view_deg: f64,
     /// The camera's measurement range, kelvin.
     pub range_k: (f64, f64),
-    /// The camera's own median and range of the raw image (its display statistics).
-    pub raw_value_median: u16,
-    pub raw_value_range: u16,
+    /// The camera's own median and range of the raw image (its display statistics; `None`
+    /// when the record is too short to hold them).
+    pub raw_value_median: Option<u16>,
+    pub raw_value_range: Option<u16>,
 }
 
 /// A parsed FFF container over its bytes.
@@ -342,8 +343,8 @@ impl<'a> Fff<'a> {
             camera_software: r.text(0x114, 16)?,
             lens_model: r.text(0x170, 32)?,
             field_of_view_deg: r.f32(0x1b4)?,
-            raw_value_median: r.u16(0x338)?,
-            raw_value_range: r.u16(0x33c)?,
+            raw_value_median: r.u16(0x338).ok(),
+            raw_value_range: r.u16(0x33c).ok(),
         };
         let p = &info.planck;
         let c = &info.conditions;

@@ -106,13 +106,8 @@ impl ThermalFile {
             }
         } else if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") {
             match grey_tiff(bytes)? {
-                Some(v) => v,
-                None => {
-                    return Err(RadiometricError::format(
-                        "TIFF",
-                        "an 8-bit TIFF: s3tir reads 8-bit pictures as JPEG or PNG",
-                    ));
-                }
+                Ok(v) => v,
+                Err((width, height)) => return Ok(Self::Picture8 { width, height }),
             }
         } else if bytes.starts_with(&[0xff, 0xd8]) {
             return jpeg_size(bytes);
@@ -166,14 +161,13 @@ impl ThermalFile {
 type Plane = (usize, usize, Vec<f64>);
 
 fn check_size(what: &'static str, w: u32, h: u32) -> Result<(usize, usize), RadiometricError> {
-    let (w, h) = (w as usize, h as usize);
-    if w == 0 || h == 0 || w * h > MAX_PIXELS {
+    if w == 0 || h == 0 || u64::from(w) * u64::from(h) > MAX_PIXELS as u64 {
         return Err(RadiometricError::format(
             what,
             format!("{w}×{h} pixels (1 to {MAX_PIXELS})"),
         ));
     }
-    Ok((w, h))
+    Ok((w as usize, h as usize))
 }
 
 /// A 16-bit grey PNG's words (`None`: an 8-bit PNG).
@@ -219,8 +213,8 @@ fn picture8_png(bytes: &[u8]) -> Result<ThermalFile, RadiometricError> {
     Ok(ThermalFile::Picture8 { width, height })
 }
 
-/// A 16-bit or float grey TIFF's values (`None`: an 8-bit TIFF).
-fn grey_tiff(bytes: &[u8]) -> Result<Option<Plane>, RadiometricError> {
+/// A 16-bit or float grey TIFF's values (`Err((w, h))`: an 8-bit grey TIFF of that size).
+fn grey_tiff(bytes: &[u8]) -> Result<Result<Plane, (usize, usize)>, RadiometricError> {
     use tiff::decoder::{Decoder, DecodingResult, Limits};
     let bad = |e: tiff::TiffError| RadiometricError::format("TIFF", e.to_string());
     let mut limits = Limits::default();
@@ -231,7 +225,7 @@ fn grey_tiff(bytes: &[u8]) -> Result<Option<Plane>, RadiometricError> {
     let (w, h) = d.dimensions().map_err(bad)?;
     let (w, h) = check_size("TIFF", w, h)?;
     match d.colortype().map_err(bad)? {
-        tiff::ColorType::Gray(8) => return Ok(None),
+        tiff::ColorType::Gray(8) => return Ok(Err((w, h))),
         tiff::ColorType::Gray(16 | 32 | 64) => {}
         other => {
             return Err(RadiometricError::format(
@@ -258,7 +252,7 @@ fn grey_tiff(bytes: &[u8]) -> Result<Option<Plane>, RadiometricError> {
             format!("{} samples for {w}×{h}", values.len()),
         ));
     }
-    Ok(Some((w, h, values)))
+    Ok(Ok((w, h, values)))
 }
 
 /// An 8-bit JPEG's size, from its start-of-frame segment.

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use s3tir_trainer::look::view::assets::{Vendored, default_dir};
 use s3tir_trainer::look::view::http::ViewServer;
-use s3tir_trainer::look::view::scene::{mesh_files, scene_info};
+use s3tir_trainer::look::view::scene::scene_info;
 use s3tir_trainer::train::BackendKind;
 
 /// Options of `s3tir-train view`.
@@ -27,6 +27,11 @@ pub struct ViewArgs {
     /// folder's files.
     #[arg(long, default_value_t = IpAddr::V4(Ipv4Addr::LOCALHOST))]
     pub bind: IpAddr,
+    /// A host name the viewer answers to besides localhost and IP addresses (repeatable), e.g.
+    /// the rig's name with --bind 0.0.0.0; requests naming any other host are refused (DNS
+    /// rebinding).
+    #[arg(long = "allow-host")]
+    pub allow_host: Vec<String>,
     /// Backend that renders the views when the run must be meshed first.
     #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
     pub backend: BackendKind,
@@ -49,8 +54,17 @@ pub fn run(a: &ViewArgs) -> Result<()> {
             s3tir_trainer::train::files::CONFIG
         );
     }
-    if mesh_files(&a.run_dir)?.is_empty() {
+    let mut scene = scene_info(&a.run_dir)?;
+    if scene.meshes.is_empty() {
         let out = a.run_dir.join("mesh.ply");
+        if out.exists() {
+            anyhow::bail!(
+                "{} holds no triangles and the viewer would mesh the run into it: move it \
+                 away, or mesh with s3tir-train mesh {} --out OTHER.ply",
+                out.display(),
+                a.run_dir.display()
+            );
+        }
         eprintln!(
             "{} has no mesh: meshing it first (s3tir-train mesh {} --out {})",
             a.run_dir.display(),
@@ -58,8 +72,8 @@ pub fn run(a: &ViewArgs) -> Result<()> {
             out.display()
         );
         super::mesh::mesh_with_defaults(&a.run_dir, &out, a.backend)?;
+        scene = scene_info(&a.run_dir)?;
     }
-    let scene = scene_info(&a.run_dir)?;
     let json = serde_json::to_vec(&scene).context("the scene description")?;
     if !a.bind.is_loopback() {
         tracing::warn!(
@@ -67,21 +81,31 @@ pub fn run(a: &ViewArgs) -> Result<()> {
             "the viewer listens beyond this machine: whoever reaches it reads the run folder's files"
         );
     }
-    let server = ViewServer::bind(&a.run_dir, SocketAddr::new(a.bind, a.port), vendored, json)
-        .with_context(|| {
-            format!(
-                "starting the viewer (is port {} taken? --port 0 picks a free one)",
-                a.port
-            )
-        })?;
+    let server = ViewServer::bind(
+        &a.run_dir,
+        SocketAddr::new(a.bind, a.port),
+        vendored,
+        json,
+        &a.allow_host,
+    )
+    .with_context(|| {
+        format!(
+            "starting the viewer (is port {} taken? --port 0 picks a free one)",
+            a.port
+        )
+    })?;
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
         .context("installing the Ctrl-C handler")?;
     for m in &scene.meshes {
+        let range = match (m.lo, m.hi) {
+            (Some(lo), Some(hi)) => format!("{lo:.2}–{hi:.2} {} (1st–99th percentile)", scene.unit),
+            _ => "no vertex has a value".to_string(),
+        };
         eprintln!(
-            "{}: {} vertices, {} triangles, {:.2}–{:.2} {} (1st–99th percentile)",
-            m.name, m.vertices, m.triangles, m.lo, m.hi, scene.unit
+            "{}: {} vertices, {} triangles, {range}",
+            m.name, m.vertices, m.triangles
         );
     }
     // The URL on stdout, alone on its line and flushed: scripts and tests read it.

@@ -11,8 +11,10 @@
 //! `REL` is percent-decoded, then refused if a segment is empty, `.` or `..` or holds a
 //! backslash or NUL; the joined path is canonicalised (symlinks resolved) and must be a file
 //! inside the canonical run folder. Directories are never listed. Only GET and HEAD are
-//! answered. On a loopback address, a request whose `Host` is not a loopback name is refused
-//! (a web page elsewhere cannot reach the viewer through DNS rebinding).
+//! answered. A request whose `Host` is a name other than `localhost` or the names the user
+//! allowed (`--allow-host`) is refused, whatever address the server listens on: a web page
+//! elsewhere cannot reach the viewer through DNS rebinding (which needs a name; an IP address
+//! in `Host` is what a browser sends when the user typed one).
 
 use std::fs::File;
 use std::net::{IpAddr, SocketAddr};
@@ -37,6 +39,8 @@ pub struct ViewServer {
     root: PathBuf,
     vendored: Vendored,
     scene_json: Vec<u8>,
+    /// Host names accepted besides `localhost` and IP addresses (lower case).
+    allowed_hosts: Vec<String>,
 }
 
 impl std::fmt::Debug for ViewServer {
@@ -58,12 +62,14 @@ pub struct ServeStats {
 
 impl ViewServer {
     /// Listens on `addr` (port 0: a free port) for the run folder `run_dir`; `scene_json` is
-    /// what `/api/scene.json` answers.
+    /// what `/api/scene.json` answers; `allowed_hosts`: host names accepted in `Host` besides
+    /// `localhost` and IP addresses (e.g. the rig's name when listening beyond the loopback).
     pub fn bind(
         run_dir: &Path,
         addr: SocketAddr,
         vendored: Vendored,
         scene_json: Vec<u8>,
+        allowed_hosts: &[String],
     ) -> Result<Self, ViewError> {
         let root = run_dir.canonicalize().map_err(|source| ViewError::Io {
             path: run_dir.to_path_buf(),
@@ -86,6 +92,10 @@ impl ViewServer {
             root,
             vendored,
             scene_json,
+            allowed_hosts: allowed_hosts
+                .iter()
+                .map(|h| h.to_ascii_lowercase())
+                .collect(),
         })
     }
 
@@ -127,10 +137,11 @@ impl ViewServer {
         let url = request.url().to_string();
         let reply = if !matches!(method, Method::Get | Method::Head) {
             Reply::Status(405, "GET and HEAD only")
-        } else if self.addr.ip().is_loopback() && !host_is_loopback(&request) {
+        } else if !host_allowed(&request, &self.allowed_hosts) {
             Reply::Status(
                 403,
-                "the viewer answers requests addressed to the loopback only",
+                "the viewer answers requests addressed to an IP address, localhost or a name \
+                 given with --allow-host",
             )
         } else {
             self.route(&url)
@@ -228,9 +239,9 @@ pub fn resolve_run_file(root: &Path, rel: &str) -> Option<PathBuf> {
     (real.starts_with(root) && real.is_file()).then_some(real)
 }
 
-/// Whether the request's `Host` (without its port) is a loopback name or address; a request
-/// without one (HTTP/1.0) passes.
-fn host_is_loopback(request: &Request) -> bool {
+/// Whether the request's `Host` (without its port) is an IP address, `localhost` or one of
+/// `allowed`; a request without one (HTTP/1.0) passes.
+fn host_allowed(request: &Request, allowed: &[String]) -> bool {
     let Some(host) = request
         .headers()
         .iter()
@@ -244,7 +255,7 @@ fn host_is_loopback(request: &Request) -> bool {
     } else {
         host.rsplit_once(':').map_or(host.as_str(), |(h, _)| h)
     };
-    name == "localhost" || name.parse::<IpAddr>().is_ok_and(|ip| ip.is_loopback())
+    name == "localhost" || name.parse::<IpAddr>().is_ok() || allowed.iter().any(|a| a == name)
 }
 
 fn content_type(path: &Path) -> &'static str {

@@ -9,8 +9,8 @@
 //! - [`http`]: the server — a small blocking HTTP/1.1 server (`tiny_http`) on 127.0.0.1 by
 //!   default that serves the page, the renderer and the run folder's files only: no path out of
 //!   the run folder (`..`, encoded or not, symlinks), no directory listing, GET and HEAD only,
-//!   and on a loopback address only requests addressed to the loopback (DNS rebinding). It stops
-//!   when the caller's flag is set (Ctrl-C in the CLI).
+//!   and only requests addressed to an IP address, `localhost` or an allowed name (DNS
+//!   rebinding). It stops when the caller's flag is set (Ctrl-C in the CLI).
 //!
 //! The page reads the mesh PLY as written by `s3tir-train mesh` (its `kelvin` vertex property)
 //! with three.js's PLY loader: the mesh file has one writer (`mesh::plyio`), and the viewer adds

@@ -48,12 +48,13 @@ pub struct MeshInfo {
     pub triangles: usize,
     /// Vertices without a temperature (no view observed them).
     pub unobserved: usize,
-    /// 1st and 99th percentile of the vertices' values: the default range of the palette.
-    pub lo: f64,
-    pub hi: f64,
+    /// 1st and 99th percentile of the vertices' values: the default range of the palette
+    /// (`None` when no vertex has a value).
+    pub lo: Option<f64>,
+    pub hi: Option<f64>,
     /// Extreme values.
-    pub min: f64,
-    pub max: f64,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -80,7 +81,7 @@ pub struct StartCamera {
 /// Mesh files of a run folder: its top-level `.ply` files with triangles (the meshing stage's
 /// `*_thermal.ply` colour copies, the same surface, left out; the primitives' `point_cloud.ply`
 /// has none), sorted by name.
-pub fn mesh_files(run_dir: &Path) -> Result<Vec<PathBuf>, ViewError> {
+fn mesh_files(run_dir: &Path) -> Result<Vec<PathBuf>, ViewError> {
     let io = |source| ViewError::Io {
         path: run_dir.to_path_buf(),
         source,
@@ -162,9 +163,12 @@ pub fn scene_info(run_dir: &Path) -> Result<SceneInfo, ViewError> {
             .copied()
             .filter(|k| k.is_finite())
             .collect();
-        let q = |p| quantile(&finite, p).unwrap_or(f64::NAN);
+        let q = |p| quantile(&finite, p);
         meshes.push(MeshInfo {
-            url: format!("/run/{name}"),
+            url: format!(
+                "/run/{}",
+                percent_encoding::utf8_percent_encode(&name, percent_encoding::NON_ALPHANUMERIC)
+            ),
             name,
             vertices: mesh.positions.len(),
             triangles: mesh.triangles.len(),

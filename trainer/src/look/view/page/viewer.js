@@ -30,6 +30,7 @@ const state = {
   meshInfo: null,
   start: null, // { position, target, up, fov }
   marker: null,
+  pinned: null, // the clicked point
 };
 
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
@@ -122,7 +123,10 @@ function niceTicks(lo, hi, n) {
   const steps = [1, 2, 2.5, 5, 10].map((m) => m * mag);
   const step = steps.reduce((a, b) => (Math.abs(span / b - n) < Math.abs(span / a - n) ? b : a));
   const ticks = [];
-  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9 * span; v += step) ticks.push(v);
+  // at most 50: a step below the values' float spacing would never advance
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9 * span && ticks.length < 50; v += step) {
+    ticks.push(v);
+  }
   return ticks;
 }
 
@@ -203,19 +207,24 @@ function pickAt(u, v) {
   };
 }
 
-function showPick(p, pinned) {
-  const out = $('readout');
-  if (!p) {
-    if (!pinned) out.textContent = '';
-    return;
-  }
+function pickText(p) {
   const at = `(${p.point.x.toFixed(3)}, ${p.point.y.toFixed(3)}, ${p.point.z.toFixed(3)}) m`;
-  out.textContent = `${describe(p.value)} at ${at}; vertex ${p.nearest}: ${describe(p.nearestValue)}`;
+  return `${describe(p.value)} at ${at}; vertex ${p.nearest}: ${describe(p.nearestValue)}`;
+}
+
+// The readout: the point under the pointer (hover), and the pinned one (a click) below it.
+// A click on the background unpins.
+function showPick(p, pinned) {
   if (pinned) {
-    state.marker.position.copy(p.point);
-    state.marker.visible = true;
+    state.pinned = p;
+    state.marker.visible = Boolean(p);
+    if (p) state.marker.position.copy(p.point);
     render();
   }
+  const lines = [];
+  if (!pinned && p) lines.push(pickText(p));
+  if (state.pinned) lines.push(`pinned: ${pickText(state.pinned)}`);
+  $('readout').textContent = lines.join('\n');
 }
 
 function recordPick(p) {
@@ -335,8 +344,9 @@ async function showMesh(info) {
   scene.add(state.mesh);
   state.meshInfo = info;
   const sphere = geometry.boundingSphere;
+  const eye = state.info.camera ? new THREE.Vector3(...state.info.camera.eye) : sphere.center;
   camera.near = Math.max(1e-4, sphere.radius * 1e-3);
-  camera.far = sphere.radius * 200 + (state.info.camera ? 50 : 0);
+  camera.far = 4 * (eye.distanceTo(sphere.center) + sphere.radius) + sphere.radius * 50;
   const marker = new THREE.Mesh(
     new THREE.SphereGeometry(sphere.radius * 0.004, 16, 8),
     new THREE.MeshBasicMaterial({ color: new THREE.Color().setHex(0x00e5ff, THREE.LinearSRGBColorSpace) }),
@@ -348,7 +358,11 @@ async function showMesh(info) {
   state.start = startView(sphere);
   const lo = Number.parseFloat(params.get('lo'));
   const hi = Number.parseFloat(params.get('hi'));
-  setRange(Number.isFinite(lo) ? lo : info.lo, Number.isFinite(hi) ? hi : info.hi);
+  // a mesh whose vertices have no value has no range: grey, shown over [0, 1]
+  setRange(
+    Number.isFinite(lo) ? lo : (info.lo ?? 0),
+    Number.isFinite(hi) ? hi : (info.hi ?? 1),
+  );
   recolour();
   goHome();
   const unseen = info.unobserved ? `, ${info.unobserved} not observed (grey)` : '';
@@ -412,7 +426,7 @@ async function main() {
     });
   }
   $('auto').addEventListener('click', () => {
-    setRange(state.meshInfo.lo, state.meshInfo.hi);
+    setRange(state.meshInfo.lo ?? 0, state.meshInfo.hi ?? 1);
     recolour();
   });
   $('shade').addEventListener('change', () => {
