@@ -231,20 +231,24 @@ impl<'a> Fff<'a> {
         })
     }
 
-    /// The data of the first record of type `kind`, with its byte order (told by its first
-    /// u16, which is 2).
-    fn record(&self, kind: u16, what: &'static str) -> Result<Reader<'a>, RadiometricError> {
+    /// The data of the first record of type `kind`, read little-endian until its byte order
+    /// is told.
+    fn record_data(&self, kind: u16, what: &'static str) -> Result<Reader<'a>, RadiometricError> {
         let rec = self
             .records
             .iter()
             .find(|r| r.kind == kind)
             .ok_or_else(|| RadiometricError::format(what, "the file has no such record"))?;
-        let bytes = &self.bytes[rec.offset..rec.offset + rec.len];
-        let le = Reader {
-            bytes,
+        Ok(Reader {
+            bytes: &self.bytes[rec.offset..rec.offset + rec.len],
             big_endian: false,
             what,
-        };
+        })
+    }
+
+    /// The first record of type `kind` with its byte order, told by its first u16, which is 2.
+    fn record(&self, kind: u16, what: &'static str) -> Result<Reader<'a>, RadiometricError> {
+        let le = self.record_data(kind, what)?;
         let big_endian = match le.u16(0)? {
             2 => false,
             0x0200 => true,
@@ -416,17 +420,7 @@ impl Fff<'_> {
         kind: u16,
         what: &'static str,
     ) -> Result<Reader<'_>, RadiometricError> {
-        let rec = self
-            .records
-            .iter()
-            .find(|r| r.kind == kind)
-            .ok_or_else(|| RadiometricError::format(what, "the file has no such record"))?;
-        let bytes = &self.bytes[rec.offset..rec.offset + rec.len];
-        let le = Reader {
-            bytes,
-            big_endian: false,
-            what,
-        };
+        let le = self.record_data(kind, what)?;
         let big_endian = le.u32(0)? > 1
             && Reader {
                 big_endian: true,
