@@ -13,7 +13,7 @@ use clap::Args;
 use s3tir_capture::image_meta::{GeoPosition, ImageMeta};
 use s3tir_capture::radiometric::fff::RawEncoding;
 use s3tir_capture::radiometric::{
-    CameraInfo, Conditions, Radiometric, ThermalFile, Units, centikelvin_words, write_png16,
+    CameraInfo, Conditions, Radiometric, ThermalFile, Units, centikelvin_words,
 };
 use serde::Serialize;
 
@@ -144,27 +144,18 @@ impl InspectArgs {
             .conditions(&r.camera.conditions)
             .with_context(|| file.display().to_string())?;
         let kelvin = r.kelvin(&conditions);
-        let mut finite: Vec<f64> = kelvin.iter().copied().filter(|k| k.is_finite()).collect();
-        finite.sort_by(f64::total_cmp);
-        let written = match &self.out {
-            Some(out) => {
-                let path = output_path(out, file);
-                let words = centikelvin_words(&kelvin);
-                write_png16(&path, r.raw.width, r.raw.height, &words)?;
-                Some(path)
-            }
-            None => None,
-        };
+        let spread = Spread::of(&kelvin);
+        let written = self.write_kelvin(file, r.raw.width, r.raw.height, &kelvin)?;
         Ok(RadiometricSummary {
             width: r.raw.width,
             height: r.raw.height,
             encoding: r.raw.encoding,
             camera: r.camera,
             conditions_used: conditions,
-            kelvin_min: finite.first().copied().unwrap_or(f64::NAN),
-            kelvin_median: finite.get(finite.len() / 2).copied().unwrap_or(f64::NAN),
-            kelvin_max: finite.last().copied().unwrap_or(f64::NAN),
-            invalid_pixels: kelvin.len() - finite.len(),
+            kelvin_min: spread.min.unwrap_or(f64::NAN),
+            kelvin_median: spread.median.unwrap_or(f64::NAN),
+            kelvin_max: spread.max.unwrap_or(f64::NAN),
+            invalid_pixels: kelvin.len() - spread.finite,
             gps: r.gps,
             written,
         })
@@ -183,26 +174,69 @@ impl InspectArgs {
             anyhow::bail!("{}: not a scaled image", file.display());
         };
         let kelvin = f.kelvin();
-        let mut sorted = kelvin.clone().unwrap_or_default();
-        sorted.retain(|k| k.is_finite());
-        sorted.sort_by(f64::total_cmp);
-        let written = match (&self.out, &kelvin) {
-            (Some(out), Some(k)) => {
-                let path = output_path(out, file);
-                write_png16(&path, width, height, &centikelvin_words(k))?;
-                Some(path)
-            }
-            _ => None,
+        let spread = kelvin.as_deref().map(Spread::of).unwrap_or_default();
+        let written = match &kelvin {
+            Some(k) => self.write_kelvin(file, width, height, k)?,
+            None => None,
         };
         Ok(ScaledSummary {
             width,
             height,
             units,
-            kelvin_min: sorted.first().copied(),
-            kelvin_median: sorted.get(sorted.len() / 2).copied(),
-            kelvin_max: sorted.last().copied(),
+            kelvin_min: spread.min,
+            kelvin_median: spread.median,
+            kelvin_max: spread.max,
             written,
         })
+    }
+}
+
+impl InspectArgs {
+    /// With `--out`, `kelvin` as a 16-bit centikelvin PNG at [`output_path`] (written through
+    /// `image`, as `export` writes thermal frames); the path written.
+    fn write_kelvin(
+        &self,
+        file: &std::path::Path,
+        width: usize,
+        height: usize,
+        kelvin: &[f64],
+    ) -> Result<Option<PathBuf>> {
+        let Some(out) = &self.out else {
+            return Ok(None);
+        };
+        let path = output_path(out, file);
+        let size = |n: usize| u32::try_from(n).context("image too large");
+        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
+            size(width)?,
+            size(height)?,
+            centikelvin_words(kelvin),
+        )
+        .context("pixel count does not match the size")?;
+        img.save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        Ok(Some(path))
+    }
+}
+
+/// Smallest, median and largest finite value, and how many are finite.
+#[derive(Debug, Default)]
+struct Spread {
+    min: Option<f64>,
+    median: Option<f64>,
+    max: Option<f64>,
+    finite: usize,
+}
+
+impl Spread {
+    fn of(values: &[f64]) -> Self {
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        Self {
+            min: v.first().copied(),
+            median: v.get(v.len() / 2).copied(),
+            max: v.last().copied(),
+            finite: v.len(),
+        }
     }
 }
 

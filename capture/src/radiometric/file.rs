@@ -84,14 +84,7 @@ impl ThermalFile {
     /// Reads `path`; `units` says what a 16-bit or float grey image's values mean (required for
     /// those, unused for the others).
     pub fn read(path: &Path, units: Option<Units>) -> Result<Self, RadiometricError> {
-        let bytes = std::fs::read(path).map_err(|source| RadiometricError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::decode(&bytes, units).map_err(|e| RadiometricError::File {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })
+        super::read_file(path, |bytes| Self::decode(bytes, units))
     }
 
     /// [`ThermalFile::read`] of bytes in memory.

@@ -78,14 +78,7 @@ pub struct Radiometric {
 impl Radiometric {
     /// Reads a `.fff` frame or a radiometric JPEG (told apart by their first bytes).
     pub fn read(path: &Path) -> Result<Self, RadiometricError> {
-        let bytes = std::fs::read(path).map_err(|source| RadiometricError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::decode(&bytes).map_err(|e| RadiometricError::File {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })
+        read_file(path, Self::decode)
     }
 
     /// [`Radiometric::read`] of bytes in memory.
@@ -124,18 +117,6 @@ impl Radiometric {
         }))
     }
 
-    /// [`Radiometric::decode_if_radiometric`] of the file at `path`.
-    pub fn read_if_radiometric(path: &Path) -> Result<Option<Self>, RadiometricError> {
-        let bytes = std::fs::read(path).map_err(|source| RadiometricError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::decode_if_radiometric(&bytes).map_err(|e| RadiometricError::File {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })
-    }
-
     /// Kelvin per pixel under `conditions` (the file's own: `self.camera.conditions`).
     pub fn kelvin(&self, conditions: &Conditions) -> Vec<f64> {
         let model = RawToKelvin::new(&self.camera.planck, conditions);
@@ -162,42 +143,17 @@ pub fn centikelvin_words(kelvin: &[f64]) -> Vec<u16> {
         .collect()
 }
 
-/// Writes `words` (`width`×`height`) as a 16-bit grey PNG (built beside `path` and renamed into
-/// place: a failure leaves an existing file as it was).
-pub fn write_png16(
+/// `decode` of the file at `path`, its errors naming the file.
+pub(crate) fn read_file<T>(
     path: &Path,
-    width: usize,
-    height: usize,
-    words: &[u16],
-) -> Result<(), RadiometricError> {
-    let io = |source| RadiometricError::Io {
+    decode: impl FnOnce(&[u8]) -> Result<T, RadiometricError>,
+) -> Result<T, RadiometricError> {
+    let bytes = std::fs::read(path).map_err(|source| RadiometricError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let bad = |e: png::EncodingError| RadiometricError::File {
+    })?;
+    decode(&bytes).map_err(|e| RadiometricError::File {
         path: path.to_path_buf(),
-        source: Box::new(RadiometricError::format("16-bit PNG", e.to_string())),
-    };
-    let (w, h) = (
-        u32::try_from(width).map_err(|_| RadiometricError::format("16-bit PNG", "too wide"))?,
-        u32::try_from(height).map_err(|_| RadiometricError::format("16-bit PNG", "too high"))?,
-    );
-    if words.len() != width * height {
-        return Err(RadiometricError::format(
-            "16-bit PNG",
-            format!("{} words for {width}×{height}", words.len()),
-        ));
-    }
-    let tmp = path.with_extension("png.partial");
-    {
-        let file = std::fs::File::create(&tmp).map_err(io)?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
-        enc.set_color(png::ColorType::Grayscale);
-        enc.set_depth(png::BitDepth::Sixteen);
-        let mut writer = enc.write_header().map_err(bad)?;
-        let bytes: Vec<u8> = words.iter().flat_map(|x| x.to_be_bytes()).collect();
-        writer.write_image_data(&bytes).map_err(bad)?;
-        writer.finish().map_err(bad)?;
-    }
-    std::fs::rename(&tmp, path).map_err(io)
+        source: Box::new(e),
+    })
 }
