@@ -112,6 +112,11 @@ enum Command {
     /// same corners. Without: a synthetic Lepton + 720p set, our detection + joint solve next to
     /// OpenCV's stereoCalibrate on the same detections, printed as a ratio.
     Bench {
+        /// A folder of thermal images to pose (`poses DIR`'s defaults) instead: seconds per
+        /// stage of the folder stage (reading, orientation, registration, bundle adjustment,
+        /// writing), into a temporary dataset removed afterwards.
+        #[arg(long, value_name = "DIR", conflicts_with = "real")]
+        folder: Option<PathBuf>,
         /// A real board folder to benchmark on instead of the synthetic set.
         #[arg(long, value_name = "DIR")]
         real: Option<PathBuf>,
@@ -362,6 +367,10 @@ fn run() -> Result<()> {
             images,
         }) => run_detect(cols, rows, &images),
         Some(Command::Bench {
+            folder: Some(folder),
+            ..
+        }) => bench_folder(&folder),
+        Some(Command::Bench {
             real: Some(real), ..
         }) => {
             let figures = bench::run_real(&real, &ProgressBars::new())?;
@@ -401,5 +410,55 @@ fn run() -> Result<()> {
             run_tags(config, &images)
         }
         None => run_calibrate(&cli.calibrate),
+    }
+}
+
+/// `bench --folder DIR`: the folder stage's seconds per stage.
+fn bench_folder(dir: &std::path::Path) -> Result<()> {
+    use s3tir_calib::poses::folder::{FolderOptions, folder_to_dataset};
+    let out = std::env::temp_dir().join(format!("s3tir-calib-bench-folder-{}", std::process::id()));
+    let r = folder_to_dataset(dir, &out, &FolderOptions::default());
+    let _ = std::fs::remove_dir_all(&out);
+    let r = r?;
+    let t = &r.times;
+    println!(
+        "{}: {} images {}×{}, {} posed ({:?})",
+        dir.display(),
+        r.images,
+        r.camera.width_px,
+        r.camera.height_px,
+        r.views + r.held_out,
+        r.method
+    );
+    println!("reading and converting  {:>7.2} s", t.scan_s);
+    if let Some(p) = &r.plane {
+        println!("orientation (warp, CLAHE) {:>5.2} s", p.turn_s);
+        // The scales tried, then the one kept (listed again when the search ran).
+        let tries = p.scale_px_per_m.len().saturating_sub(1).max(1);
+        println!(
+            "registration + in-plane {:>7.2} s ({} candidate pairs, {tries} scale(s) tried: {:.2} s each)",
+            p.register_s,
+            p.candidate_pairs,
+            p.register_s / tries as f64
+        );
+        println!(
+            "bundle adjustment       {:>7.2} s ({} iterations, {} points, {} observations)",
+            p.bundle_s, p.bundle_iterations, p.points, p.observations
+        );
+    }
+    println!("posing (all)            {:>7.2} s", t.pose_s);
+    println!("writing the dataset     {:>7.2} s", t.write_s);
+    println!("total                   {:>7.2} s", t.total_s);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// clap checks a command's definition only when it is built: two options of one name
+    /// (e.g. flattened from two option groups) would panic at every start. This builds it.
+    #[test]
+    fn the_command_line_is_well_formed() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
     }
 }

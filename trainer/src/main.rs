@@ -156,3 +156,14 @@ fn run() -> Result<()> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// clap checks a command's definition only when it is built: two options of one name
+    /// (e.g. flattened from two option groups) would panic at every start. This builds it.
+    #[test]
+    fn the_command_line_is_well_formed() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
+}

@@ -11,13 +11,29 @@ use s3tir_calib::detect::scalar::load_scalar;
 use s3tir_calib::model::calfile::CalibrationFile;
 use s3tir_calib::poses::args::PosingArgs;
 use s3tir_calib::poses::board::BoardFiducial;
+use s3tir_calib::poses::folder::args::FolderArgs;
+use s3tir_calib::poses::folder::intrinsics::IntrinsicsArgs;
+use s3tir_calib::poses::folder::{self, FolderOptions};
 use s3tir_calib::poses::frames::Stream;
 use s3tir_calib::poses::{self, PosesOptions};
 use s3tir_calib::progress::Progress;
 use s3tir_calib::progress::bars::ProgressBars;
 
-/// Turn a recorded session into a posed thermal dataset (COLMAP layout) for `s3tir-train`.
+/// Turn a recorded session, or a folder of thermal images, into a posed thermal dataset
+/// (COLMAP layout) for `s3tir-train`.
 ///
+/// A folder (radiometric FLIR/DJI JPEGs, 16-bit TIFF/PNG with --units, or 8-bit pictures;
+/// thermal/ and rgb/ subfolders or DJI's _T/_W names pair RGB partners): every image read to
+/// temperatures, the camera from --calibration, --hfov-deg/--focal-px, EXIF or a known camera,
+/// and the shots posed by the method the metadata allows: the planar method (a facade or nadir
+/// survey with GPS and gimbal angles: images turned into one orientation, patches matched
+/// between neighbours around the shift GPS predicts, a bundle adjustment with the points near
+/// one plane and GPS/altitude/gimbal priors). It writes images/ (16-bit centikelvin, counts,
+/// or 8-bit grey, not undistorted), sparse/0/, holdout.txt and poses.json (every file's
+/// decision, the camera's source, the figures). With --board and --calibration each shot is
+/// posed by PnP on the calibration board instead (the board method).
+///
+/// A session:
 /// Structure from motion (COLMAP, CPU) runs on the RGB keyframes with the calibrated RGB
 /// camera fixed; each usable thermal frame gets the RGB pose interpolated to its capture time,
 /// composed with the calibrated rgb_from_thermal. A session without RGB runs COLMAP on the
@@ -30,7 +46,7 @@ use s3tir_calib::progress::bars::ProgressBars;
 /// output folder must not exist or be empty.
 #[derive(Debug, Args)]
 pub struct PosesArgs {
-    /// Recorded session (.mcap, from s3tir-capture).
+    /// Recorded session (.mcap, from s3tir-capture), or a folder of thermal images.
     session: PathBuf,
     /// Dataset folder to write (must not exist or be empty).
     #[arg(long)]
@@ -44,9 +60,12 @@ pub struct PosesArgs {
     /// it, RGB or thermal (an emissivity board shows in both), are posed by PnP on its corners
     /// in the board's frame (metres), and COLMAP does not run when enough are; otherwise it
     /// gives COLMAP's world its metric scale and checks its rotations, as --tags does. Not
-    /// with --tags.
+    /// with --tags. A folder of images: every shot is posed by PnP on the board (the board
+    /// method; needs --calibration).
     #[arg(long, conflicts_with = "tags")]
     board: Option<PathBuf>,
+    #[command(flatten)]
+    folder: FolderArgs,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -81,6 +100,25 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         Some(p) => Some(CalibrationFile::read(p)?),
         None => None,
     };
+    if a.session.is_dir() {
+        let calibration = a.posing.calibration.clone().zip(cal);
+        let opts = FolderOptions {
+            board: a.board.as_deref().map(board_fiducial).transpose()?,
+            holdout_every: a.holdout_every,
+            progress: (!a.json).then(|| Arc::new(ProgressBars::new()) as Arc<dyn Progress>),
+            ..a.folder.options(IntrinsicsArgs {
+                calibration,
+                ..IntrinsicsArgs::default()
+            })
+        };
+        let report = folder::folder_to_dataset(&a.session, &a.out, &opts)?;
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print!("{}", folder::summary(&report));
+        }
+        return Ok(());
+    }
     let opts = PosesOptions {
         board: a.board.as_deref().map(board_fiducial).transpose()?,
         holdout_every: a.holdout_every,

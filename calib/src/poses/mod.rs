@@ -85,6 +85,7 @@ pub mod args;
 pub mod board;
 pub mod dataset;
 pub mod fiducials;
+pub mod folder;
 pub mod frames;
 pub mod interp;
 mod output;
@@ -182,6 +183,17 @@ pub enum PosesError {
     BoardFinder {
         path: PathBuf,
         board: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A folder of images that cannot be posed as it is (a validation: no images, mixed
+    /// sizes or kinds, too few views registered).
+    #[error("{path}: {reason}")]
+    Folder { path: PathBuf, reason: String },
+    /// An image of a folder could not be read or decoded (its error says how).
+    #[error("{path}")]
+    ImageRead {
+        path: PathBuf,
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },

@@ -13,7 +13,7 @@ use clap::Args;
 use s3tir_capture::image_meta::{GeoPosition, ImageMeta};
 use s3tir_capture::radiometric::fff::RawEncoding;
 use s3tir_capture::radiometric::{
-    CameraInfo, Conditions, Radiometric, ThermalFile, Units, centikelvin_words,
+    CameraInfo, ConditionOverrides, Conditions, Radiometric, ThermalFile, Units, centikelvin_words,
 };
 use serde::Serialize;
 
@@ -29,27 +29,8 @@ pub struct InspectArgs {
     /// this folder.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Object emissivity [default: the file's].
-    #[arg(long)]
-    emissivity: Option<f64>,
-    /// Object distance, metres [default: the file's].
-    #[arg(long = "distance-m")]
-    distance_m: Option<f64>,
-    /// Reflected apparent temperature, °C [default: the file's].
-    #[arg(long = "reflected-c")]
-    reflected_c: Option<f64>,
-    /// Air temperature, °C [default: the file's].
-    #[arg(long = "atmosphere-c")]
-    atmosphere_c: Option<f64>,
-    /// Relative humidity, per cent [default: the file's].
-    #[arg(long = "humidity-percent")]
-    humidity_percent: Option<f64>,
-    /// IR window temperature, °C [default: the file's].
-    #[arg(long = "window-c")]
-    window_c: Option<f64>,
-    /// IR window transmission (1: no window) [default: the file's].
-    #[arg(long = "window-transmission")]
-    window_transmission: Option<f64>,
+    #[command(flatten)]
+    conditions: ConditionOverrides,
     /// What the values of 16-bit or float grey PNG/TIFF files are (the files do not say):
     /// kelvin, decikelvin, centikelvin, millikelvin, celsius, decicelsius, centicelsius,
     /// millicelsius, or raw (counts, no temperature).
@@ -104,44 +85,10 @@ struct RadiometricSummary {
 }
 
 impl InspectArgs {
-    /// The file's conditions with the command line's overrides, checked.
-    fn conditions(&self, file: &Conditions) -> Result<Conditions> {
-        let c = Conditions {
-            emissivity: self.emissivity.unwrap_or(file.emissivity),
-            object_distance_m: self.distance_m.unwrap_or(file.object_distance_m),
-            reflected_k: self.reflected_c.map_or(file.reflected_k, |c| c + 273.15),
-            atmosphere_k: self.atmosphere_c.map_or(file.atmosphere_k, |c| c + 273.15),
-            relative_humidity: self
-                .humidity_percent
-                .map_or(file.relative_humidity, |p| p / 100.0),
-            window_k: self.window_c.map_or(file.window_k, |c| c + 273.15),
-            window_transmission: self.window_transmission.unwrap_or(file.window_transmission),
-        };
-        let ok = c.emissivity > 0.0
-            && c.emissivity <= 1.0
-            && c.object_distance_m >= 0.0
-            && (0.0..=1.0).contains(&c.relative_humidity)
-            && c.window_transmission > 0.0
-            && c.window_transmission <= 1.0
-            && [c.reflected_k, c.atmosphere_k, c.window_k]
-                .iter()
-                .all(|k| k.is_finite() && *k > 0.0);
-        if !ok {
-            anyhow::bail!(
-                "conditions out of range: emissivity {} (0–1], distance {} m (≥ 0), humidity \
-                 {} (0–100 %), window transmission {} (0–1], temperatures above 0 K",
-                c.emissivity,
-                c.object_distance_m,
-                c.relative_humidity * 100.0,
-                c.window_transmission
-            );
-        }
-        Ok(c)
-    }
-
     fn radiometric(&self, file: &std::path::Path, r: Radiometric) -> Result<RadiometricSummary> {
         let conditions = self
-            .conditions(&r.camera.conditions)
+            .conditions
+            .apply(&r.camera.conditions)
             .with_context(|| file.display().to_string())?;
         let kelvin = r.kelvin(&conditions);
         let spread = Spread::of(&kelvin);

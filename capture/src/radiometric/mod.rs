@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 
 pub use fff::{CameraInfo, Fff, RawThermal};
 pub use file::{ThermalFile, Units};
-pub use planck::{Conditions, PlanckCurve, RawToKelvin};
+pub use planck::{ConditionOverrides, Conditions, PlanckCurve, RawToKelvin};
 
 /// The largest raw image accepted (a 1280×1024 core has 1.3 M pixels).
 pub const MAX_PIXELS: usize = 8 << 20;

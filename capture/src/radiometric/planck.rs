@@ -46,6 +46,78 @@ pub struct Conditions {
     pub window_transmission: f64,
 }
 
+/// The command line's overrides of a file's [`Conditions`] (each `None`: the file's own), the one
+/// definition of these options for every command that converts radiometric files
+/// (`s3tir-capture inspect`, `s3tir-calib poses DIR`). With the `clap` feature they are a
+/// flattenable `clap::Args` group.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct ConditionOverrides {
+    /// Object emissivity [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub emissivity: Option<f64>,
+    /// Object distance, metres [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "distance-m"))]
+    pub distance_m: Option<f64>,
+    /// Reflected apparent temperature, °C [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "reflected-c"))]
+    pub reflected_c: Option<f64>,
+    /// Air temperature, °C [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "atmosphere-c"))]
+    pub atmosphere_c: Option<f64>,
+    /// Relative humidity, per cent [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "humidity-percent"))]
+    pub humidity_percent: Option<f64>,
+    /// IR window temperature, °C [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "window-c"))]
+    pub window_c: Option<f64>,
+    /// IR window transmission (1: no window) [default: the file's].
+    #[cfg_attr(feature = "clap", arg(long = "window-transmission"))]
+    pub window_transmission: Option<f64>,
+}
+
+impl ConditionOverrides {
+    /// `file`'s conditions with these overrides, checked (emissivity in (0, 1], distance ≥ 0,
+    /// humidity 0–100 %, window transmission in (0, 1], temperatures above 0 K).
+    pub fn apply(&self, file: &Conditions) -> Result<Conditions, super::RadiometricError> {
+        let c = Conditions {
+            emissivity: self.emissivity.unwrap_or(file.emissivity),
+            object_distance_m: self.distance_m.unwrap_or(file.object_distance_m),
+            reflected_k: self.reflected_c.map_or(file.reflected_k, |c| c + 273.15),
+            atmosphere_k: self.atmosphere_c.map_or(file.atmosphere_k, |c| c + 273.15),
+            relative_humidity: self
+                .humidity_percent
+                .map_or(file.relative_humidity, |p| p / 100.0),
+            window_k: self.window_c.map_or(file.window_k, |c| c + 273.15),
+            window_transmission: self.window_transmission.unwrap_or(file.window_transmission),
+        };
+        let ok = c.emissivity > 0.0
+            && c.emissivity <= 1.0
+            && c.object_distance_m >= 0.0
+            && (0.0..=1.0).contains(&c.relative_humidity)
+            && c.window_transmission > 0.0
+            && c.window_transmission <= 1.0
+            && [c.reflected_k, c.atmosphere_k, c.window_k]
+                .iter()
+                .all(|k| k.is_finite() && *k > 0.0);
+        if ok {
+            Ok(c)
+        } else {
+            Err(super::RadiometricError::format(
+                "conditions",
+                format!(
+                    "out of range: emissivity {} (0–1], distance {} m (≥ 0), humidity {} (0–100 %), \
+                     window transmission {} (0–1], temperatures above 0 K",
+                    c.emissivity,
+                    c.object_distance_m,
+                    c.relative_humidity * 100.0,
+                    c.window_transmission
+                ),
+            ))
+        }
+    }
+}
+
 impl PlanckCurve {
     /// The raw word a black body at `kelvin` gives.
     pub fn raw_of_black_body(&self, kelvin: f64) -> f64 {

@@ -29,6 +29,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
     {
         session_dataset(&a, &data, &out)?
+    } else if !a.resume && image_folder(&data) {
+        folder_dataset(&a, &data, &out)?
     } else {
         data
     };
@@ -160,6 +162,32 @@ fn train_vulkan(
 #[cfg(feature = "session")]
 fn session_dataset(a: &TrainArgs, session: &Path, out: &Path) -> Result<std::path::PathBuf> {
     pose_session(a, session, out)
+}
+
+/// Whether DATA is a folder of images to pose (feature `session`).
+#[cfg(feature = "session")]
+fn image_folder(data: &Path) -> bool {
+    super::session::is_image_folder(data)
+}
+
+#[cfg(not(feature = "session"))]
+fn image_folder(_: &Path) -> bool {
+    false
+}
+
+/// `s3tir-train IMAGES_DIR`: the posed dataset (feature `session`).
+#[cfg(feature = "session")]
+fn folder_dataset(a: &TrainArgs, dir: &Path, out: &Path) -> Result<std::path::PathBuf> {
+    super::session::pose_folder(a, dir, out)
+}
+
+#[cfg(not(feature = "session"))]
+fn folder_dataset(_: &TrainArgs, dir: &Path, _: &Path) -> Result<std::path::PathBuf> {
+    bail!(
+        "{} is a folder of images, but this s3tir-train was built without the `session` feature: pose it with `s3tir-calib poses {}`",
+        dir.display(),
+        dir.display()
+    )
 }
 
 /// Without the `session` feature a recorded session is refused with what to do instead.

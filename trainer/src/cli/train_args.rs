@@ -14,13 +14,14 @@ use s3tir_trainer::train::{
 /// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
 #[derive(Debug, Args)]
 pub struct TrainArgs {
-    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`), or a session recorded by
-    /// s3tir-capture (`.mcap`): it is posed first (`s3tir-calib poses`: COLMAP on the RGB
-    /// keyframes, thermal poses interpolated and composed with the calibrated extrinsic) into
-    /// --dataset, then trained on.
+    /// Dataset folder (COLMAP `sparse/0/` or `sparse/` + `images/`), a session recorded by
+    /// s3tir-capture (`.mcap`), or a folder of thermal images (radiometric JPEGs, TIFFs, DJI
+    /// shots with GPS and gimbal angles): a session or an image folder is posed first
+    /// (`s3tir-calib poses`) into --dataset, then trained on.
     #[arg(required = true)]
     pub data: Option<PathBuf>,
-    /// Session input: where to write the posed dataset [default: RUN_DIR-dataset beside the run].
+    /// Session or folder input: where to write the posed dataset [default: RUN_DIR-dataset
+    /// beside the run].
     #[cfg(feature = "session")]
     #[arg(long)]
     pub dataset: Option<PathBuf>,
@@ -29,6 +30,14 @@ pub struct TrainArgs {
     #[cfg(feature = "session")]
     #[command(flatten, next_help_heading = "Session input (posing a recorded .mcap)")]
     pub posing: s3tir_calib::poses::args::PosingArgs,
+    /// Folder input: how a folder of thermal images is read and posed (`s3tir-calib poses
+    /// DIR`'s options; --calibration and --holdout serve it too).
+    #[cfg(feature = "session")]
+    #[command(
+        flatten,
+        next_help_heading = "Folder input (posing a folder of thermal images)"
+    )]
+    pub folder: s3tir_calib::poses::folder::args::FolderArgs,
     /// Run folder (checkpoint, metrics.csv, plots, PLY, renders and G-buffers of the held-out
     /// views: grey PNGs plus exact f32 `.npy` planes, capacity.json, eval.json).
     #[arg(long, required = true)]

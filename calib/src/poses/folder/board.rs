@@ -1,0 +1,182 @@
+//! The board method: every shot sees the calibration board (a hand-held survey of a heated
+//! board, sun-board's 47 views), so each is posed on its own by PnP on the board's squares in
+//! the board's frame (metres; the board plane is z = 0, its z pointing away from the cameras),
+//! with the calibrated thermal camera (`--calibration`: the board's corners are only as good as
+//! the distortion model they are undistorted with). The board machinery is the session stage's
+//! ([`crate::poses::board`]: the board as a map of square "tags", the finder passed in by
+//! `s3tir-calib`, whose OpenCV front end finds chessboards).
+//!
+//! **The 180° ambiguity.** In a thermal image the coated and bare squares' polarity is not
+//! known, so a found corner grid can be the board turned half a turn. Both orders are posed;
+//! the one with the camera on the board's front side (z < 0) wins, and between two such, the
+//! one whose camera is nearest the previous shot's (shots sorted by name follow the hand).
+//!
+//! A shot where the board is not found, or whose PnP reprojects above
+//! [`crate::poses::fiducials::pnp::MAX_PNP_RMS_PX`], is left out with that reason. Seed points:
+//! the board's plane seen through each posed view.
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::super::PosesError;
+use super::super::board::BoardFiducial;
+use super::super::fiducials::{MAX_PNP_RMS_PX, TagPose, pnp};
+use super::super::frames::Stream;
+use super::Posing;
+use super::scan::Folder;
+use crate::model::camera::CameraModel;
+use crate::model::colmap::ColmapPoint;
+use crate::progress::Progress;
+
+/// What the board method measured (in `poses.json`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct BoardFigures {
+    pub board_found: usize,
+    pub posed: usize,
+    pub pnp_rms_px_median: f64,
+    pub pnp_rms_px_max: f64,
+    /// Camera height above the board, metres: min and max.
+    pub height_m: [f64; 2],
+}
+
+/// The shot's two PnP candidates (the grid as found and turned half a turn).
+fn candidates(
+    board: &BoardFiducial,
+    cam: &CameraModel,
+    corners: &[(usize, DVec2)],
+) -> Vec<TagPose> {
+    let n = (board.cols * board.rows) as usize;
+    let map = board.as_tag_map();
+    let turned: Vec<(usize, DVec2)> = corners.iter().map(|&(i, p)| (n - 1 - i, p)).collect();
+    [corners.to_vec(), turned]
+        .iter()
+        .filter_map(|c| pnp(&map, cam, &board.squares_seen(c)))
+        .collect()
+}
+
+/// Poses every shot on the board (module docs).
+pub fn pose(
+    folder: &Folder,
+    cam: &CameraModel,
+    board: &BoardFiducial,
+    progress: &dyn Progress,
+) -> Result<(Posing, BoardFigures), PosesError> {
+    progress.start("finding the board", Some(folder.shots.len() as u64));
+    let found: Vec<Result<Vec<(usize, DVec2)>, PosesError>> = folder
+        .shots
+        .par_iter()
+        .map(|s| {
+            let r =
+                (board.find)(&s.path, Stream::Thermal).map_err(|source| PosesError::BoardFinder {
+                    path: s.path.clone(),
+                    board: board.path.clone(),
+                    source,
+                });
+            progress.advance(1);
+            r
+        })
+        .collect();
+    progress.finish();
+    let mut figures = BoardFigures::default();
+    let mut posed = Vec::new();
+    let mut left_out = Vec::new();
+    let mut rms = Vec::new();
+    let mut prev: Option<DVec3> = None;
+    for (i, f) in found.into_iter().enumerate() {
+        let corners = f?;
+        if corners.len() < 4 {
+            left_out.push((i, "the board is not found".to_owned()));
+            continue;
+        }
+        figures.board_found += 1;
+        let best = candidates(board, cam, &corners).into_iter().min_by(|a, b| {
+            let key = |p: &TagPose| {
+                let c = p.world_from_cam.translation_m;
+                (u8::from(c.z >= 0.0), prev.map_or(0.0, |q| (c - q).length()))
+            };
+            let (ka, kb) = (key(a), key(b));
+            ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
+        });
+        match best {
+            Some(p) if p.world_from_cam.translation_m.z < 0.0 => {
+                prev = Some(p.world_from_cam.translation_m);
+                rms.push(p.rms_px);
+                posed.push((i, p.world_from_cam));
+            }
+            Some(_) => left_out.push((i, "the camera would be behind the board".to_owned())),
+            None => left_out.push((
+                i,
+                format!("PnP on the board reprojects above {} px", MAX_PNP_RMS_PX),
+            )),
+        }
+    }
+    if posed.len() < 3 {
+        return Err(PosesError::Folder {
+            path: folder.dir.clone(),
+            reason: format!(
+                "the board ({}) was found in {} and posed in {} of {} images (at least 3 needed): check its inner-corner count and that the views see it whole",
+                board.path.display(),
+                figures.board_found,
+                posed.len(),
+                folder.shots.len()
+            ),
+        });
+    }
+    rms.sort_by(f64::total_cmp);
+    figures.posed = posed.len();
+    figures.pnp_rms_px_median = rms[rms.len() / 2];
+    figures.pnp_rms_px_max = rms[rms.len() - 1];
+    let heights: Vec<f64> = posed.iter().map(|p| -p.1.translation_m.z).collect();
+    figures.height_m = [
+        heights.iter().copied().fold(f64::INFINITY, f64::min),
+        heights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    ];
+    let points = plane_seeds(folder, cam, &posed);
+    Ok((
+        Posing {
+            posed,
+            left_out,
+            points,
+        },
+        figures,
+    ))
+}
+
+/// The board plane z = 0 seen through each posed view, every 8th pixel, with the shot's grey
+/// value (16-bit words scaled to 0–255 by the folder's range).
+fn plane_seeds(
+    folder: &Folder,
+    cam: &CameraModel,
+    posed: &[(usize, crate::model::geometry::Rigid3)],
+) -> Vec<ColmapPoint> {
+    let grey = folder.grey_for_matching();
+    let (w, h) = (cam.width_px as usize, cam.height_px as usize);
+    let mut points = Vec::new();
+    for (i, world_from_cam) in posed {
+        let c = world_from_cam.translation_m;
+        for y in (4..h).step_by(8) {
+            for x in (4..w).step_by(8) {
+                let Some(ray) = cam.unproject(DVec2::new(x as f64, y as f64)) else {
+                    continue;
+                };
+                let d = world_from_cam.transform_vector(ray);
+                if d.z.abs() < 1e-9 {
+                    continue;
+                }
+                let s = -c.z / d.z;
+                if s <= 0.0 {
+                    continue;
+                }
+                let p = c + d * s;
+                let g = grey[*i][y * w + x].round().clamp(0.0, 255.0) as u8;
+                points.push(ColmapPoint {
+                    id: points.len() as u64 + 1,
+                    position_m: p.to_array(),
+                    rgb: [g, g, g],
+                });
+            }
+        }
+    }
+    points
+}
