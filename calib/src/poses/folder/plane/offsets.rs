@@ -100,25 +100,29 @@ mod tests {
 
     #[test]
     fn offsets_follow_the_pairs_and_a_wrong_pair_is_dropped() {
-        // Five shots in a row 200 px apart; GPS off by up to 60 px; one pair matched a repeated
-        // window 150 px away.
-        let truth = [0.0, 200.0, 400.0, 600.0, 800.0];
-        let gps = [30.0, 140.0, 460.0, 560.0, 830.0];
+        // Ten shots in a row 200 px apart, each registered with its next three; GPS off by up
+        // to 60 px; one pair matched a repeated window 150 px away.
+        let n = 10;
+        let truth: Vec<f64> = (0..n).map(|i| 200.0 * i as f64).collect();
+        let gps: Vec<f64> = (0..n)
+            .map(|i| truth[i] + [30.0, -60.0, 60.0, -40.0, 30.0][i % 5])
+            .collect();
         let mut pairs = PairShifts::new();
-        for i in 0..5 {
-            for j in i + 1..(i + 3).min(5) {
+        for i in 0..n {
+            for j in i + 1..(i + 4).min(n) {
                 pairs.insert((i, j), [-(truth[j] - truth[i]), 0.0]);
             }
         }
-        pairs.insert((1, 2), [-(200.0 + 150.0), 0.0]);
+        pairs.insert((4, 5), [-(200.0 + 150.0), 0.0]);
         let prior: Vec<Option<[f64; 2]>> = gps.iter().map(|&g| Some([g, 0.0])).collect();
         let o = solve(&pairs, &prior, 0.5 * 215.0).expect("solvable");
         assert!(
-            !o.agreeing.contains(&(1, 2)),
+            !o.agreeing.contains(&(4, 5)),
             "the wrong pair is dropped: {:?}",
             o.agreeing
         );
-        for i in 1..5 {
+        assert_eq!(o.agreeing.len(), pairs.len() - 1, "every right pair kept");
+        for i in 1..n {
             let rel = (o.offsets[i][0] - o.offsets[0][0]) - (truth[i] - truth[0]);
             assert!(rel.abs() < 1.0, "shot {i} relative offset off by {rel} px");
         }
