@@ -266,15 +266,15 @@ fn mcap_input_without_board_is_refused_with_a_clear_error() {
     );
 }
 
-/// An error is printed once: `poses` given a folder instead of a session says so in one
-/// `error: …` line, each level of the cause chain once — the OS cause ("Is a directory") once
-/// in all of stderr, the folder's path at most once on any line — with no `Caused by:` list
-/// repeating the causes under it.
+/// An error is printed once: `poses` given a session that does not exist says so in one
+/// `error: …` line, each level of the cause chain once — the OS cause ("No such file or
+/// directory") once in all of stderr, the session's path at most once on any line — with no
+/// `Caused by:` list repeating the causes under it. (A folder is an input of its own now: a
+/// folder of images.)
 #[test]
 fn an_error_is_printed_once() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("not-a-session");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmp.path().join("missing.mcap");
     let result = Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
         .arg("poses")
         .arg(&dir)
@@ -285,7 +285,7 @@ fn an_error_is_printed_once() {
         .unwrap();
     assert!(
         !result.status.success(),
-        "a folder is not a session: must fail"
+        "a session that does not exist: must fail"
     );
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(
@@ -293,20 +293,20 @@ fn an_error_is_printed_once() {
         "expected one `error: …` line in stderr: {stderr}"
     );
     assert_eq!(
-        stderr.matches("Is a directory").count(),
+        stderr.matches("No such file or directory").count(),
         1,
-        "expected the OS cause \"Is a directory\" exactly once in stderr: {stderr}"
+        "expected the OS cause \"No such file or directory\" exactly once in stderr: {stderr}"
     );
     let path = dir.display().to_string();
     for line in stderr.lines() {
         assert!(
             line.matches(path.as_str()).count() <= 1,
-            "expected the folder's path at most once per line, {line:?} repeats it; stderr: {stderr}"
+            "expected the session's path at most once per line, {line:?} repeats it; stderr: {stderr}"
         );
     }
     assert!(
         stderr.contains(&path),
-        "expected the error to name the folder {path}: {stderr}"
+        "expected the error to name the session {path}: {stderr}"
     );
     assert!(
         !stderr.contains("Caused by"),
