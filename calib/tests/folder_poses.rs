@@ -5,10 +5,9 @@
 //!   most 0.4 px (the figures: what scripts/real-data/thermal_facade_dataset.py
 //!   reached, 89/93 and 0.37 px), and the dataset it writes reads back through the workspace's
 //!   COLMAP codec with one image file per posed view, the held-out list naming posed views.
-//! - On the real sun-board set (47 thermal + RGB pairs of a heated board, no metadata): with
-//!   the board and the folder's own calibration (`s3tir-calib DIR` first), the board method
-//!   poses at least the 32 views scripts/real-data/sun_board_dataset.py posed, each by PnP
-//!   within the stage's 2 px, every camera above the board.
+//! - The board method without `--calibration`, and `--with-rgb` on a folder without RGB
+//!   partners, are refused before anything is written (sun-board posed on its board, with its
+//!   RGB partners, and trained on: tests/tests/folder_sun_board.rs).
 //! - Bad folders each fail with an error naming the folder or file and the problem, and leave
 //!   no dataset behind: no images, three image sizes, images without GPS/gimbal metadata, a
 //!   truncated radiometric file.
@@ -130,8 +129,10 @@ fn thermal_facade_folder_is_posed_by_the_planar_method() {
     }
 }
 
+/// The board method and `--with-rgb` say what they need before anything is written (the
+/// posed run on sun-board, calibration first, is tests/tests/folder_sun_board.rs).
 #[test]
-fn sun_board_folder_is_posed_on_the_board() {
+fn board_and_rgb_partners_need_what_they_need() {
     let set = common::shared_data("sun-board");
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("sun-board");
@@ -145,62 +146,54 @@ fn sun_board_folder_is_posed_on_the_board() {
         "[board]\ninner_corners = [6, 5]\nsquare_mm = 100.0\n",
     )
     .unwrap();
-    let cal = tmp.path().join("cal/calibration.yaml");
-    let o = calib().arg(&dir).arg("--out").arg(&cal).output().unwrap();
-    assert!(
-        o.status.success(),
-        "calibration failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
     let out = tmp.path().join("ds");
     let o = calib()
         .arg("poses")
         .arg(&dir)
         .arg("--board")
         .arg(&board)
-        .arg("--calibration")
-        .arg(&cal)
         .arg("--out")
         .arg(&out)
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "poses failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let b = &r["board"];
-    eprintln!("sun-board: {b}");
-    assert_eq!(r["method"], "board");
-    let posed = b["posed"].as_u64().unwrap();
-    assert!(
-        posed >= 32,
-        "at least the script's 32 views posed, got {posed}"
-    );
-    assert!(
-        b["pnp_rms_px_max"].as_f64().unwrap() <= 2.0,
-        "every PnP within 2 px: {b}"
-    );
-    let h = b["height_m"].as_array().unwrap();
-    assert!(h[0].as_f64().unwrap() > 0.3, "cameras above the board: {b}");
-    let model = s3tir_calib::model::colmap::read_model(&out.join("sparse/0")).unwrap();
-    assert_eq!(model.images.len() as u64, posed);
-    // Without the calibration the board method is refused, saying what to do.
-    let o = calib()
-        .arg("poses")
-        .arg(&dir)
-        .arg("--board")
-        .arg(&board)
-        .arg("--out")
-        .arg(tmp.path().join("ds2"))
         .output()
         .unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && e.contains("--calibration"),
         "board without calibration: {e}"
+    );
+    assert!(
+        !out.exists(),
+        "a refused folder left {} behind",
+        out.display()
+    );
+
+    // --with-rgb on a folder without partners.
+    let facade = tmp.path().join("facade");
+    std::fs::create_dir_all(&facade).unwrap();
+    for n in ["DJI_0440.JPG", "DJI_0442.JPG", "DJI_0444.JPG"] {
+        std::fs::copy(
+            common::shared_data("thermal-facade/images").join(n),
+            facade.join(n),
+        )
+        .unwrap();
+    }
+    let o = calib()
+        .arg("poses")
+        .arg(&facade)
+        .arg("--with-rgb")
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("no thermal image has an RGB partner"),
+        "--with-rgb without partners: {e}"
+    );
+    assert!(
+        !out.exists(),
+        "a refused folder left {} behind",
+        out.display()
     );
 }
 

@@ -30,6 +30,15 @@ pub fn bin(name: &str) -> PathBuf {
     path
 }
 
+/// A real data set of `../shared/data` (the workspace's sibling), or of `$S3TIR_SHARED_DIR/data`.
+pub fn shared_data(set: &str) -> PathBuf {
+    std::env::var_os("S3TIR_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
+        .join("data")
+        .join(set)
+}
+
 /// Runs `cmd` (described as `what` in failures) and returns its stdout; panics with both
 /// outputs when it cannot start or exits with failure.
 pub fn run_ok(cmd: &mut Command, what: &str) -> String {

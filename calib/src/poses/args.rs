@@ -91,7 +91,9 @@ pub struct PosingArgs {
     /// Also write every posed RGB keyframe (images/rgb_SEQUENCE.png as recorded, 8-bit RGB;
     /// the calibrated RGB camera as camera 2; its pose in the thermal views' world; those
     /// around held-out thermal views held out too), for joint RGB + thermal training. An error
-    /// on a session without RGB.
+    /// on a session without RGB. A folder of images: the posed shots' RGB partners
+    /// (images/rgb_STEM.png; posed by PnP on the board with --board, else by the calibration's
+    /// extrinsic; needs --calibration with the RGB camera).
     #[arg(long)]
     pub with_rgb: bool,
 }

@@ -53,6 +53,7 @@ pub fn pose_folder(a: &TrainArgs, dir: &Path, out: &Path) -> Result<PathBuf> {
         None => None,
     };
     let opts = FolderOptions {
+        with_rgb: a.posing.with_rgb,
         holdout_every: a.holdout,
         progress: Some(std::sync::Arc::new(
             s3tir_calib::progress::bars::ProgressBars::new(),

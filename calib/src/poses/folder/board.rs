@@ -55,6 +55,66 @@ fn candidates(
         .collect()
 }
 
+/// Of a shot's PnP candidates, the one with its camera in front of the board (z < 0) and, among
+/// those, nearest `near` (module docs).
+fn choose(cands: Vec<TagPose>, near: Option<DVec3>) -> Option<TagPose> {
+    cands.into_iter().min_by(|a, b| {
+        let key = |p: &TagPose| {
+            let c = p.world_from_cam.translation_m;
+            (u8::from(c.z >= 0.0), near.map_or(0.0, |q| (c - q).length()))
+        };
+        let (ka, kb) = (key(a), key(b));
+        ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
+    })
+}
+
+/// The RGB partners of posed thermal shots, posed by PnP on the board in their own image with
+/// the calibrated RGB camera (`--with-rgb`): of the two orders, the one in front of the board
+/// nearest the partner thermal camera (the two lenses are centimetres apart). `None` where the
+/// board is not found in the partner or PnP fails the stage's bound (the caller then composes
+/// the calibrated extrinsic, or leaves the view out).
+pub fn pose_partners(
+    folder: &Folder,
+    rgb_cam: &CameraModel,
+    board: &BoardFiducial,
+    thermal: &[(usize, crate::model::geometry::Rigid3)],
+    progress: &dyn Progress,
+) -> Result<Vec<Option<TagPose>>, PosesError> {
+    progress.start(
+        "finding the board in the RGB partners",
+        Some(thermal.len() as u64),
+    );
+    let found: Result<Vec<Option<TagPose>>, PosesError> = thermal
+        .par_iter()
+        .map(|(i, world_from_thermal)| {
+            let r = match &folder.shots[*i].rgb {
+                None => Ok(None),
+                Some(path) => (board.find)(path, Stream::Rgb)
+                    .map_err(|source| PosesError::BoardFinder {
+                        path: path.clone(),
+                        board: board.path.clone(),
+                        source,
+                    })
+                    .map(|corners| {
+                        (corners.len() >= 4)
+                            .then(|| {
+                                choose(
+                                    candidates(board, rgb_cam, &corners),
+                                    Some(world_from_thermal.translation_m),
+                                )
+                            })
+                            .flatten()
+                            .filter(|p| p.world_from_cam.translation_m.z < 0.0)
+                    }),
+            };
+            progress.advance(1);
+            r
+        })
+        .collect();
+    progress.finish();
+    found
+}
+
 /// Poses every shot on the board (module docs).
 pub fn pose(
     folder: &Folder,
@@ -90,15 +150,7 @@ pub fn pose(
             continue;
         }
         figures.board_found += 1;
-        let best = candidates(board, cam, &corners).into_iter().min_by(|a, b| {
-            let key = |p: &TagPose| {
-                let c = p.world_from_cam.translation_m;
-                (u8::from(c.z >= 0.0), prev.map_or(0.0, |q| (c - q).length()))
-            };
-            let (ka, kb) = (key(a), key(b));
-            ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
-        });
-        match best {
+        match choose(candidates(board, cam, &corners), prev) {
             Some(p) if p.world_from_cam.translation_m.z < 0.0 => {
                 prev = Some(p.world_from_cam.translation_m);
                 rms.push(p.rms_px);

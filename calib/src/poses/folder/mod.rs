@@ -28,12 +28,16 @@
 //!    sessions); `sparse/0/` with the posed shots and seed points; `holdout.txt` (every
 //!    `holdout_every`-th posed shot by name); `poses.json` ([`FolderReport`]: every shot's
 //!    decision and why, the camera's source, the method's figures, the conditions used).
+//!    With `--with-rgb` ([`FolderOptions::with_rgb`], [`rgb`]): the posed shots' RGB partners
+//!    as `images/rgb_STEM.png` with the calibrated RGB camera as camera 2 — the session
+//!    stage's joint layout, for joint RGB + thermal training.
 
 pub mod args;
 pub mod board;
 pub mod geo;
 pub mod intrinsics;
 pub mod plane;
+pub mod rgb;
 pub mod scan;
 
 use std::path::{Path, PathBuf};
@@ -44,6 +48,7 @@ use s3tir_capture::radiometric::{ConditionOverrides, Conditions, Units};
 use serde::Serialize;
 
 use super::PosesError;
+use super::dataset::{RGB_CAMERA_ID, THERMAL_CAMERA_ID};
 use super::output::{finish_output, start_output};
 use crate::model::camera::CameraModel;
 use crate::model::colmap::{
@@ -89,6 +94,8 @@ pub struct FolderOptions {
     pub holdout_every: usize,
     /// At most this many seed points (evenly thinned).
     pub max_points: usize,
+    /// Also write the posed shots' RGB partners (`--with-rgb`, [`rgb`]).
+    pub with_rgb: bool,
     #[serde(skip)]
     pub progress: Option<Arc<dyn Progress>>,
 }
@@ -104,6 +111,7 @@ impl Default for FolderOptions {
             board: None,
             holdout_every: 8,
             max_points: 30_000,
+            with_rgb: false,
             progress: None,
         }
     }
@@ -139,6 +147,9 @@ pub struct ShotDecision {
     /// Why it was left out.
     pub left_out: Option<String>,
     pub rgb_partner: Option<String>,
+    /// The partner's dataset image (`--with-rgb`), or why it was left out.
+    pub rgb_image: Option<String>,
+    pub rgb_left_out: Option<String>,
 }
 
 /// Seconds per step.
@@ -173,6 +184,8 @@ pub struct FolderReport {
     pub seed_points: usize,
     pub plane: Option<plane::PlaneFigures>,
     pub board: Option<board::BoardFigures>,
+    /// The RGB partners (`--with-rgb`).
+    pub rgb: Option<rgb::RgbFigures>,
     pub notes: Vec<String>,
     pub times: FolderTimes,
     pub shots: Vec<ShotDecision>,
@@ -240,6 +253,11 @@ pub fn folder_to_dataset(
             why: "no --calibration given (the board's corners are undistorted with it; calibrate the folder first: s3tir-calib DIR --out calibration.yaml with DIR/board.toml)".to_owned(),
         });
     }
+    let rgb_rig = if opts.with_rgb {
+        Some(rgb::rgb_rig(&folder, &opts.intrinsics, method)?)
+    } else {
+        None
+    };
     // Only now (inputs checked) is anything created.
     let partial = start_output(out)?;
     let t = std::time::Instant::now();
@@ -272,9 +290,22 @@ pub fn folder_to_dataset(
             (posing, Some(fig), None)
         }
     };
+    let rgb = match &rgb_rig {
+        Some(r) => {
+            let board = opts.board.as_ref().filter(|_| method == Method::Board);
+            let (views, left_out, figures) = rgb::pose_rgb(&folder, &posing, r, board, progress)?;
+            Some(RgbOut {
+                rig: *r,
+                views,
+                left_out,
+                figures,
+            })
+        }
+        None => None,
+    };
     times.pose_s = t.elapsed().as_secs_f64();
     let t = std::time::Instant::now();
-    let (shots, points) = write_dataset(&partial, &folder, &camera, &posing, opts)?;
+    let (shots, points, rgb) = write_dataset(&partial, &folder, &camera, &posing, rgb, opts)?;
     times.write_s = t.elapsed().as_secs_f64();
     times.total_s = t_all.elapsed().as_secs_f64();
     let report = FolderReport {
@@ -303,6 +334,7 @@ pub fn folder_to_dataset(
         seed_points: points,
         plane: plane_figures,
         board: board_figures,
+        rgb,
         notes,
         times,
         shots,
@@ -346,15 +378,24 @@ fn write_err(path: &Path, e: impl Into<Box<dyn std::error::Error + Send + Sync>>
     }
 }
 
-/// Writes images, the COLMAP model and `holdout.txt`; returns every shot's decision and the
-/// number of seed points written.
+/// The posed RGB partners, for [`write_dataset`].
+struct RgbOut {
+    rig: rgb::RgbRig,
+    views: Vec<rgb::RgbView>,
+    left_out: Vec<(usize, String)>,
+    figures: rgb::RgbFigures,
+}
+
+/// Writes images, the COLMAP model and `holdout.txt`; returns every shot's decision, the
+/// number of seed points written and the RGB figures.
 fn write_dataset(
     out: &Path,
     folder: &Folder,
     camera: &CameraModel,
     posing: &Posing,
+    rgb: Option<RgbOut>,
     opts: &FolderOptions,
-) -> Result<(Vec<ShotDecision>, usize), PosesError> {
+) -> Result<(Vec<ShotDecision>, usize, Option<rgb::RgbFigures>), PosesError> {
     let images = out.join("images");
     std::fs::create_dir_all(&images).map_err(|e| write_err(&images, e))?;
     let mut posed = posing.posed.clone();
@@ -380,6 +421,8 @@ fn write_dataset(
                 .rgb
                 .as_ref()
                 .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())),
+            rgb_image: None,
+            rgb_left_out: None,
         })
         .collect();
     for (i, why) in &posing.left_out {
@@ -415,20 +458,60 @@ fn write_dataset(
         decisions[*i].held_out = held;
         model_images.push(ColmapImage {
             id: k as u32 + 1,
-            camera_id: 1,
+            camera_id: THERMAL_CAMERA_ID,
             name,
             cam_from_world: world_from_cam.inverse(),
         });
         progress.advance(1);
     }
     progress.finish();
+    let mut cameras = vec![ColmapCamera {
+        id: THERMAL_CAMERA_ID,
+        model_name: colmap_params(camera).0.to_owned(),
+        model: *camera,
+    }];
+    let rgb_figures = match rgb {
+        None => None,
+        Some(r) => {
+            cameras.push(ColmapCamera {
+                id: RGB_CAMERA_ID,
+                model_name: colmap_params(&r.rig.camera).0.to_owned(),
+                model: r.rig.camera,
+            });
+            for (i, why) in &r.left_out {
+                decisions[*i].rgb_left_out = Some(why.clone());
+            }
+            let mut figures = r.figures;
+            progress.start("writing the RGB partners", Some(r.views.len() as u64));
+            for v in &r.views {
+                let Some(src) = folder.shots[v.shot].rgb.as_ref() else {
+                    continue;
+                };
+                let name = format!("rgb_{}", image_name(v.shot));
+                rgb::write_partner(src, &images.join(&name))?;
+                let held = decisions[v.shot].held_out;
+                if held {
+                    holdout.push_str(&name);
+                    holdout.push('\n');
+                    figures.held_out += 1;
+                }
+                figures.views += 1;
+                decisions[v.shot].rgb_image = Some(name.clone());
+                model_images.push(ColmapImage {
+                    id: model_images.len() as u32 + 1,
+                    camera_id: RGB_CAMERA_ID,
+                    name,
+                    cam_from_world: v.world_from_rgb.inverse(),
+                });
+                progress.advance(1);
+            }
+            progress.finish();
+            Some(figures)
+        }
+    };
     let points = thin(&posing.points, opts.max_points);
     let model = ColmapModel {
-        cameras: vec![ColmapCamera {
-            id: 1,
-            model_name: colmap_params(camera).0.to_owned(),
-            model: *camera,
-        }],
+        cameras,
         images: model_images,
         points: points.clone(),
     };
@@ -436,7 +519,7 @@ fn write_dataset(
     write_text_model(&sparse, &model).map_err(|e| write_err(&sparse, e))?;
     let p = out.join("holdout.txt");
     std::fs::write(&p, holdout).map_err(|e| write_err(&p, e))?;
-    Ok((decisions, points.len()))
+    Ok((decisions, points.len(), rgb_figures))
 }
 
 /// At most `max` of `points`, evenly spread over the list (deterministic), renumbered.
@@ -502,6 +585,27 @@ pub fn summary(r: &FolderReport) -> String {
             b.height_m[1]
         );
     }
+    if let Some(g) = &r.rgb {
+        s += &format!(
+            "RGB partners: {} views written ({} held out) of {} posed shots with a partner; {} posed by PnP on the board{}, {} by the calibrated extrinsic{}\n",
+            g.views,
+            g.held_out,
+            g.partners,
+            g.from_board,
+            g.pnp_rms_px_median
+                .map(|m| format!(" (RMS median {m:.2} px)"))
+                .unwrap_or_default(),
+            g.from_extrinsic,
+            match (g.centre_gap_m, g.lever_arm_m) {
+                (Some([m, x]), Some(l)) => format!(
+                    "; thermal and RGB centres {m:.3} m apart (median, largest {x:.3} m; the calibrated lever arm is {l:.3} m)"
+                ),
+                (Some([m, x]), None) =>
+                    format!("; thermal and RGB centres {m:.3} m apart (median, largest {x:.3} m)"),
+                _ => String::new(),
+            }
+        );
+    }
     let left: Vec<String> = r
         .shots
         .iter()
@@ -517,6 +621,14 @@ pub fn summary(r: &FolderReport) -> String {
     );
     if !left.is_empty() {
         s += &format!("left out: {}\n", left.join(", "));
+    }
+    let rgb_left: Vec<String> = r
+        .shots
+        .iter()
+        .filter_map(|d| d.rgb_left_out.as_ref().map(|w| format!("{} ({w})", d.file)))
+        .collect();
+    if !rgb_left.is_empty() {
+        s += &format!("RGB partners left out: {}\n", rgb_left.join(", "));
     }
     for n in &r.notes {
         s += &format!("note: {n}\n");
