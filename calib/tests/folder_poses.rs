@@ -2,12 +2,14 @@
 //!
 //! - On the real thermal-facade set (93 DJI shots of a brick facade, GPS and gimbal angles in
 //!   their XMP): the planar method poses at least 89 views with a median reprojection error at
-//!   most 0.4 px (the figures: what scripts/real-data/thermal_facade_dataset.py
-//!   reached, 89/93 and 0.37 px), and the dataset it writes reads back through the workspace's
+//!   most 0.4 px (the figures: what the Python script it was ported from reached,
+//!   89/93 and 0.37 px), and the dataset it writes reads back through the workspace's
 //!   COLMAP codec with one image file per posed view, the held-out list naming posed views.
 //! - The board method without `--calibration`, and `--with-rgb` on a folder without RGB
 //!   partners, are refused before anything is written (sun-board posed on its board, with its
 //!   RGB partners, and trained on: tests/tests/folder_sun_board.rs).
+//! - A GPS fix 2 m off on one facade shot: that shot is left out with its reason, not posed at
+//!   the fix (posed with its true fix).
 //! - Bad folders each fail with an error naming the folder or file and the problem, and leave
 //!   no dataset behind: no images, three image sizes, images without GPS/gimbal metadata, a
 //!   truncated radiometric file.
@@ -195,6 +197,79 @@ fn board_and_rgb_partners_need_what_they_need() {
         "a refused folder left {} behind",
         out.display()
     );
+}
+
+/// A GPS fix that disagrees with the images is reported, not trusted: the first 24 facade shots
+/// (two rows) posed as they are, then with DJI_0454's latitude moved 2 m (0.000018°) in its
+/// XMP. With the true fix it is posed; with the wrong one its neighbours' images do not
+/// register where the fix says, and it is left out with the reason instead of being placed at
+/// the fix. `--px-per-m 252` (the scale the whole set measures): 24 shots hold too few
+/// in-row neighbours to measure it.
+#[test]
+fn a_gps_fix_that_disagrees_with_the_images_is_not_trusted() {
+    let facade = common::shared_data("thermal-facade/images");
+    let tmp = tempfile::tempdir().unwrap();
+    let mut names: Vec<String> = std::fs::read_dir(&facade)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names.truncate(24);
+    let shot = |dir: &Path, out: &Path| -> serde_json::Value {
+        let o = calib()
+            .arg("poses")
+            .arg(dir)
+            .args(["--px-per-m", "252", "--json", "--out"])
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "poses {} failed: {}",
+            dir.display(),
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        r["shots"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["file"] == "DJI_0454.JPG")
+            .unwrap()
+            .clone()
+    };
+    let (good, bad) = (tmp.path().join("good"), tmp.path().join("bad"));
+    for d in [&good, &bad] {
+        std::fs::create_dir_all(d).unwrap();
+        for n in &names {
+            std::fs::copy(facade.join(n), d.join(n)).unwrap();
+        }
+    }
+    let p = bad.join("DJI_0454.JPG");
+    let bytes = std::fs::read(&p).unwrap();
+    let (from, to) = (
+        &b"GpsLatitude=\"-36.8741295\""[..],
+        &b"GpsLatitude=\"-36.8741475\""[..],
+    );
+    let at = bytes
+        .windows(from.len())
+        .position(|w| w == from)
+        .expect("DJI_0454.JPG's XMP latitude");
+    let mut moved = bytes.clone();
+    moved[at..at + from.len()].copy_from_slice(to);
+    std::fs::write(&p, moved).unwrap();
+
+    let g = shot(&good, &tmp.path().join("good-ds"));
+    assert!(
+        g["image"].is_string(),
+        "with its true GPS fix DJI_0454 is posed: {g}"
+    );
+    let b = shot(&bad, &tmp.path().join("bad-ds"));
+    assert!(
+        b["image"].is_null() && b["left_out"].is_string(),
+        "with a fix 2 m off DJI_0454 is left out with its reason, not placed at the fix: {b}"
+    );
+    eprintln!("DJI_0454 with a wrong fix: {}", b["left_out"]);
 }
 
 #[test]

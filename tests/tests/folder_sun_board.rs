@@ -4,7 +4,7 @@
 //! 1. `s3tir-calib DIR --out cal.yaml` calibrates both cameras and the extrinsic from the
 //!    folder (DIR/board.toml: 6 × 5 inner corners, 100 mm squares);
 //! 2. `s3tir-calib poses DIR --board … --calibration … --with-rgb` poses every thermal shot by
-//!    PnP on the board (at least the 32 views scripts/real-data/sun_board_dataset.py posed,
+//!    PnP on the board (at least the 32 views the Python script it replaced posed,
 //!    every PnP within the stage's 2 px, cameras above the board) and every RGB partner by PnP
 //!    in its own image, each RGB camera within centimetres of its thermal camera (a dual
 //!    camera's lenses; a wrong 180° order would put it a metre away);

@@ -2,7 +2,8 @@
 //! mostly translate — a facade survey's lawn-mower pattern, a nadir flight. COLMAP finds no
 //! initial pair there (a plane seen by translating cameras is two-view geometry's degenerate
 //! case; scripts/real-data/README.md, "Why not COLMAP"), so this method uses what the scene is
-//! (it began as `scripts/real-data/thermal_facade_dataset.py`, now this):
+//! (it began as the Python script `scripts/real-data/thermal_facade_dataset.py`, since removed:
+//! git history has it):
 //!
 //! 1. **Priors** from each file's metadata: position in local east-north-up metres
 //!    ([`super::geo`]), gimbal yaw/pitch/roll as the camera's rotation.
@@ -27,12 +28,16 @@
 //!    patch's point, the points held near one fitted plane (robustly: windows and eaves may leave
 //!    it), with priors on GPS, barometric altitude and the gimbal angles.
 //!
-//! Measured on thermal-facade (2026-11-29, `s3tir-calib poses …/thermal-facade/images`): 93 of
-//! 93 shots posed (the script: 89), 260 of 784 candidate pairs agreeing, 1 491 points,
-//! reprojection error median 0.37 px, 90th percentile 0.93 px (640×480); ~100 s on 2 cores, of
-//! which ~15 s per registration of every pair at one scale (`s3tir-calib bench --folder`).
+//! Measured on thermal-facade (2026-11-29, `s3tir-calib poses …/thermal-facade/images`): 90 of
+//! 93 shots posed (the script: 89; the three others see no matched point, below), 260 of 784
+//! candidate pairs agreeing, 1 491 points, reprojection error median 0.37 px, 90th percentile
+//! 0.93 px (640×480); 47–100 s on 2 cores (idle or loaded), most of it registering every pair
+//! once per scale tried (`s3tir-calib bench --folder`).
 //!
-//! Shots in no agreeing pair are left out and named. The reprojection error is the method's
+//! Shots in no agreeing pair are left out and named, and so are shots that see fewer than
+//! [`MIN_POINTS_TO_POSE`] bundle points: nothing but their priors would place them, and a wrong
+//! GPS fix (its neighbours then do not register where it predicts) would be trusted
+//! (calib/tests/folder_poses.rs moves one facade shot's fix 2 m). The reprojection error is the method's
 //! figure of merit; the report also says how far the cameras moved from their GPS positions
 //! and names the shots whose GPS disagrees with the images beyond 3 σ (their image-derived
 //! position is the one used).
@@ -504,6 +509,13 @@ pub fn pose(
         }
     }
 
+    // A camera is posed by the images only where it sees matched points: one whose pairs gave
+    // none would sit at its GPS position and gimbal angles alone (a wrong GPS fix trusted).
+    let mut observed = vec![0usize; n];
+    for o in &obs {
+        observed[o.camera] += 1;
+    }
+
     // 5. Bundle adjustment.
     progress.start("bundle adjustment", None);
     let t1 = std::time::Instant::now();
@@ -588,6 +600,16 @@ pub fn pose(
             left_out.push((c, "no registered neighbour".to_owned()));
             continue;
         }
+        if observed[c] < MIN_POINTS_TO_POSE {
+            left_out.push((
+                c,
+                format!(
+                    "{} matched point(s), fewer than {MIN_POINTS_TO_POSE}: the images do not pose it (its GPS fix and gimbal angles alone would)",
+                    observed[c]
+                ),
+            ));
+            continue;
+        }
         let r = from_na(&sol.rotations[c]);
         let centre = DVec3::new(sol.centres[c].x, sol.centres[c].y, sol.centres[c].z);
         let world_from_cam = Rigid3::new(DQuat::from_mat3(&r).normalize(), centre);
@@ -630,6 +652,9 @@ pub fn pose(
         figures,
     ))
 }
+
+/// A camera seeing fewer bundle points than this is left out: its pose would be its priors'.
+pub const MIN_POINTS_TO_POSE: usize = 4;
 
 /// The mean shift (b − a) of a pair's matches.
 fn mean_shift(m: &[register::PatchMatch]) -> [f64; 2] {

@@ -1,5 +1,6 @@
-//! Image registration for the planar method: the image side of the Python planar script
-//! (`scripts/real-data/thermal_facade_dataset.py`: its `register_pair`, and in `main` the
+//! Image registration for the planar method: the image side of the Python planar script it
+//! was ported from (`scripts/real-data/thermal_facade_dataset.py`, removed since; in git
+//! history: its `register_pair`, and in `main` the
 //! `warpPerspective` into the reference orientation and the CLAHE) in pure Rust, without OpenCV.
 //!
 //! Per image, then per pair:
