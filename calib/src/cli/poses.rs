@@ -104,13 +104,15 @@ pub fn run(a: &PosesArgs) -> Result<()> {
         let calibration = a.posing.calibration.clone().zip(cal);
         let opts = FolderOptions {
             board: a.board.as_deref().map(board_fiducial).transpose()?,
-            with_rgb: a.posing.with_rgb,
             holdout_every: a.holdout_every,
             progress: (!a.json).then(|| Arc::new(ProgressBars::new()) as Arc<dyn Progress>),
-            ..a.folder.options(IntrinsicsArgs {
-                calibration,
-                ..IntrinsicsArgs::default()
-            })
+            ..a.folder.options(
+                IntrinsicsArgs {
+                    calibration,
+                    ..IntrinsicsArgs::default()
+                },
+                &a.posing.options(),
+            )
         };
         let report = folder::folder_to_dataset(&a.session, &a.out, &opts)?;
         if a.json {

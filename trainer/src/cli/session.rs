@@ -53,15 +53,17 @@ pub fn pose_folder(a: &TrainArgs, dir: &Path, out: &Path) -> Result<PathBuf> {
         None => None,
     };
     let opts = FolderOptions {
-        with_rgb: a.posing.with_rgb,
         holdout_every: a.holdout,
         progress: Some(std::sync::Arc::new(
             s3tir_calib::progress::bars::ProgressBars::new(),
         )),
-        ..a.folder.options(IntrinsicsArgs {
-            calibration,
-            ..IntrinsicsArgs::default()
-        })
+        ..a.folder.options(
+            IntrinsicsArgs {
+                calibration,
+                ..IntrinsicsArgs::default()
+            },
+            &a.posing.options(),
+        )
     };
     println!(
         "posing the images of {} into {}",

@@ -6,15 +6,19 @@ use clap::Args;
 use s3tir_capture::radiometric::{ConditionOverrides, Units};
 
 use super::plane::PlaneOptions;
+use super::sfm::SfmOptions;
 use super::{FolderOptions, Method};
+use crate::poses::PosesOptions;
 use crate::poses::folder::intrinsics::IntrinsicsArgs;
 
 /// How a folder of images is read and posed.
 #[derive(Debug, Clone, Args)]
 pub struct FolderArgs {
-    /// Folder input: how the shots are posed. auto: the planar method when every shot has GPS
-    /// and gimbal angles and the gimbal keeps its heading and pitch (a survey of a wall or of
-    /// the ground).
+    /// Folder input: how the shots are posed. auto: the board method with --board; else the
+    /// planar method when every shot has GPS and gimbal angles and the gimbal keeps its heading
+    /// and pitch (a survey of a wall or of the ground); else structure from motion (COLMAP, on
+    /// the RGB partners when --calibration has their camera and the extrinsic; GPS positions,
+    /// when the files have them, make the world east-north-up metres).
     #[arg(long, value_enum, default_value = "auto")]
     pub method: Method,
     /// Folder input: what 16-bit or float grey TIFF/PNG values are (kelvin, decikelvin,
@@ -46,7 +50,7 @@ pub struct FolderArgs {
     /// Planar method: search radius around the shift the GPS predicts, pixels.
     #[arg(long, default_value_t = PlaneOptions::default().search_px)]
     pub search_px: f64,
-    /// Planar method: σ of the GPS positions, metres.
+    /// Planar and structure-from-motion methods: σ of the GPS positions, metres.
     #[arg(long, default_value_t = PlaneOptions::default().gps_sigma_m)]
     pub gps_sigma_m: f64,
     /// Folder input: at most this many seed points in the dataset.
@@ -55,9 +59,10 @@ pub struct FolderArgs {
 }
 
 impl FolderArgs {
-    /// The stage's options (`intrinsics`: the calibration, when given; hold-out and progress
-    /// are the caller's).
-    pub fn options(&self, calibration: IntrinsicsArgs) -> FolderOptions {
+    /// The stage's options (`intrinsics`: the calibration, when given; `session`: the posing
+    /// flags a folder shares with a session — `--colmap`, `--matcher`, `--metres-per-unit`,
+    /// `--with-rgb`; hold-out and progress are the caller's).
+    pub fn options(&self, calibration: IntrinsicsArgs, session: &PosesOptions) -> FolderOptions {
         FolderOptions {
             method: self.method,
             units: self.image_units,
@@ -75,6 +80,13 @@ impl FolderArgs {
                 gps_sigma_m: self.gps_sigma_m,
                 ..PlaneOptions::default()
             },
+            sfm: SfmOptions {
+                colmap: session.colmap.clone(),
+                matcher: session.matcher,
+                metres_per_unit: session.metres_per_unit,
+                gps_sigma_m: self.gps_sigma_m,
+            },
+            with_rgb: session.with_rgb,
             max_points: self.max_points,
             ..FolderOptions::default()
         }

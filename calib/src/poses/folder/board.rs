@@ -190,6 +190,7 @@ pub fn pose(
             posed,
             left_out,
             points,
+            rgb_poses: Vec::new(),
         },
         figures,
     ))

@@ -15,12 +15,17 @@
 //!    the report says which.
 //! 3. **Priors** ([`geo`]): GPS to local east-north-up metres (origin: the first shot with a
 //!    position; up from the barometric relative altitude), gimbal angles to rotations.
-//! 4. **Poses**, by the method the scene needs ([`Method`]): the **planar** method ([`plane`])
-//!    for a wall or the ground seen by cameras that mostly translate with known orientation —
-//!    the case where structure from motion finds no initial pair. `auto` takes it when every
-//!    shot has GPS and gimbal angles and the gimbal's heading and pitch stay within
-//!    [`PLANAR_SPREAD_DEG`] of their median (a survey pattern); otherwise the folder cannot be
-//!    posed by this stage yet, and the error says what to pass.
+//! 4. **Poses**, by the method the scene needs ([`Method`]; `auto` picks in this order):
+//!    - the **board** method ([`board`]) with `--board`: PnP on the calibration board in every
+//!      shot (a hand-held survey of a heated board);
+//!    - the **planar** method ([`plane`]) for a wall or the ground seen by cameras that mostly
+//!      translate with known orientation — the case where structure from motion finds no
+//!      initial pair: taken when every shot has GPS and gimbal angles and the gimbal's heading
+//!      and pitch stay within [`PLANAR_SPREAD_DEG`] of their median (a survey pattern);
+//!    - otherwise **structure from motion** ([`sfm`]: COLMAP on the images, or on their RGB
+//!      partners with a dual camera's calibration), GPS positions (when the files have them)
+//!      carrying the model onto east-north-up metres; without metadata the posing is still
+//!      attempted, without priors, and the report says so.
 //! 5. **Dataset**: `images/STEM.png` — radiometric shots as 16-bit centikelvin (0.01 K per
 //!    count: the trainer's default unit), counts as 16-bit words (train with
 //!    `--thermal-units raw`), 8-bit pictures as 8-bit grey; **not undistorted** (the camera in
@@ -39,6 +44,7 @@ pub mod intrinsics;
 pub mod plane;
 pub mod rgb;
 pub mod scan;
+pub mod sfm;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -73,6 +79,8 @@ pub enum Method {
     Plane,
     /// PnP on the calibration board in every view ([`board`]; `--board`, with `--calibration`).
     Board,
+    /// Structure from motion: COLMAP on the images, or on their RGB partners ([`sfm`]).
+    Sfm,
 }
 
 /// Options of [`folder_to_dataset`].
@@ -86,6 +94,7 @@ pub struct FolderOptions {
     #[serde(skip)]
     pub intrinsics: IntrinsicsArgs,
     pub plane: plane::PlaneOptions,
+    pub sfm: sfm::SfmOptions,
     /// The calibration board in view (`--board`; its finder is `s3tir-calib`'s OpenCV front
     /// end): `auto` then takes the board method.
     #[serde(skip)]
@@ -108,6 +117,7 @@ impl Default for FolderOptions {
             conditions: ConditionOverrides::default(),
             intrinsics: IntrinsicsArgs::default(),
             plane: plane::PlaneOptions::default(),
+            sfm: sfm::SfmOptions::default(),
             board: None,
             holdout_every: 8,
             max_points: 30_000,
@@ -129,12 +139,15 @@ pub struct Priors {
     pub world_from_gimbal: Vec<Matrix3<f64>>,
 }
 
-/// What a method returns: poses of shots (by index), the shots left out and why, seed points.
+/// What a method returns: poses of shots (by index), the shots left out and why, seed points,
+/// and the RGB partners' poses where the method measured them itself ([`sfm`] on the
+/// partners).
 #[derive(Debug, Clone)]
 pub struct Posing {
     pub posed: Vec<(usize, Rigid3)>,
     pub left_out: Vec<(usize, String)>,
     pub points: Vec<ColmapPoint>,
+    pub rgb_poses: Vec<(usize, Rigid3)>,
 }
 
 /// One shot's line in the report.
@@ -184,6 +197,7 @@ pub struct FolderReport {
     pub seed_points: usize,
     pub plane: Option<plane::PlaneFigures>,
     pub board: Option<board::BoardFigures>,
+    pub sfm: Option<sfm::SfmFigures>,
     /// The RGB partners (`--with-rgb`).
     pub rgb: Option<rgb::RgbFigures>,
     pub notes: Vec<String>,
@@ -230,21 +244,18 @@ pub fn folder_to_dataset(
         (Method::Plane, Ok(_)) => Method::Plane,
         (Method::Auto, Ok(p)) if survey_pattern(&folder, p) => Method::Plane,
         (Method::Auto, Ok(_)) => {
-            return Err(PosesError::Folder {
-                path: dir.to_path_buf(),
-                reason: format!(
-                    "the gimbal's heading or pitch varies by more than {PLANAR_SPREAD_DEG}° between shots: not a survey of one wall or of the ground, and structure from motion (COLMAP) on image folders is not built yet; pose the images with COLMAP and give its model to the trainer, or pass --method plane if the scene is one plane"
-                ),
-            });
+            notes.push(format!(
+                "the gimbal's heading or pitch varies by more than {PLANAR_SPREAD_DEG}° between shots (not a survey of one plane): posed by structure from motion, GPS positions as the world"
+            ));
+            Method::Sfm
         }
         (Method::Auto, Err(why)) => {
-            return Err(PosesError::Folder {
-                path: dir.to_path_buf(),
-                reason: format!(
-                    "the images carry no usable GPS/gimbal metadata ({why}), and structure from motion (COLMAP) on image folders is not built yet: pose the images with COLMAP and give its model to the trainer"
-                ),
-            });
+            notes.push(format!(
+                "no usable GPS/gimbal metadata ({why}): posed by structure from motion without priors"
+            ));
+            Method::Sfm
         }
+        (Method::Sfm, _) => Method::Sfm,
     };
     let (camera, intrinsics) = intrinsics::thermal_camera(&folder, &opts.intrinsics)?;
     if method == Method::Board && !matches!(intrinsics, IntrinsicsSource::Calibration { .. }) {
@@ -258,17 +269,67 @@ pub fn folder_to_dataset(
     } else {
         None
     };
+    // Structure from motion runs on the RGB partners when the calibration has their camera
+    // and the extrinsic ([`sfm`]), whether or not they are written.
+    let sfm_rig = match (&rgb_rig, method) {
+        (Some(r), Method::Sfm) => Some(*r),
+        (None, Method::Sfm) if folder.shots.iter().all(|s| s.rgb.is_some()) => {
+            match rgb::rgb_rig(&folder, &opts.intrinsics, method) {
+                Ok(r) => Some(r),
+                Err(e) => {
+                    notes.push(format!(
+                        "structure from motion on the thermal images, not the RGB partners: {}",
+                        s3tir_capture::Chain(&e)
+                    ));
+                    None
+                }
+            }
+        }
+        _ => None,
+    };
+    if method == Method::Sfm {
+        super::sfm::check_colmap(&opts.sfm.colmap)?;
+    }
     // Only now (inputs checked) is anything created.
     let partial = start_output(out)?;
     let t = std::time::Instant::now();
-    let (posing, plane_figures, board_figures) = match method {
+    let (mut plane_figures, mut board_figures, mut sfm_figures) = (None, None, None);
+    let posing = match method {
         Method::Board => {
             let b = opts.board.as_ref().ok_or_else(|| PosesError::Folder {
                 path: dir.to_path_buf(),
                 reason: "--method board needs the board: --board board.toml".to_owned(),
             })?;
             let (posing, fig) = board::pose(&folder, &camera, b, progress)?;
-            (posing, None, Some(fig))
+            board_figures = Some(fig);
+            posing
+        }
+        Method::Sfm => {
+            let workspace = partial.join("colmap");
+            let (posing, fig) = sfm::pose(
+                &folder,
+                &camera,
+                sfm_rig.as_ref(),
+                &opts.sfm,
+                &workspace,
+                progress,
+            )?;
+            if !fig.gps_disagrees.is_empty() {
+                let names: Vec<String> = fig
+                    .gps_disagrees
+                    .iter()
+                    .map(|(n, d)| format!("{n} ({d:.1} m)"))
+                    .collect();
+                notes.push(format!(
+                    "GPS disagrees with the model beyond 3 σ for {}: their positions come from the images",
+                    names.join(", ")
+                ));
+            }
+            if fig.world == "colmap" {
+                notes.push("no GPS positions and no --metres-per-unit: the world is COLMAP's, of arbitrary scale (the lever arm to the RGB partners, if any, left out)".to_owned());
+            }
+            sfm_figures = Some(fig);
+            posing
         }
         Method::Plane | Method::Auto => {
             let p = priors.as_ref().map_err(|why| PosesError::Folder {
@@ -287,7 +348,8 @@ pub fn folder_to_dataset(
                     names.join(", ")
                 ));
             }
-            (posing, Some(fig), None)
+            plane_figures = Some(fig);
+            posing
         }
     };
     let rgb = match &rgb_rig {
@@ -334,6 +396,7 @@ pub fn folder_to_dataset(
         seed_points: points,
         plane: plane_figures,
         board: board_figures,
+        sfm: sfm_figures,
         rgb,
         notes,
         times,
@@ -585,12 +648,34 @@ pub fn summary(r: &FolderReport) -> String {
             b.height_m[1]
         );
     }
+    if let Some(f) = &r.sfm {
+        s += &format!(
+            "structure from motion (COLMAP) on the {}: {} of {} registered, {} points; world: {}{}\n",
+            if f.images_of == "rgb_partners" {
+                "RGB partners"
+            } else {
+                "thermal images"
+            },
+            f.registered,
+            f.images,
+            f.points,
+            match f.world.as_str() {
+                "east_north_up" => "east-north-up metres from the GPS positions".to_owned(),
+                "scaled" => "COLMAP's, scaled by --metres-per-unit".to_owned(),
+                _ => "COLMAP's (arbitrary scale)".to_owned(),
+            },
+            f.gps_residual_m_median
+                .map(|m| format!(" (cameras {m:.2} m from their GPS positions, median)"))
+                .unwrap_or_default()
+        );
+    }
     if let Some(g) = &r.rgb {
         s += &format!(
-            "RGB partners: {} views written ({} held out) of {} posed shots with a partner; {} posed by PnP on the board{}, {} by the calibrated extrinsic{}\n",
+            "RGB partners: {} views written ({} held out) of {} posed shots with a partner; {} posed by structure from motion, {} by PnP on the board{}, {} by the calibrated extrinsic{}\n",
             g.views,
             g.held_out,
             g.partners,
+            g.from_sfm,
             g.from_board,
             g.pnp_rms_px_median
                 .map(|m| format!(" (RMS median {m:.2} px)"))

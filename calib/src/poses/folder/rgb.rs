@@ -9,10 +9,11 @@
 //!    camera ([`super::board::pose_partners`]). Each modality is then posed by its own
 //!    measurement in the board's frame, so a pair that is not one rigid instant (a dual camera
 //!    whose two shutters fire apart, a hand that moved) costs nothing but the check below;
-//! 2. otherwise (another method, or the board not found in the partner): the thermal pose
+//! 2. structure from motion on the partners ([`super::sfm`]): COLMAP's pose of the partner;
+//! 3. otherwise (another method, or the board not found in the partner): the thermal pose
 //!    composed with the calibrated extrinsic, `world_from_rgb = world_from_thermal ∘
 //!    rgb_from_thermal⁻¹` (both worlds metric: the board's, or east-north-up);
-//! 3. neither: the RGB view is left out, with that reason (its thermal view stays).
+//! 4. none: the RGB view is left out, with that reason (its thermal view stays).
 //!
 //! The check: the distance between each PnP-posed pair's two camera centres, reported (median
 //! and largest) beside the calibrated lever arm. It is not a reason to drop a view — each image
@@ -53,6 +54,8 @@ pub struct RgbFigures {
     pub held_out: usize,
     /// Posed by PnP on the board in the RGB image.
     pub from_board: usize,
+    /// Posed by structure from motion on the partners themselves.
+    pub from_sfm: usize,
     /// Posed by the calibrated extrinsic.
     pub from_extrinsic: usize,
     /// PnP reprojection RMS, pixels (median; board method).
@@ -143,6 +146,8 @@ pub fn pose_rgb(
         Some(b) => super::board::pose_partners(folder, &rig.camera, b, &with_partner, progress)?,
         None => vec![None; with_partner.len()],
     };
+    let measured: std::collections::BTreeMap<usize, Rigid3> =
+        posing.rgb_poses.iter().copied().collect();
     let mut figures = RgbFigures {
         partners: with_partner.len(),
         lever_arm_m: rig.rgb_from_thermal.map(|e| e.translation_m.length()),
@@ -152,6 +157,10 @@ pub fn pose_rgb(
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for ((shot, world_from_thermal), by_board) in with_partner.iter().zip(pnp) {
         let pose = match by_board {
+            _ if measured.contains_key(shot) => {
+                figures.from_sfm += 1;
+                measured.get(shot).copied()
+            }
             Some(p) => {
                 figures.from_board += 1;
                 rms.push(p.rms_px);

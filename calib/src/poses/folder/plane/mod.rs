@@ -648,6 +648,7 @@ pub fn pose(
             posed,
             left_out,
             points,
+            rgb_poses: Vec::new(),
         },
         figures,
     ))
