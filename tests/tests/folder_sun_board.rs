@@ -101,13 +101,7 @@ fn sun_board_folder_is_posed_with_its_rgb_partners_and_trains_jointly() {
         (posed, rgb_views),
         "the trainer reads every posed view of both modalities"
     );
-    let rgb_cam = both
-        .views
-        .iter()
-        .find(|v| v.rgb.is_some())
-        .unwrap()
-        .camera
-        .clone();
+    let rgb_cam = both.views.iter().find(|v| v.rgb.is_some()).unwrap().camera;
     assert_eq!(
         (rgb_cam.width, rgb_cam.height),
         (1014, 760),

@@ -31,7 +31,11 @@ use s3tir_calib::progress::bars::ProgressBars;
 /// one plane and GPS/altitude/gimbal priors). It writes images/ (16-bit centikelvin, counts,
 /// or 8-bit grey, not undistorted), sparse/0/, holdout.txt and poses.json (every file's
 /// decision, the camera's source, the figures). With --board and --calibration each shot is
-/// posed by PnP on the calibration board instead (the board method).
+/// posed by PnP on the calibration board instead (the board method). Other folders — free-hand
+/// views, no metadata — are posed by structure from motion (COLMAP; on the RGB partners when
+/// --calibration has their camera and the extrinsic), GPS positions, when the files have them,
+/// making the world east-north-up metres. --with-rgb adds the RGB partners for joint
+/// training.
 ///
 /// A session:
 /// Structure from motion (COLMAP, CPU) runs on the RGB keyframes with the calibrated RGB

@@ -355,12 +355,9 @@ pub fn folder_to_dataset(
     let rgb = match &rgb_rig {
         Some(r) => {
             let board = opts.board.as_ref().filter(|_| method == Method::Board);
-            let (views, left_out, figures) = rgb::pose_rgb(&folder, &posing, r, board, progress)?;
             Some(RgbOut {
                 rig: *r,
-                views,
-                left_out,
-                figures,
+                posing: rgb::pose_rgb(&folder, &posing, r, board, progress)?,
             })
         }
         None => None,
@@ -444,9 +441,7 @@ fn write_err(path: &Path, e: impl Into<Box<dyn std::error::Error + Send + Sync>>
 /// The posed RGB partners, for [`write_dataset`].
 struct RgbOut {
     rig: rgb::RgbRig,
-    views: Vec<rgb::RgbView>,
-    left_out: Vec<(usize, String)>,
-    figures: rgb::RgbFigures,
+    posing: rgb::RgbPosing,
 }
 
 /// Writes images, the COLMAP model and `holdout.txt`; returns every shot's decision, the
@@ -541,12 +536,15 @@ fn write_dataset(
                 model_name: colmap_params(&r.rig.camera).0.to_owned(),
                 model: r.rig.camera,
             });
-            for (i, why) in &r.left_out {
+            for (i, why) in &r.posing.left_out {
                 decisions[*i].rgb_left_out = Some(why.clone());
             }
-            let mut figures = r.figures;
-            progress.start("writing the RGB partners", Some(r.views.len() as u64));
-            for v in &r.views {
+            let mut figures = r.posing.figures;
+            progress.start(
+                "writing the RGB partners",
+                Some(r.posing.views.len() as u64),
+            );
+            for v in &r.posing.views {
                 let Some(src) = folder.shots[v.shot].rgb.as_ref() else {
                     continue;
                 };

@@ -74,6 +74,14 @@ pub struct RgbView {
     pub world_from_rgb: Rigid3,
 }
 
+/// The posed partners: views, those left out (by thermal shot, with the reason), figures.
+#[derive(Debug, Clone)]
+pub struct RgbPosing {
+    pub views: Vec<RgbView>,
+    pub left_out: Vec<(usize, String)>,
+    pub figures: RgbFigures,
+}
+
 /// The RGB camera for `--with-rgb`, checked against the folder (module docs). Raised before
 /// anything is written.
 pub fn rgb_rig(
@@ -127,15 +135,14 @@ pub fn rgb_rig(
     })
 }
 
-/// Poses the posed thermal shots' RGB partners (module docs); the RGB views left out, by
-/// thermal shot, with their reason.
+/// Poses the posed thermal shots' RGB partners (module docs).
 pub fn pose_rgb(
     folder: &Folder,
     posing: &Posing,
     rig: &RgbRig,
     board: Option<&BoardFiducial>,
     progress: &dyn Progress,
-) -> Result<(Vec<RgbView>, Vec<(usize, String)>, RgbFigures), PosesError> {
+) -> Result<RgbPosing, PosesError> {
     let with_partner: Vec<(usize, Rigid3)> = posing
         .posed
         .iter()
@@ -190,7 +197,11 @@ pub fn pose_rgb(
     gaps.sort_by(f64::total_cmp);
     figures.pnp_rms_px_median = rms.get(rms.len() / 2).copied();
     figures.centre_gap_m = (!gaps.is_empty()).then(|| [gaps[gaps.len() / 2], gaps[gaps.len() - 1]]);
-    Ok((views, left_out, figures))
+    Ok(RgbPosing {
+        views,
+        left_out,
+        figures,
+    })
 }
 
 /// Decodes an RGB partner and writes it as 8-bit RGB PNG.

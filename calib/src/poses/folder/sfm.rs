@@ -14,7 +14,8 @@
 //! spread over more than a line, COLMAP's model is carried onto local east-north-up metres
 //! ([`super::geo`]) by the similarity that best fits its camera centres to the positions
 //! (Umeyama's least squares): metric, and the report gives the residual and names the shots
-//! whose fix disagrees with the model beyond 3 σ (the model's position is the one used). With
+//! whose fix disagrees with the model beyond 3 σ — refitted without them, their position the
+//! model's. With
 //! `--metres-per-unit` the model is scaled by it. Otherwise the world is COLMAP's, its scale
 //! arbitrary, and the lever arm (centimetres on a dual camera) is left out of the composition:
 //! said in the report.
@@ -203,6 +204,98 @@ pub fn enu_positions(folder: &Folder) -> Option<Vec<Option<Vector3<f64>>>> {
     )
 }
 
+/// What [`world_of`] decided, for the figures.
+#[derive(Debug, Clone, Default)]
+struct World {
+    world: String,
+    gps_residual_m_median: Option<f64>,
+    gps_disagrees: Vec<(String, f64)>,
+}
+
+/// The similarity carrying COLMAP's model (`registered`: shot index, world_from_cam) onto the
+/// world (module docs): onto the shots' GPS positions `enu` when at least
+/// [`MIN_GPS_FOR_ALIGNMENT`] registered shots have one and they span more than a line — fitted
+/// once, then again without the fixes further than 3 σ from it (named: not trusted), as long as
+/// [`MIN_GPS_FOR_ALIGNMENT`] remain; else a scale by `--metres-per-unit`; else none.
+fn world_of(
+    registered: &[(usize, Rigid3)],
+    enu: Option<&[Option<Vector3<f64>>]>,
+    name: impl Fn(usize) -> String,
+    opts: &SfmOptions,
+) -> (Option<Similarity>, World) {
+    let with_fix: Vec<(usize, Vector3<f64>, Vector3<f64>)> = registered
+        .iter()
+        .filter_map(|(i, p)| {
+            let e = enu?.get(*i).copied().flatten()?;
+            Some((*i, to_na(p.translation_m), e))
+        })
+        .collect();
+    let fit = |keep: &dyn Fn(usize) -> bool| {
+        let (src, dst): (Vec<_>, Vec<_>) = with_fix
+            .iter()
+            .filter(|w| keep(w.0))
+            .map(|w| (w.1, w.2))
+            .unzip();
+        (src.len() >= MIN_GPS_FOR_ALIGNMENT)
+            .then(|| fit_similarity(&src, &dst))
+            .flatten()
+    };
+    let residuals = |s: &Similarity| -> Vec<(usize, f64)> {
+        with_fix
+            .iter()
+            .map(|(i, c, e)| (*i, (s.apply(c) - e).norm()))
+            .collect()
+    };
+    let bound = 3.0 * opts.gps_sigma_m;
+    if let Some(first) = fit(&|_| true) {
+        let far: Vec<usize> = residuals(&first)
+            .iter()
+            .filter(|r| r.1 > bound)
+            .map(|r| r.0)
+            .collect();
+        let s = if far.is_empty() {
+            first
+        } else {
+            fit(&|i| !far.contains(&i)).unwrap_or(first)
+        };
+        let mut res = residuals(&s);
+        let gps_disagrees = res
+            .iter()
+            .filter(|r| r.1 > bound)
+            .map(|&(i, d)| (name(i), d))
+            .collect();
+        res.sort_by(|a, b| a.1.total_cmp(&b.1));
+        return (
+            Some(s),
+            World {
+                world: "east_north_up".to_owned(),
+                gps_residual_m_median: res.get(res.len() / 2).map(|r| r.1),
+                gps_disagrees,
+            },
+        );
+    }
+    match opts.metres_per_unit {
+        Some(m) => (
+            Some(Similarity {
+                scale: m,
+                rotation: Matrix3::identity(),
+                translation: Vector3::zeros(),
+            }),
+            World {
+                world: "scaled".to_owned(),
+                ..World::default()
+            },
+        ),
+        None => (
+            None,
+            World {
+                world: "colmap".to_owned(),
+                ..World::default()
+            },
+        ),
+    }
+}
+
 /// Whether COLMAP runs on the RGB partners (module docs).
 pub fn uses_partners(folder: &Folder, rgb: Option<&RgbRig>) -> bool {
     rgb.is_some_and(|r| r.rgb_from_thermal.is_some())
@@ -323,49 +416,15 @@ pub fn pose(
 
     // The world: east-north-up by GPS, scaled, or COLMAP's.
     let enu = enu_positions(folder);
-    let with_fix: Vec<(usize, Vector3<f64>, Vector3<f64>)> = registered
-        .iter()
-        .filter_map(|(i, p)| {
-            let e = enu.as_ref()?.get(*i).copied().flatten()?;
-            Some((*i, to_na(p.translation_m), e))
-        })
-        .collect();
-    let src: Vec<_> = with_fix.iter().map(|w| w.1).collect();
-    let dst: Vec<_> = with_fix.iter().map(|w| w.2).collect();
-    let similarity = if with_fix.len() >= MIN_GPS_FOR_ALIGNMENT {
-        fit_similarity(&src, &dst)
-    } else {
-        None
-    };
-    let similarity = match (similarity, opts.metres_per_unit) {
-        (Some(s), _) => {
-            figures.world = "east_north_up".to_owned();
-            let mut res: Vec<(usize, f64)> = with_fix
-                .iter()
-                .map(|(i, c, e)| (*i, (s.apply(c) - e).norm()))
-                .collect();
-            figures.gps_disagrees = res
-                .iter()
-                .filter(|r| r.1 > 3.0 * opts.gps_sigma_m)
-                .map(|&(i, d)| (folder.shots[i].name.clone(), d))
-                .collect();
-            res.sort_by(|a, b| a.1.total_cmp(&b.1));
-            figures.gps_residual_m_median = Some(res[res.len() / 2].1);
-            Some(s)
-        }
-        (None, Some(m)) => {
-            figures.world = "scaled".to_owned();
-            Some(Similarity {
-                scale: m,
-                rotation: Matrix3::identity(),
-                translation: Vector3::zeros(),
-            })
-        }
-        (None, None) => {
-            figures.world = "colmap".to_owned();
-            None
-        }
-    };
+    let (similarity, world) = world_of(
+        &registered,
+        enu.as_deref(),
+        |i| folder.shots[i].name.clone(),
+        opts,
+    );
+    figures.world = world.world;
+    figures.gps_residual_m_median = world.gps_residual_m_median;
+    figures.gps_disagrees = world.gps_disagrees;
     figures.metres_per_unit = similarity.map(|s| s.scale);
     let to_world = |p: &Rigid3| similarity.map_or(*p, |s| s.apply_pose(p));
     let registered: Vec<(usize, Rigid3)> =
@@ -463,6 +522,69 @@ mod tests {
         assert!(
             fit_similarity(&line, &line).is_none(),
             "collinear points give no similarity"
+        );
+    }
+
+    /// Ten cameras on a curve in COLMAP's units, their GPS fixes the same curve carried by a
+    /// known similarity plus 0.2 m of noise, one fix 12 m off: the world is east-north-up, the
+    /// wrong fix is named and does not pull the others (the fit is redone without it).
+    #[test]
+    fn gps_fixes_carry_the_model_and_a_wrong_one_is_named() {
+        let truth = Similarity {
+            scale: 0.15,
+            rotation: nalgebra::Rotation3::from_euler_angles(0.05, -0.1, 2.0).into_inner(),
+            translation: Vector3::new(10.0, -3.0, 20.0),
+        };
+        let registered: Vec<(usize, Rigid3)> = (0..10)
+            .map(|k| {
+                let t = k as f64;
+                (
+                    k,
+                    Rigid3::new(
+                        DQuat::IDENTITY,
+                        DVec3::new(10.0 * t, 2.0 * t * t, 5.0 * (t * 0.7).sin()),
+                    ),
+                )
+            })
+            .collect();
+        let noise = [0.1, -0.2, 0.15, 0.0, -0.1, 0.2, -0.15, 0.05, 0.1, -0.05];
+        let mut enu: Vec<Option<Vector3<f64>>> = registered
+            .iter()
+            .map(|(k, p)| Some(truth.apply(&to_na(p.translation_m)) + Vector3::repeat(noise[*k])))
+            .collect();
+        enu[6] = enu[6].map(|e| e + Vector3::new(12.0, 0.0, 0.0));
+        let opts = SfmOptions::default();
+        let (s, w) = world_of(&registered, Some(&enu), |i| format!("shot{i}"), &opts);
+        let s = s.expect("ten fixes give a similarity");
+        assert_eq!(w.world, "east_north_up");
+        assert_eq!(
+            w.gps_disagrees
+                .iter()
+                .map(|d| d.0.as_str())
+                .collect::<Vec<_>>(),
+            ["shot6"],
+            "the 12 m fix is named, no other: {:?}",
+            w.gps_disagrees
+        );
+        assert!(
+            (s.scale - truth.scale).abs() < 0.01 * truth.scale,
+            "scale {} (truth {}): the wrong fix is left out of the fit",
+            s.scale,
+            truth.scale
+        );
+        let median = w.gps_residual_m_median.unwrap();
+        assert!(median < 0.5, "median residual {median} m at 0.2 m of noise");
+        // Without fixes: COLMAP's world, or scaled when told.
+        let (none, w) = world_of(&registered, None, |i| format!("shot{i}"), &opts);
+        assert!(none.is_none() && w.world == "colmap");
+        let scaled = SfmOptions {
+            metres_per_unit: Some(0.5),
+            ..SfmOptions::default()
+        };
+        let (s, w) = world_of(&registered, None, |i| format!("shot{i}"), &scaled);
+        assert_eq!(
+            (s.map(|s| s.scale), w.world.as_str()),
+            (Some(0.5), "scaled")
         );
     }
 
