@@ -94,6 +94,7 @@ mod rig;
 pub mod select;
 pub mod sfm;
 mod stages;
+pub mod stats;
 #[cfg(test)]
 mod tests;
 

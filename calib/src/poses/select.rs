@@ -9,6 +9,7 @@ use serde::Serialize;
 use super::PosesOptions;
 use super::frames::FrameInfo;
 use super::interp::Track;
+use super::stats::median;
 use crate::model::geometry::Rigid3;
 
 /// What happened to one frame (`poses.json`).
@@ -39,15 +40,6 @@ pub struct RgbView {
     pub held_out: bool,
 }
 
-/// Median of `v` (the upper one for an even count; 0 for an empty slice).
-pub(super) fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Scene depth: the median distance from the cameras' `centres` to the SfM points' median
 /// (1 without points: the fast path's tags are passed as points, so only an empty model has
 /// none).
@@ -56,11 +48,17 @@ pub(super) fn scene_depth(centres: &[DVec3], points: &[[f64; 3]]) -> f64 {
         return 1.0;
     }
     let c = DVec3::new(
-        median(points.iter().map(|p| p[0]).collect()),
-        median(points.iter().map(|p| p[1]).collect()),
-        median(points.iter().map(|p| p[2]).collect()),
+        median(&points.iter().map(|p| p[0]).collect::<Vec<_>>()),
+        median(&points.iter().map(|p| p[1]).collect::<Vec<_>>()),
+        median(&points.iter().map(|p| p[2]).collect::<Vec<_>>()),
     );
-    median(centres.iter().map(|x| (*x - c).length()).collect()).max(1e-9)
+    median(
+        &centres
+            .iter()
+            .map(|x| (*x - c).length())
+            .collect::<Vec<_>>(),
+    )
+    .max(1e-9)
 }
 
 /// Whether each frame is motion-blurred: sharpness below `ratio` × the median of its
@@ -74,7 +72,7 @@ pub fn blurred(frames: &[FrameInfo], ratio: f64, window: usize) -> Vec<bool> {
                 .filter(|&j| j != i && !frames[j].ffc_frozen)
                 .map(|j| frames[j].sharpness)
                 .collect();
-            !local.is_empty() && frames[i].sharpness < ratio * median(local)
+            !local.is_empty() && frames[i].sharpness < ratio * median(&local)
         })
         .collect()
 }

@@ -141,8 +141,13 @@ pub fn scale_from_tags(
         return None;
     }
     let tags = corners.iter().map(|c| c.0).collect::<BTreeSet<u32>>().len();
-    let median = crate::poses::select::median(ratios.clone());
-    let mad = crate::poses::select::median(ratios.iter().map(|r| (r - median).abs()).collect());
+    let median = crate::poses::stats::median(&ratios);
+    let mad = crate::poses::stats::median(
+        &ratios
+            .iter()
+            .map(|r| (r - median).abs())
+            .collect::<Vec<_>>(),
+    );
     Some(TagScale {
         metres_per_unit: median,
         method,

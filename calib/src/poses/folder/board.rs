@@ -23,10 +23,10 @@ use super::super::PosesError;
 use super::super::board::BoardFiducial;
 use super::super::fiducials::{MAX_PNP_RMS_PX, TagPose, pnp};
 use super::super::frames::Stream;
+use super::super::stats::{median, percentile};
 use super::Posing;
 use super::scan::Folder;
 use crate::model::camera::CameraModel;
-use crate::model::colmap::ColmapPoint;
 use crate::progress::Progress;
 
 /// What the board method measured (in `poses.json`).
@@ -175,16 +175,15 @@ pub fn pose(
             ),
         });
     }
-    rms.sort_by(f64::total_cmp);
     figures.posed = posed.len();
-    figures.pnp_rms_px_median = rms[rms.len() / 2];
-    figures.pnp_rms_px_max = rms[rms.len() - 1];
+    figures.pnp_rms_px_median = median(&rms);
+    figures.pnp_rms_px_max = percentile(&rms, 1.0);
     let heights: Vec<f64> = posed.iter().map(|p| -p.1.translation_m.z).collect();
     figures.height_m = [
         heights.iter().copied().fold(f64::INFINITY, f64::min),
         heights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
     ];
-    let points = plane_seeds(folder, cam, &posed);
+    let points = super::plane_seeds(folder, cam, &posed, DVec3::Z, 0.0);
     Ok((
         Posing {
             posed,
@@ -194,42 +193,4 @@ pub fn pose(
         },
         figures,
     ))
-}
-
-/// The board plane z = 0 seen through each posed view, every 8th pixel, with the shot's grey
-/// value (16-bit words scaled to 0–255 by the folder's range).
-fn plane_seeds(
-    folder: &Folder,
-    cam: &CameraModel,
-    posed: &[(usize, crate::model::geometry::Rigid3)],
-) -> Vec<ColmapPoint> {
-    let grey = folder.grey_for_matching();
-    let (w, h) = (cam.width_px as usize, cam.height_px as usize);
-    let mut points = Vec::new();
-    for (i, world_from_cam) in posed {
-        let c = world_from_cam.translation_m;
-        for y in (4..h).step_by(8) {
-            for x in (4..w).step_by(8) {
-                let Some(ray) = cam.unproject(DVec2::new(x as f64, y as f64)) else {
-                    continue;
-                };
-                let d = world_from_cam.transform_vector(ray);
-                if d.z.abs() < 1e-9 {
-                    continue;
-                }
-                let s = -c.z / d.z;
-                if s <= 0.0 {
-                    continue;
-                }
-                let p = c + d * s;
-                let g = grey[*i][y * w + x].round().clamp(0.0, 255.0) as u8;
-                points.push(ColmapPoint {
-                    id: points.len() as u64 + 1,
-                    position_m: p.to_array(),
-                    rgb: [g, g, g],
-                });
-            }
-        }
-    }
-    points
 }

@@ -49,6 +49,7 @@ pub mod sfm;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use glam::{DVec2, DVec3};
 use nalgebra::Matrix3;
 use s3tir_capture::radiometric::{ConditionOverrides, Conditions, Units};
 use serde::Serialize;
@@ -242,7 +243,7 @@ pub fn folder_to_dataset(
             });
         }
         (Method::Plane, Ok(_)) => Method::Plane,
-        (Method::Auto, Ok(p)) if survey_pattern(&folder, p) => Method::Plane,
+        (Method::Auto, Ok(_)) if survey_pattern(&folder) => Method::Plane,
         (Method::Auto, Ok(_)) => {
             notes.push(format!(
                 "the gimbal's heading or pitch varies by more than {PLANAR_SPREAD_DEG}° between shots (not a survey of one plane): posed by structure from motion, GPS positions as the world"
@@ -407,7 +408,7 @@ pub fn folder_to_dataset(
 }
 
 /// Whether the shots are a survey of one plane (module docs).
-fn survey_pattern(folder: &Folder, _p: &Priors) -> bool {
+fn survey_pattern(folder: &Folder) -> bool {
     let g: Vec<_> = folder.shots.iter().filter_map(|s| s.meta.gimbal).collect();
     if g.len() != folder.shots.len() || g.is_empty() {
         return false;
@@ -581,6 +582,48 @@ fn write_dataset(
     let p = out.join("holdout.txt");
     std::fs::write(&p, holdout).map_err(|e| write_err(&p, e))?;
     Ok((decisions, points.len(), rgb_figures))
+}
+
+/// Seed points of a planar scene: the plane `normal · x = distance` (world) seen through each
+/// posed view at every 8th pixel (the camera's distortion undone), each with the view's grey
+/// value there (0–255 over the folder's range, [`Folder::grey_for_matching`]).
+fn plane_seeds(
+    folder: &Folder,
+    cam: &CameraModel,
+    posed: &[(usize, Rigid3)],
+    normal: DVec3,
+    distance: f64,
+) -> Vec<ColmapPoint> {
+    let grey = folder.grey_for_matching();
+    let (w, h) = (cam.width_px as usize, cam.height_px as usize);
+    let mut points = Vec::new();
+    for (i, world_from_cam) in posed {
+        let c = world_from_cam.translation_m;
+        for y in (4..h).step_by(8) {
+            for x in (4..w).step_by(8) {
+                let Some(ray) = cam.unproject(DVec2::new(x as f64, y as f64)) else {
+                    continue;
+                };
+                let d = world_from_cam.transform_vector(ray);
+                let denom = normal.dot(d);
+                if denom.abs() < 1e-9 {
+                    continue;
+                }
+                let s = (distance - normal.dot(c)) / denom;
+                if s <= 0.0 {
+                    continue;
+                }
+                let p = c + d * s;
+                let g = grey[*i][y * w + x].round().clamp(0.0, 255.0) as u8;
+                points.push(ColmapPoint {
+                    id: points.len() as u64 + 1,
+                    position_m: p.to_array(),
+                    rgb: [g, g, g],
+                });
+            }
+        }
+    }
+    points
 }
 
 /// At most `max` of `points`, evenly spread over the list (deterministic), renumbered.

@@ -30,6 +30,7 @@ use serde::Serialize;
 
 use super::super::PosesError;
 use super::super::board::BoardFiducial;
+use super::super::stats::{median, percentile};
 use super::intrinsics::IntrinsicsArgs;
 use super::scan::Folder;
 use super::{Method, Posing};
@@ -193,10 +194,8 @@ pub fn pose_rgb(
             )),
         }
     }
-    rms.sort_by(f64::total_cmp);
-    gaps.sort_by(f64::total_cmp);
-    figures.pnp_rms_px_median = rms.get(rms.len() / 2).copied();
-    figures.centre_gap_m = (!gaps.is_empty()).then(|| [gaps[gaps.len() / 2], gaps[gaps.len() - 1]]);
+    figures.pnp_rms_px_median = (!rms.is_empty()).then(|| median(&rms));
+    figures.centre_gap_m = (!gaps.is_empty()).then(|| [median(&gaps), percentile(&gaps, 1.0)]);
     Ok(RgbPosing {
         views,
         left_out,

@@ -31,6 +31,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
 use super::super::sfm::run_colmap;
+use super::super::stats::median;
 use super::super::{Matcher, PosesError, PosesOptions, StageTimes};
 use super::Posing;
 use super::geo::LocalTangent;
@@ -258,18 +259,18 @@ fn world_of(
         } else {
             fit(&|i| !far.contains(&i)).unwrap_or(first)
         };
-        let mut res = residuals(&s);
+        let res = residuals(&s);
         let gps_disagrees = res
             .iter()
             .filter(|r| r.1 > bound)
             .map(|&(i, d)| (name(i), d))
             .collect();
-        res.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let distances: Vec<f64> = res.iter().map(|r| r.1).collect();
         return (
             Some(s),
             World {
                 world: "east_north_up".to_owned(),
-                gps_residual_m_median: res.get(res.len() / 2).map(|r| r.1),
+                gps_residual_m_median: Some(median(&distances)),
                 gps_disagrees,
             },
         );

@@ -54,11 +54,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::super::PosesError;
+use super::super::stats::{median, percentile};
 use super::geo::{LocalTangent, world_from_camera};
 use super::scan::Folder;
 use super::{Posing, Priors};
 use crate::model::camera::CameraModel;
-use crate::model::colmap::ColmapPoint;
 use crate::model::geometry::Rigid3;
 use crate::progress::Progress;
 use register::{Grey, RegisterParams};
@@ -173,21 +173,6 @@ fn undistort(grey: &[f32], cam: &CameraModel) -> Grey {
         height: h,
         data,
     }
-}
-
-/// Median of a slice (0 when empty).
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
-}
-
-fn percentile(v: &[f64], q: f64) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    v.get(((v.len().saturating_sub(1)) as f64 * q).round() as usize)
-        .copied()
-        .unwrap_or(0.0)
 }
 
 /// The per-shot priors the planar method needs, or why it cannot run.
@@ -594,7 +579,6 @@ pub fn pose(
     // Poses and seed points: the plane seen through each view.
     let mut posed = Vec::new();
     let mut left_out = Vec::new();
-    let mut seeds = Vec::new();
     for c in 0..n {
         if !seen[c] {
             left_out.push((c, "no registered neighbour".to_owned()));
@@ -612,37 +596,10 @@ pub fn pose(
         }
         let r = from_na(&sol.rotations[c]);
         let centre = DVec3::new(sol.centres[c].x, sol.centres[c].y, sol.centres[c].z);
-        let world_from_cam = Rigid3::new(DQuat::from_mat3(&r).normalize(), centre);
-        posed.push((c, world_from_cam));
-        for y in (4..h).step_by(8) {
-            for x in (4..w).step_by(8) {
-                let ray = sol.rotations[c] * k_inv * Vector3::new(x as f64, y as f64, 1.0);
-                let denom = sol.normal.dot(&ray);
-                if denom.abs() < 1e-9 {
-                    continue;
-                }
-                let s = (sol.distance - sol.normal.dot(&sol.centres[c])) / denom;
-                if s <= 0.0 {
-                    continue;
-                }
-                let p = sol.centres[c] + ray * s;
-                let v = grey[c][y * w + x];
-                seeds.push((p, v));
-            }
-        }
+        posed.push((c, Rigid3::new(DQuat::from_mat3(&r).normalize(), centre)));
     }
-    let points = seeds
-        .into_iter()
-        .enumerate()
-        .map(|(id, (p, v))| {
-            let g = v.round().clamp(0.0, 255.0) as u8;
-            ColmapPoint {
-                id: id as u64 + 1,
-                position_m: [p.x, p.y, p.z],
-                rgb: [g, g, g],
-            }
-        })
-        .collect();
+    let normal = DVec3::new(sol.normal.x, sol.normal.y, sol.normal.z);
+    let points = super::plane_seeds(folder, cam, &posed, normal, sol.distance);
     Ok((
         Posing {
             posed,

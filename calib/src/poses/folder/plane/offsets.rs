@@ -12,6 +12,8 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
 
+use crate::poses::stats::median;
+
 /// A registered pair's mean shift (pixels, b − a) between shots `i < j`.
 pub type PairShifts = BTreeMap<(usize, usize), [f64; 2]>;
 
@@ -74,10 +76,8 @@ pub fn solve(pairs: &PairShifts, gps_px: &[Option<[f64; 2]>], sigma_px: f64) -> 
                 ((i, j), d[0].hypot(d[1]))
             })
             .collect();
-        let mut ds: Vec<f64> = disagreement.values().copied().collect();
-        ds.sort_by(f64::total_cmp);
-        let median = ds.get(ds.len() / 2).copied().unwrap_or(0.0);
-        let threshold = (4.0 * median).max(6.0);
+        let ds: Vec<f64> = disagreement.values().copied().collect();
+        let threshold = (4.0 * median(&ds)).max(6.0);
         active = disagreement
             .iter()
             .filter(|(_, d)| **d < threshold)
