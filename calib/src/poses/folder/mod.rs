@@ -315,17 +315,7 @@ pub fn folder_to_dataset(
                 &workspace,
                 progress,
             )?;
-            if !fig.gps_disagrees.is_empty() {
-                let names: Vec<String> = fig
-                    .gps_disagrees
-                    .iter()
-                    .map(|(n, d)| format!("{n} ({d:.1} m)"))
-                    .collect();
-                notes.push(format!(
-                    "GPS disagrees with the model beyond 3 σ for {}: their positions come from the images",
-                    names.join(", ")
-                ));
-            }
+            notes.extend(gps_note(&fig.gps_disagrees));
             if fig.world == "colmap" {
                 notes.push("no GPS positions and no --metres-per-unit: the world is COLMAP's, of arbitrary scale (the lever arm to the RGB partners, if any, left out)".to_owned());
             }
@@ -338,17 +328,7 @@ pub fn folder_to_dataset(
                 reason: why.clone(),
             })?;
             let (posing, fig) = plane::pose(&folder, &camera, p, &opts.plane, progress)?;
-            if !fig.gps_disagrees.is_empty() {
-                let names: Vec<String> = fig
-                    .gps_disagrees
-                    .iter()
-                    .map(|(n, d)| format!("{n} ({d:.1} m)"))
-                    .collect();
-                notes.push(format!(
-                    "GPS disagrees with the images beyond 3 σ for {}: their positions come from the images",
-                    names.join(", ")
-                ));
-            }
+            notes.extend(gps_note(&fig.gps_disagrees));
             plane_figures = Some(fig);
             posing
         }
@@ -405,6 +385,21 @@ pub fn folder_to_dataset(
     std::fs::write(&p, text).map_err(|e| write_err(&p, e))?;
     finish_output(&partial, out)?;
     Ok(report)
+}
+
+/// The report's note on shots whose GPS fix disagrees with the images beyond 3 σ (file,
+/// metres), if any.
+fn gps_note(disagrees: &[(String, f64)]) -> Option<String> {
+    let names: Vec<String> = disagrees
+        .iter()
+        .map(|(n, d)| format!("{n} ({d:.1} m)"))
+        .collect();
+    (!names.is_empty()).then(|| {
+        format!(
+            "GPS disagrees with the images beyond 3 σ for {}: their positions come from the images",
+            names.join(", ")
+        )
+    })
 }
 
 /// Whether the shots are a survey of one plane (module docs).
