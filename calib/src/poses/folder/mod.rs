@@ -336,9 +336,24 @@ pub fn folder_to_dataset(
     let rgb = match &rgb_rig {
         Some(r) => {
             let board = opts.board.as_ref().filter(|_| method == Method::Board);
+            // In COLMAP's unscaled world the lever arm has no length: the extrinsic's
+            // rotation only (as the thermal poses were composed, [`sfm`]).
+            let unscaled = sfm_figures.as_ref().is_some_and(|f| f.world == "colmap");
+            let composed = rgb::RgbRig {
+                rgb_from_thermal: r.rgb_from_thermal.map(|e| {
+                    if unscaled {
+                        Rigid3::new(e.rotation, DVec3::ZERO)
+                    } else {
+                        e
+                    }
+                }),
+                ..*r
+            };
+            let mut posed = rgb::pose_rgb(&folder, &posing, &composed, board, progress)?;
+            posed.figures.lever_arm_m = r.rgb_from_thermal.map(|e| e.translation_m.length());
             Some(RgbOut {
                 rig: *r,
-                posing: rgb::pose_rgb(&folder, &posing, r, board, progress)?,
+                posing: posed,
             })
         }
         None => None,
