@@ -1,7 +1,7 @@
 //! RGB partners in a folder's dataset (`--with-rgb`), for joint RGB + thermal training: the
 //! same layout the session stage writes ([`crate::poses::dataset`]) — the calibrated RGB
-//! camera as camera 2 ([`crate::poses::dataset::RGB_CAMERA_ID`]), each partner as `images/rgb_STEM.png` (8-bit RGB,
-//! lossless, **not undistorted**: the trainer undistorts at load), its pose in the thermal
+//! camera as camera 2 ([`crate::poses::dataset::RGB_CAMERA_ID`]), each partner as
+//! `images/rgb_STEM.png` (8-bit RGB, lossless, **not undistorted**: the trainer undistorts at load), its pose in the thermal
 //! views' world, the partner of a held-out thermal view held out too.
 //!
 //! **Where an RGB pose comes from**, per partner:
@@ -12,7 +12,8 @@
 //! 2. structure from motion on the partners ([`super::sfm`]): COLMAP's pose of the partner;
 //! 3. otherwise (another method, or the board not found in the partner): the thermal pose
 //!    composed with the calibrated extrinsic, `world_from_rgb = world_from_thermal ∘
-//!    rgb_from_thermal⁻¹` (both worlds metric: the board's, or east-north-up);
+//!    rgb_from_thermal⁻¹` (the lever arm in metres: the board's world, east-north-up, or
+//!    scaled; in COLMAP's unscaled world the extrinsic's rotation only, as the stage passes it);
 //! 4. none: the RGB view is left out, with that reason (its thermal view stays).
 //!
 //! The check: the distance between each PnP-posed pair's two camera centres, reported (median
