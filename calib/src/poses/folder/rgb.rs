@@ -1,8 +1,9 @@
 //! RGB partners in a folder's dataset (`--with-rgb`), for joint RGB + thermal training: the
 //! same layout the session stage writes ([`crate::poses::dataset`]) — the calibrated RGB
 //! camera as camera 2 ([`crate::poses::dataset::RGB_CAMERA_ID`]), each partner as
-//! `images/rgb_STEM.png` (8-bit RGB, lossless, **not undistorted**: the trainer undistorts at load), its pose in the thermal
-//! views' world, the partner of a held-out thermal view held out too.
+//! `images/rgb_STEM.png` (8-bit RGB, lossless, **not undistorted**: the trainer undistorts at
+//! load), its pose in the thermal views' world, the partner of a held-out thermal view held
+//! out too.
 //!
 //! **Where an RGB pose comes from**, per partner:
 //! 1. the board method: PnP on the board in the RGB image itself, with the calibrated RGB
