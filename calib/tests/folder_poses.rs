@@ -27,11 +27,13 @@ fn calib() -> Command {
     Command::new(env!("CARGO_BIN_EXE_s3tir-calib"))
 }
 
-/// Runs `poses DIR --out OUT` expecting failure; returns stderr.
-fn refused(dir: &Path, out: &Path) -> String {
+/// Runs `poses DIR FLAGS… --out OUT` expecting failure and nothing left at OUT; returns
+/// stderr.
+fn refused(dir: &Path, flags: &[&std::ffi::OsStr], out: &Path) -> String {
     let o = calib()
         .arg("poses")
         .arg(dir)
+        .args(flags)
         .arg("--out")
         .arg(out)
         .output()
@@ -151,24 +153,10 @@ fn board_and_rgb_partners_need_what_they_need() {
     )
     .unwrap();
     let out = tmp.path().join("ds");
-    let o = calib()
-        .arg("poses")
-        .arg(&dir)
-        .arg("--board")
-        .arg(&board)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
+    let e = refused(&dir, &["--board".as_ref(), board.as_os_str()], &out);
     assert!(
-        !o.status.success() && e.contains("--calibration"),
+        e.contains("--calibration"),
         "board without calibration: {e}"
-    );
-    assert!(
-        !out.exists(),
-        "a refused folder left {} behind",
-        out.display()
     );
 
     // --with-rgb on a folder without partners.
@@ -181,23 +169,10 @@ fn board_and_rgb_partners_need_what_they_need() {
         )
         .unwrap();
     }
-    let o = calib()
-        .arg("poses")
-        .arg(&facade)
-        .arg("--with-rgb")
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
+    let e = refused(&facade, &["--with-rgb".as_ref()], &out);
     assert!(
-        !o.status.success() && e.contains("no thermal image has an RGB partner"),
+        e.contains("no thermal image has an RGB partner"),
         "--with-rgb without partners: {e}"
-    );
-    assert!(
-        !out.exists(),
-        "a refused folder left {} behind",
-        out.display()
     );
 }
 
@@ -415,7 +390,7 @@ fn bad_folders_are_refused_with_what_is_wrong() {
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     std::fs::write(empty.join("notes.txt"), "no images here").unwrap();
-    let e = refused(&empty, &out);
+    let e = refused(&empty, &[], &out);
     assert!(
         e.contains("no images") && e.contains("empty"),
         "no images: {e}"
@@ -432,7 +407,7 @@ fn bad_folders_are_refused_with_what_is_wrong() {
     image::GrayImage::new(100, 80)
         .save(mixed.join("tiny.png"))
         .unwrap();
-    let e = refused(&mixed, &out);
+    let e = refused(&mixed, &[], &out);
     assert!(
         e.contains("3 different sizes") && e.contains("640×480") && e.contains("tiny.png"),
         "mixed sizes named: {e}"
@@ -450,36 +425,17 @@ fn bad_folders_are_refused_with_what_is_wrong() {
         )
         .unwrap();
     }
-    let o = calib()
-        .args(["poses", "--hfov-deg", "57"])
-        .arg(&bare)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
+    let e = refused(&bare, &["--hfov-deg".as_ref(), "57".as_ref()], &out);
     assert!(
-        !o.status.success()
-            && e.contains("structure from motion (COLMAP, on the thermal images) registered")
+        e.contains("structure from motion (COLMAP, on the thermal images) registered")
             && e.contains("colmap"),
         "no metadata: structure from motion attempted and its failure said: {e}"
     );
-    assert!(
-        !out.exists(),
-        "a failed posing left {} behind",
-        out.display()
+    let e = refused(
+        &bare,
+        &["--method", "plane", "--hfov-deg", "57"].map(std::ffi::OsStr::new),
+        &out,
     );
-    let e = {
-        let o = calib()
-            .args(["poses", "--method", "plane", "--hfov-deg", "57"])
-            .arg(&bare)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(!o.status.success());
-        String::from_utf8_lossy(&o.stderr).into_owned()
-    };
     assert!(
         e.contains("needs GPS positions and gimbal angles"),
         "--method plane without metadata: {e}"
@@ -493,6 +449,6 @@ fn bad_folders_are_refused_with_what_is_wrong() {
     let bytes = std::fs::read(&fff).unwrap();
     std::fs::write(trunc.join("a.fff"), &bytes).unwrap();
     std::fs::write(trunc.join("b.fff"), &bytes[..bytes.len() / 3]).unwrap();
-    let e = refused(&trunc, &out);
+    let e = refused(&trunc, &[], &out);
     assert!(e.contains("b.fff"), "the truncated file is named: {e}");
 }

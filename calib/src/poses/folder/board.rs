@@ -184,13 +184,5 @@ pub fn pose(
         heights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
     ];
     let points = super::plane_seeds(folder, cam, &posed, DVec3::Z, 0.0);
-    Ok((
-        Posing {
-            posed,
-            left_out,
-            points,
-            rgb_poses: Vec::new(),
-        },
-        figures,
-    ))
+    Ok((Posing::thermal(posed, left_out, points), figures))
 }

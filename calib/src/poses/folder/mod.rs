@@ -151,6 +151,22 @@ pub struct Posing {
     pub rgb_poses: Vec<(usize, Rigid3)>,
 }
 
+impl Posing {
+    /// A posing of the thermal shots only (the RGB partners, if any, posed afterwards).
+    pub fn thermal(
+        posed: Vec<(usize, Rigid3)>,
+        left_out: Vec<(usize, String)>,
+        points: Vec<ColmapPoint>,
+    ) -> Self {
+        Self {
+            posed,
+            left_out,
+            points,
+            rgb_poses: Vec::new(),
+        }
+    }
+}
+
 /// One shot's line in the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct ShotDecision {

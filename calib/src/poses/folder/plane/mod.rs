@@ -600,15 +600,7 @@ pub fn pose(
     }
     let normal = DVec3::new(sol.normal.x, sol.normal.y, sol.normal.z);
     let points = super::plane_seeds(folder, cam, &posed, normal, sol.distance);
-    Ok((
-        Posing {
-            posed,
-            left_out,
-            points,
-            rgb_poses: Vec::new(),
-        },
-        figures,
-    ))
+    Ok((Posing::thermal(posed, left_out, points), figures))
 }
 
 /// A camera seeing fewer bundle points than this is left out: its pose would be its priors'.
