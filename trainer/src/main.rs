@@ -86,6 +86,10 @@ enum Command {
     /// scored against DATA/truth (thermal at the input resolution and super-resolved at K×
     /// against bicubic upsampling and fused with the recorded image, RGB, depth) and, when the
     /// scene has a truth surface, meshed and the mesh scored (Chamfer, F-score, vertex kelvin).
+    /// Two tables: every variant at --iters, then every variant at the joint run's training
+    /// time (a joint step also trains the RGB partner, so equal iterations give the joint
+    /// variants more work; runs more than 10 % off that time are trained again with it as their
+    /// budget, into <variant>-equal-time/); with --time-budget, one table at that time.
     /// `--study spectral`: the S³-TIR paper's Table 2 on any thermal dataset — the full
     /// method, β fixed at 2, no spectral modulation (f = 0), no consistency term, no sparsity
     /// term, and 3DGS — scored on the held-out views (PSNR, SSIM, LPIPS, kelvin error); give

@@ -37,4 +37,4 @@ pub(crate) fn train_variant<B: Backend>(
 }
 
 pub use spectral::SpectralVariant;
-pub use tga::{AblationRow, Variant, markdown, run_ablation};
+pub use tga::{AblationRow, Equal, RunLabel, Variant, markdown, run_ablation};

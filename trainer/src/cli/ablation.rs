@@ -1,5 +1,5 @@
-//! `s3tir-train ablation`: the TGA-GS ablation's four runs (`--study tga`) or the S³-TIR
-//! ablation's six (`--study spectral`), and their table.
+//! `s3tir-train ablation`: the TGA-GS ablation's four runs at equal iterations and at equal
+//! time (`--study tga`) or the S³-TIR ablation's six (`--study spectral`), and their tables.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -71,7 +71,8 @@ pub fn run(a: AblationArgs) -> Result<()> {
         match (base.time_budget_s, study) {
             (Some(s), _) => format!("{s:.0} s of training per run"),
             (None, Study::Tga) => format!(
-                "{} iterations per run, RGB pre-training {}",
+                "{} iterations per run (RGB pre-training {}), then every variant at the joint \
+                 run's training time",
                 base.iters, base.joint.rgb_pretrain
             ),
             (None, Study::Spectral) => format!("{} iterations per run", base.iters),
@@ -105,48 +106,42 @@ fn ablation_on<B: Backend>(
     out: &Path,
     backend: &mut dyn FnMut() -> std::result::Result<B, train::TrainError>,
 ) -> Result<()> {
-    use s3tir_trainer::ablation::{self, SpectralVariant, Variant, spectral};
+    use s3tir_trainer::ablation::{self, Equal, SpectralVariant, spectral};
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the Ctrl-C handler")?;
     }
-    let runs = match study {
-        Study::Tga => Variant::ALL.len(),
-        Study::Spectral => SpectralVariant::ALL.len(),
-    } as u64;
-    // Progress in iterations, or with a time budget in training seconds (×10 for resolution).
-    let per_run = match base.time_budget_s {
-        Some(s) => (s * 10.0).ceil() as u64,
-        None => base.iters,
-    };
-    let bar = indicatif::ProgressBar::new(per_run * runs);
+    // Progress per run, in thousandths: iterations of `iters` or seconds of the run's budget.
+    let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {percent:>3}% {msg} [{elapsed_precise}]")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let timed = base.time_budget_s.is_some();
-    let show = |k: usize, slug: &str, e: &Event| {
+    let show = |index: usize, planned: usize, budget_s: Option<f64>, slug: &str, e: &Event| {
         if let Event::Step {
             iteration, seconds, ..
         } = e
         {
-            let done = if timed {
-                (seconds * 10.0) as u64
-            } else {
-                *iteration
+            let done = match budget_s {
+                Some(b) => seconds / b.max(1e-9),
+                None => *iteration as f64 / base.iters.max(1) as f64,
             };
-            bar.set_position((k as u64 * per_run + done.min(per_run)).min(runs * per_run));
-            bar.set_message(slug.to_owned());
+            bar.set_length(planned as u64 * 1000);
+            bar.set_position(index as u64 * 1000 + (done.clamp(0.0, 1.0) * 1000.0) as u64);
+            bar.set_message(format!("{slug} ({} of {planned})", index + 1));
         }
     };
     let context = || format!("the ablation in {}", out.display());
     let (table, json) = match study {
         Study::Tga => {
-            let rows = ablation::run_ablation(base, out, backend, &stop, &mut |v, e| {
-                let k = Variant::ALL.iter().position(|x| *x == v).unwrap_or(0);
-                show(k, v.slug(), e);
+            let rows = ablation::run_ablation(base, out, backend, &stop, &mut |l, e| {
+                let slug = match l.equal {
+                    Equal::Iterations => l.variant.slug().to_owned(),
+                    Equal::Time => format!("{} at equal time", l.variant.slug()),
+                };
+                show(l.index, l.planned, l.budget_s, &slug, e);
             })
             .with_context(context)?;
             (
@@ -160,7 +155,13 @@ fn ablation_on<B: Backend>(
                     .iter()
                     .position(|x| *x == v)
                     .unwrap_or(0);
-                show(k, v.slug(), e);
+                show(
+                    k,
+                    SpectralVariant::ALL.len(),
+                    base.time_budget_s,
+                    v.slug(),
+                    e,
+                );
             })
             .with_context(context)?;
             (

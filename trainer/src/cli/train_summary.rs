@@ -135,7 +135,20 @@ fn say_left_out<B: Backend>(trainer: &Trainer<B>, cap: &CapacityReport, json: bo
             json,
             "joint RGB + thermal: RGB loss {why}; thermal gradient alignment {}; {}",
             if cap.thermal_align > 0.0 {
-                format!("weight {}", cap.thermal_align)
+                match cap
+                    .align_gradient
+                    .as_ref()
+                    .and_then(|a| a.median.map(|m| (a, m)))
+                {
+                    Some((a, m)) => format!(
+                        "weight {} (its pull on the positions: {m:.3}× the other terms', \
+                         median of {} samples, 90th percentile {:.3}×)",
+                        cap.thermal_align,
+                        a.samples,
+                        a.p90.unwrap_or(m)
+                    ),
+                    None => format!("weight {}", cap.thermal_align),
+                }
             } else {
                 "off".into()
             },

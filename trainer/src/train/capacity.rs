@@ -129,6 +129,9 @@ impl<B: Backend> Trainer<B> {
             .map(|i| m - self.prims.live_bands(i))
             .sum();
         cap.response = Some(self.response_summary());
+        if let Some(a) = cap.align_gradient.as_mut() {
+            a.summarise();
+        }
         if cap.step_ms_before_compaction.is_some() && self.state.step_count > 0 {
             cap.step_ms_after_compaction =
                 Some(self.state.step_ms_sum / self.state.step_count as f64);
@@ -228,6 +231,10 @@ pub struct CapacityReport {
     /// The thermal gradient alignment loss's weight after the RGB pre-training (0: off).
     #[serde(default)]
     pub thermal_align: f64,
+    /// How hard the alignment loss pulls on the geometry beside the thermal views' other terms,
+    /// sampled during the run (`None`: the loss was never on).
+    #[serde(default)]
+    pub align_gradient: Option<AlignGradient>,
     /// Primitives holding at least one live band (filled by [`Trainer::capacity_report`]).
     #[serde(default)]
     pub band_holders: usize,
@@ -239,4 +246,33 @@ pub struct CapacityReport {
     #[serde(default)]
     pub gaussian_from: Option<GaussianFrom>,
     pub notes: Vec<String>,
+}
+
+/// The alignment loss's share of the gradient, sampled every
+/// [`super::joint::ALIGN_SHARE_EVERY`]-th iteration on thermal views
+/// ([`Trainer::measure_align_share`]): `‖∂L_align/∂μ‖ / ‖∂L_rest/∂μ‖` over the primitives'
+/// positions, `L_rest` being the view's other terms. Around 0.01 the loss barely moves the
+/// geometry; around 1 it pulls as hard as the images do.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct AlignGradient {
+    /// Every sample, in order.
+    pub ratios: Vec<f64>,
+    /// Filled by [`Trainer::capacity_report`].
+    pub samples: usize,
+    pub median: Option<f64>,
+    pub p90: Option<f64>,
+}
+
+impl AlignGradient {
+    fn summarise(&mut self) {
+        let mut v = self.ratios.clone();
+        v.sort_by(f64::total_cmp);
+        self.samples = v.len();
+        let at = |q: f64| {
+            v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+        };
+        self.median = at(0.5);
+        self.p90 = at(0.9);
+    }
 }

@@ -22,10 +22,16 @@ use super::config::{DEFAULT_THERMAL_ALIGN, LOW_LIGHT_MEAN, RgbLoss};
 use super::{Backend, TrainError, Trainer};
 use crate::dataset::Dataset;
 use crate::loss::LossWeights;
+use crate::loss::align::{AlignSettings, thermal_align};
 use crate::loss::photometric::{l1_dssim, l1_low_dssim};
 use crate::primitive::Primitives;
 use crate::real::Real;
 use crate::render::GBuffers;
+
+/// Every this-many iterations a thermal host step with the alignment loss on measures the
+/// loss's share of the position gradient ([`Trainer::measure_align_share`]: one more backward
+/// pass, ~1 % of a joint run's steps).
+pub const ALIGN_SHARE_EVERY: u64 = 25;
 
 /// Each training view's partner of the other modality: the nearest camera of the other
 /// modality among the training views whose images overlap it (≥ half of a 6×6 ray grid cut at
@@ -143,6 +149,57 @@ impl<B: Backend> Trainer<B> {
             None if self.data.has_rgb() && self.data.has_thermal() => DEFAULT_THERMAL_ALIGN,
             None => 0.0,
         }
+    }
+
+    /// This host step on view `vi` samples the alignment loss's share of the gradient: a
+    /// thermal view while the loss is on, every [`ALIGN_SHARE_EVERY`]-th iteration.
+    pub(super) fn align_share_due(&self, vi: usize) -> bool {
+        self.data.views[vi].thermal.is_some()
+            && self.thermal_align_weight() > 0.0
+            && self.iteration.is_multiple_of(ALIGN_SHARE_EVERY)
+    }
+
+    /// Measures how hard the alignment loss pulls on the geometry beside the thermal view's
+    /// other terms: its own upstream (`gb_i`'s depth and alpha, as the step's loss has it,
+    /// modality weight included) through one more backward pass, and the ratio of the position
+    /// gradients' norms `‖∂L_align/∂μ‖ / ‖∂L_rest/∂μ‖`, where `L_rest` is every other term of
+    /// the view's loss in `g_i` (the step's whole gradient of view `vi`: photometric, SSIM,
+    /// regularisers, consistency). Kept in [`super::CapacityReport::align_gradient`].
+    pub(super) fn measure_align_share(
+        &mut self,
+        vi: usize,
+        gb_i: &GBuffers<f32>,
+        g_i: &Primitives<f32>,
+    ) -> Result<(), TrainError> {
+        let view = &self.data.views[vi];
+        let Some(target) = &view.thermal else {
+            return Ok(());
+        };
+        let w = self.thermal_align_weight() * self.cfg.joint.thermal_weight;
+        let mut up = GBuffers::zeros(gb_i.width, gb_i.height, !gb_i.rgb.is_empty());
+        thermal_align(
+            gb_i,
+            target,
+            &view.camera,
+            &AlignSettings::default(),
+            w,
+            &mut up,
+        )?;
+        let g_a = self.backend.backward(&self.prims, &view.camera, &up)?;
+        let (mut align, mut rest) = (0.0f64, 0.0f64);
+        for (a, all) in g_a.means.iter().zip(&g_i.means) {
+            align += f64::from(*a).powi(2);
+            rest += f64::from(all - a).powi(2);
+        }
+        if rest > 0.0 {
+            self.state
+                .capacity
+                .align_gradient
+                .get_or_insert_with(Default::default)
+                .ratios
+                .push((align / rest).sqrt());
+        }
+        Ok(())
     }
 
     /// The thermal views' loss has a term only the host computes (the alignment loss): thermal

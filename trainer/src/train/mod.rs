@@ -91,7 +91,7 @@ pub use backend::{
     ResidentStepResult, RunShape,
 };
 pub use bands::{BandRound, BandRoundKind, band_grant};
-pub use capacity::{CapacityReport, GaussianFrom};
+pub use capacity::{AlignGradient, CapacityReport, GaussianFrom};
 pub use config::{
     BackendKind, Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN,
     Mode, RgbLoss, TrainConfig, Weights,
@@ -614,6 +614,32 @@ mod tests {
         g.cfg.mode = Mode::Gaussian;
         g.note_gaussian_run();
         assert!(g.state.capacity.gaussian_from.is_none());
+    }
+
+    /// The alignment loss's share of the position gradient is sampled on thermal host steps
+    /// while the loss is on, and is its own: at the same state, ten times the weight gives
+    /// exactly ten times the ratio (the other terms' gradient does not contain it); off, no
+    /// sample.
+    #[test]
+    fn the_alignment_losss_share_of_the_gradient_is_measured() {
+        let tmp = tempfile::tempdir().unwrap();
+        let first_ratio = |weight: f64| {
+            let mut t = trainer(tmp.path(), ConsistPartner::Render, 0.01);
+            t.cfg.joint.thermal_align = Some(weight);
+            assert!(t.align_share_due(t.data.train[0]) == (weight > 0.0));
+            t.step().unwrap();
+            t.capacity_report()
+                .align_gradient
+                .map(|a| (a.ratios[0], a.samples, a.median))
+        };
+        let (weak, n, median) = first_ratio(5.0).expect("a sample at iteration 0");
+        assert_eq!((n, median), (1, Some(weak)), "summarised in the report");
+        let (strong, _, _) = first_ratio(50.0).expect("a sample at iteration 0");
+        assert!(
+            weak > 0.05 && (strong / weak - 10.0).abs() < 0.01,
+            "ratios {weak} at weight 5 and {strong} at weight 50: expected a real pull, ×10"
+        );
+        assert_eq!(first_ratio(0.0), None, "the loss off: nothing sampled");
     }
 
     /// With `previous`, a step on a random view is followed by a step on its overlap partner

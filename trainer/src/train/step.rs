@@ -305,6 +305,9 @@ impl<B: Backend> Trainer<B> {
                     grads = Some(self.backend.backward(&self.prims, &cam_j, &up_j)?);
                 }
                 let g_i = self.backend.backward(&self.prims, &cam_i, &up_i)?;
+                if self.align_share_due(vi) {
+                    self.measure_align_share(vi, &gb_i, &g_i)?;
+                }
                 self.keep(vi, pair.is_some(), Some(gb_i));
                 let mut grads = match grads {
                     None => g_i,
