@@ -59,7 +59,7 @@ demo: build
 	$(BIN)/s3tir-firmware-sim scene --out $(DEMO_DIR)/joint-scene --rgb-scale 4 --width 32 --height 24 \
 	  --views 16 --low-light
 	$(BIN)/s3tir-train $(DEMO_DIR)/joint-scene --out $(DEMO_DIR)/joint-run --iters 600 --warmup 150 \
-	  --rgb-pretrain 60 --budget 3000 --eval-every-s 1e9
+	  --budget 3000 --eval-every-s 1e9
 	$(BIN)/s3tir-train eval $(DEMO_DIR)/joint-run --truth
 	@echo "== 8/9 Thermal meshes: the walk's model and the joint model fused into surfaces with a temperature"
 	@echo "        per vertex (PLY for MeshLab / Blender / CloudCompare); the joint one scored against the truth"

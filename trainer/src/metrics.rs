@@ -143,6 +143,20 @@ pub struct EvalSummary {
     pub rgb_psnr: Option<f64>,
     #[serde(default)]
     pub rgb_ssim: Option<f64>,
+    /// Joint runs' super-resolved thermal scored against the recorded held-out frames it
+    /// cannot be compared with directly: the K× render averaged over K×K blocks back to the
+    /// recorded resolution (downsampled consistency; `None`: no SR renders). Filled at the
+    /// run's end ([`crate::train::Trainer::write_outputs`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sr_consistency: Option<SrConsistency>,
+}
+
+/// [`EvalSummary::sr_consistency`]: means over the held-out thermal views.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SrConsistency {
+    pub scale: usize,
+    pub psnr: f64,
+    pub ssim: f64,
 }
 
 impl EvalSummary {
@@ -167,6 +181,7 @@ impl EvalSummary {
             views,
             rgb_psnr: None,
             rgb_ssim: None,
+            sr_consistency: None,
         }
     }
 }

@@ -35,7 +35,7 @@ pub struct AblationArgs {
 /// `s3tir-train ablation`: the runs and their table.
 pub fn run(a: AblationArgs) -> Result<()> {
     let study = a.study;
-    let mut a = a.train;
+    let a = a.train;
     let (Some(data), Some(out)) = (a.data.clone(), a.out.clone()) else {
         bail!("the ablation needs DATA and --out RUN_DIR");
     };
@@ -50,10 +50,6 @@ pub fn run(a: AblationArgs) -> Result<()> {
     }
     let data = std::fs::canonicalize(&data)
         .with_context(|| format!("dataset folder {}", data.display()))?;
-    let iters = a.iters.unwrap_or(30_000);
-    if study == Study::Tga {
-        a.rgb_pretrain = Some(a.rgb_pretrain.unwrap_or(iters / 10));
-    }
     let mut base = new_config(&a, data)?;
     if a.backend.is_none_or(|b| b.kind().is_none()) {
         let (kind, why) = super::auto_backend(a.device_index, a.no_float_atomics);

@@ -8,7 +8,8 @@ use clap::{Args, ValueEnum};
 use s3tir_trainer::dataset::images::ColourMode;
 use s3tir_trainer::dataset::{LoadOptions, Modality, ThermalUnits};
 use s3tir_trainer::train::{
-    BackendKind, ConsistPartner, Joint, Mode, ResponseKind, RgbLoss, TrainConfig,
+    BackendKind, ConsistPartner, DEFAULT_RGB_PRETRAIN_FRACTION, Joint, Mode, ResponseKind, RgbLoss,
+    TrainConfig,
 };
 
 /// Training options. Defaults are the paper's (§4.1); see the trainer's `train` module docs.
@@ -205,7 +206,10 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = LoadOptions::default().modality)]
     pub views: Modality,
     /// Joint: RGB pre-training, the first N iterations on RGB views only, then every view
-    /// (paper §3.3; counted inside --iters) [default: 0; `ablation`: a tenth of --iters].
+    /// (paper §3.3; counted inside --iters; under --time-budget the same fraction of the
+    /// time) [default: a quarter of --iters — measured on the simulated low-light scene, thermal
+    /// at 4×: none 25.6 dB, a tenth 25.8 dB, a quarter 25.9–26.0 dB, half level with a quarter
+    /// and a larger depth error].
     #[arg(long)]
     pub rgb_pretrain: Option<u64>,
     /// Joint: each step trains one drawn view only, instead of the view together with the
@@ -225,7 +229,11 @@ pub struct TrainArgs {
     pub rgb_weight: f64,
     /// Weight of the thermal gradient alignment loss (TGA-GS §3.4: rendered normals from the
     /// depth G-buffer against the thermal image's gradients) on thermal views; 0 turns it off
-    /// [default: 0.05 in a joint run, 0 in a thermal-only run].
+    /// [default: 0.05 in a joint run, 0 in a thermal-only run]. Measured on the simulated
+    /// low-light scene (800 iterations): it does nothing measurable at 0.05 (its pull on the
+    /// positions 0.03× the other terms'; thermal at 4× 25.78 dB vs 25.77 dB off) and costs
+    /// above it (0.5: 25.49 dB, depth error +12 mm; 5: 23.20 dB). The run's summary says how
+    /// hard it pulled.
     #[arg(long)]
     pub thermal_align: Option<f64>,
     /// Joint: also render the held-out thermal views at K× their resolution into
@@ -236,7 +244,10 @@ pub struct TrainArgs {
     /// 1: none].
     #[arg(long)]
     pub sr_scale: Option<usize>,
-    /// Degree of the SH colour of runs with RGB views (0–3).
+    /// Degree of the SH colour of runs with RGB views (0–3). 0 by measurement: on the
+    /// simulated low-light scene (800 iterations, two seeds) degree 3 ends 2.1–2.4 dB lower on
+    /// held-out RGB and 0.2 dB lower on thermal at 4×: its 15 more coefficients per primitive
+    /// cost more than view-dependent colour gives there.
     #[arg(long, default_value_t = TrainConfig::defaults().sh_degree)]
     pub sh_degree: usize,
 }
@@ -342,9 +353,10 @@ pub fn new_config(a: &TrainArgs, data: PathBuf) -> Result<TrainConfig> {
     }
     cfg.sh_degree = a.sh_degree;
     cfg.joint = Joint {
-        rgb_pretrain: a
-            .rgb_pretrain
-            .unwrap_or(TrainConfig::defaults().joint.rgb_pretrain),
+        rgb_pretrain: a.rgb_pretrain.unwrap_or_else(|| {
+            let iters = a.iters.unwrap_or(TrainConfig::defaults().iters);
+            (iters as f64 * DEFAULT_RGB_PRETRAIN_FRACTION).round() as u64
+        }),
         thermal_weight: a.thermal_weight,
         rgb_weight: a.rgb_weight,
         rgb_loss: a.rgb_loss,

@@ -93,8 +93,8 @@ pub use backend::{
 pub use bands::{BandRound, BandRoundKind, band_grant};
 pub use capacity::{AlignGradient, CapacityReport, GaussianFrom};
 pub use config::{
-    BackendKind, Capacity, ConsistPartner, DEFAULT_THERMAL_ALIGN, Densify, Joint, LOW_LIGHT_MEAN,
-    Mode, RgbLoss, TrainConfig, Weights,
+    BackendKind, Capacity, ConsistPartner, DEFAULT_RGB_PRETRAIN_FRACTION, DEFAULT_THERMAL_ALIGN,
+    Densify, Joint, LOW_LIGHT_MEAN, Mode, RgbLoss, TrainConfig, Weights,
 };
 pub use density::{DensifyRound, view_space_gradient};
 pub use error::TrainError;

@@ -123,6 +123,7 @@ impl<B: Backend> Trainer<B> {
             std::fs::create_dir_all(&renders_sr).map_err(io_err(&renders_sr))?;
             std::fs::create_dir_all(&renders_fused).map_err(io_err(&renders_fused))?;
         }
+        let mut sr_scores = Vec::new();
         for &i in &self.data.test {
             let v = &self.data.views[i];
             let gb = self.backend.render(&self.prims, &v.camera)?;
@@ -156,6 +157,18 @@ impl<B: Backend> Trainer<B> {
                         .map_err(look_err)?;
                     if let Some(k) = sr {
                         let gk = self.backend.render(&self.prims, &v.camera.scaled(k))?;
+                        if let Some(recorded) = &v.thermal {
+                            let down = crate::superres::box_downsample(
+                                &gk.thermal,
+                                gb.width,
+                                gb.height,
+                                k,
+                            );
+                            sr_scores.push((
+                                crate::metrics::psnr(&down, recorded),
+                                crate::metrics::ssim(&down, recorded, gb.width, gb.height),
+                            ));
+                        }
                         report::write_thermal_png16(
                             &renders_sr.join(format!("{stem}.png")),
                             &gk.thermal,
@@ -215,7 +228,15 @@ impl<B: Backend> Trainer<B> {
             &dir.join(files::METRICS_PNG),
             &[(self.cfg.mode.to_string(), rows)],
         )?;
-        let eval = self.evaluate()?;
+        let mut eval = self.evaluate()?;
+        if let (Some(scale), false) = (sr, sr_scores.is_empty()) {
+            let n = sr_scores.len() as f64;
+            eval.sr_consistency = Some(crate::metrics::SrConsistency {
+                scale,
+                psnr: sr_scores.iter().map(|s| s.0).sum::<f64>() / n,
+                ssim: sr_scores.iter().map(|s| s.1).sum::<f64>() / n,
+            });
+        }
         write_json(&dir.join(files::EVAL), &eval)?;
         if let Some(bg) = &self.state.background {
             write_json(
