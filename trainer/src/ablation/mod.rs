@@ -1,8 +1,9 @@
 //! Ablations run by one command (`s3tir-train ablation`): several runs of one base
-//! configuration, each with one part of the method taken away, scored alike and written as one
-//! table.
+//! configuration, each with one part of the method taken away, scored alike and written as
+//! tables.
 //! - [`tga`]: the TGA-GS ablation (paper Tables 3/4) on a joint RGB + thermal dataset with
-//!   truth: thermal-only, joint, joint without alignment, joint without RGB pre-training.
+//!   truth: thermal-only, joint, joint without alignment, joint without RGB pre-training, at
+//!   equal iterations and at the joint run's training time.
 //! - [`spectral`]: the S³-TIR ablation (paper Table 2) on any thermal dataset: the full method,
 //!   β fixed, no spectral modulation, no consistency term, no sparsity term, and plain
 //!   Gaussians, scored on the held-out views (PSNR, SSIM, LPIPS, kelvin error).

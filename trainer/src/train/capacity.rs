@@ -264,6 +264,8 @@ pub struct AlignGradient {
 }
 
 impl AlignGradient {
+    /// Fills the summary from the samples: nearest ranks, the upper median as the trainer's
+    /// `median` has it.
     fn summarise(&mut self) {
         let mut v = self.ratios.clone();
         v.sort_by(f64::total_cmp);
